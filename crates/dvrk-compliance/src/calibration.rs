@@ -1,0 +1,1 @@
+//! Calibration procedures as pure state machines (paper section 3).

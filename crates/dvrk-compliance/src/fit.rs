@@ -1,0 +1,1 @@
+//! Parameter fitting from calibration data (paper section 4).

@@ -1,0 +1,1 @@
+//! End-to-end tests, benchmarks and examples of dvrk-sidecar live in tests/, benches/, examples/.
