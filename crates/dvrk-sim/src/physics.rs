@@ -1,0 +1,1085 @@
+//! The simulated Classic PSM: pure, deterministic physics with ground truth.
+//!
+//! Joints 1-3 (index 0..3: yaw, pitch, insertion) are dynamic: inertia, viscous friction, the
+//! internal counterbalance/gravity torque `tau_0(q)`, hard stops at the joint limits, and a position
+//! PID (integral clamp, effort saturation) standing in for the dVRK console's PID. The PID output
+//! is the joint effort that the motor currents measure. Joints 4-7 follow their setpoints
+//! kinematically (rate limited).
+//!
+//! The instrument shaft is the ground truth of the paper's model: for joints 1 and 2 a backlash
+//! play of half-width `delta` in series with a spring of compliance `K(L)` (paper Eq. 3/4) joins
+//! the motor-side angle `q` (what the encoder measures) to the true shaft angle `q_true`. The
+//! shaft is massless (quasi-static): every step the true angle is the one that balances the
+//! shaft spring against the environment. Inside the play no torque is transmitted (a dead zone),
+//! so in contact with the play taken up, `q - q_true = delta*sgn(tau_ext) + K(L)*tau_ext`
+//! (paper Eq. 1), and the hysteresis of the paper's Fig. 5 appears in clamp data.
+//!
+//! Environments act on the tip, never on joints directly: free space, a rigid clamp holding the
+//! shaft (paper Fig. 3), a divot in a rigid plate holding the tip laterally (Figs. 7-8), and a
+//! compliant plane of configurable stiffness.
+//!
+//! Nothing here reads a clock, allocates after construction, or logs: `step(dt_s)` is a plain
+//! function of the state. The only randomness is measurement noise (see `crate::measure`).
+
+use crate::kinematics;
+
+/// Joints of the simulated arm (dVRK order: yaw, pitch, insertion, roll, wrist_pitch, wrist_yaw, jaw).
+pub const NUM_JOINTS: usize = 7;
+/// Joints with dynamics (yaw, pitch, insertion).
+pub const NUM_DYNAMIC: usize = 3;
+
+/// Tolerance at the edge of the play, rad (far below an encoder count).
+const PLAY_EPS_RAD: f64 = 1e-12;
+
+/// The instrument shaft of the paper: compliance `K(L)` and backlash `delta` of joints 1 and 2.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShaftParams {
+    /// Coefficients `[a, b, c, d]` of `1/K(L) = a L^3 + b L^2 + c L + d` in N·m/rad, L in m,
+    /// for joint 1 and joint 2 (paper Eq. 3 and 4).
+    pub inverse_compliance_cubic: [[f64; 4]; 2],
+    /// Half-width of the play, rad (joint 1, joint 2).
+    pub backlash_rad: [f64; 2],
+    /// L is clamped into this range before the cubic is evaluated (the cubic of joint 2 turns
+    /// negative below about 14 mm, where the paper has no data).
+    pub insertion_range_m: [f64; 2],
+}
+
+impl ShaftParams {
+    /// The paper's values: Eq. 3/4, delta1 = 0.003 rad, delta2 = 0.0017 rad, L in [0.05, 0.24] m.
+    pub const PAPER: ShaftParams = ShaftParams {
+        inverse_compliance_cubic: [
+            [639.16, -432.35, 136.32, 3.12],
+            [3163.17, -1969.15, 448.92, -6.00],
+        ],
+        backlash_rad: [0.003, 0.0017],
+        insertion_range_m: [0.05, 0.24],
+    };
+
+    /// Stiffness `1/K(L)` of joint `j` (0 or 1), N·m/rad.
+    pub fn stiffness_nm_per_rad(&self, j: usize, insertion_m: f64) -> f64 {
+        let [lo, hi] = self.insertion_range_m;
+        let l = insertion_m.clamp(lo, hi);
+        let [a, b, c, d] = self.inverse_compliance_cubic[j];
+        ((a * l + b) * l + c) * l + d
+    }
+
+    /// Compliance `K(L)` of joint `j` (0 or 1), rad/N·m.
+    pub fn compliance_rad_per_nm(&self, j: usize, insertion_m: f64) -> f64 {
+        1.0 / self.stiffness_nm_per_rad(j, insertion_m)
+    }
+
+    /// Torque transmitted by the play-plus-spring of joint `j` at twist `x = q - q_true`.
+    #[inline]
+    pub fn transmitted_torque_nm(&self, j: usize, twist_rad: f64, stiffness: f64) -> f64 {
+        // Rounding at the edge of the play (q - (q - delta) != delta) must not transmit torque.
+        let d = self.backlash_rad[j];
+        if twist_rad.abs() <= d + PLAY_EPS_RAD {
+            0.0
+        } else if twist_rad > d {
+            stiffness * (twist_rad - d)
+        } else {
+            stiffness * (twist_rad + d)
+        }
+    }
+
+    /// Smallest stiffness over the insertion range, sampled finely (used by validation).
+    pub fn min_stiffness_nm_per_rad(&self) -> [f64; 2] {
+        let [lo, hi] = self.insertion_range_m;
+        let mut out = [f64::INFINITY; 2];
+        for (j, o) in out.iter_mut().enumerate() {
+            for i in 0..=200 {
+                let l = lo + (hi - lo) * f64::from(i) / 200.0;
+                *o = o.min(self.stiffness_nm_per_rad(j, l));
+            }
+        }
+        out
+    }
+}
+
+/// Internal torque `tau_0(q)` of one rotary joint (counterbalance plus gravity residue):
+/// `bias + tanh_amplitude * tanh(tanh_gain * q) + sin_amplitude * sin(q)`, N·m.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RotaryOffset {
+    pub bias_nm: f64,
+    pub tanh_amplitude_nm: f64,
+    pub tanh_gain_per_rad: f64,
+    pub sin_amplitude_nm: f64,
+}
+
+impl RotaryOffset {
+    #[inline]
+    fn eval(&self, q: f64) -> f64 {
+        self.bias_nm
+            + self.tanh_amplitude_nm * (self.tanh_gain_per_rad * q).tanh()
+            + self.sin_amplitude_nm * q.sin()
+    }
+}
+
+/// Internal torques of joints 1-3 under static conditions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TorqueOffsetParams {
+    /// Joint 1 and joint 2.
+    pub rotary: [RotaryOffset; 2],
+    /// Insertion: `bias_n + gravity_n * cos(q1) * cos(q2)`, N.
+    pub insertion_bias_n: f64,
+    pub insertion_gravity_n: f64,
+}
+
+impl TorqueOffsetParams {
+    /// Magnitudes like the 2017 sweep of joint 1 (about 0.06 N·m at -0.1 rad rising to 0.17 N·m
+    /// at 0, ../shared/data/dvrk2017-torque-offset-joint1.csv) and a gentler joint 2.
+    pub const CLASSIC: TorqueOffsetParams = TorqueOffsetParams {
+        rotary: [
+            RotaryOffset {
+                bias_nm: 0.175,
+                tanh_amplitude_nm: 0.125,
+                tanh_gain_per_rad: 10.0,
+                sin_amplitude_nm: 0.0,
+            },
+            RotaryOffset {
+                bias_nm: -0.06,
+                tanh_amplitude_nm: 0.05,
+                tanh_gain_per_rad: 3.0,
+                sin_amplitude_nm: 0.15,
+            },
+        ],
+        insertion_bias_n: 0.3,
+        insertion_gravity_n: -1.0,
+    };
+
+    /// `tau_0` of joints 1-3 at joint position `q` (N·m, N·m, N).
+    #[inline]
+    pub fn eval(&self, q: &[f64; NUM_JOINTS]) -> [f64; NUM_DYNAMIC] {
+        [
+            self.rotary[0].eval(q[0]),
+            self.rotary[1].eval(q[1]),
+            self.insertion_bias_n + self.insertion_gravity_n * q[0].cos() * q[1].cos(),
+        ]
+    }
+}
+
+/// Position PID of one dynamic joint.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PidGains {
+    /// N·m/rad (N/m for insertion).
+    pub kp: f64,
+    /// N·m/(rad·s).
+    pub ki: f64,
+    /// N·m·s/rad.
+    pub kd: f64,
+    /// Largest magnitude of the integral term, N·m (N).
+    pub integral_limit: f64,
+    /// Output saturation, N·m (N): the amplifier's maximum current through gear and Kt.
+    pub effort_limit: f64,
+}
+
+/// Every physical constant of the simulated arm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhysicsParams {
+    /// kg·m² (joints 1, 2) and kg (insertion), motor inertia reflected through the gears included.
+    pub inertia: [f64; NUM_DYNAMIC],
+    /// N·m·s/rad (N·s/m).
+    pub viscous: [f64; NUM_DYNAMIC],
+    pub pid: [PidGains; NUM_DYNAMIC],
+    /// Joint limits (rad, m), all seven joints; setpoints are clamped into them.
+    pub position_min: [f64; NUM_JOINTS],
+    pub position_max: [f64; NUM_JOINTS],
+    /// Stiffness of the hard stops just outside the limits, N·m/rad (N/m).
+    pub hard_stop_stiffness: [f64; NUM_DYNAMIC],
+    /// Largest speed of the kinematic joints 4-7, rad/s.
+    pub wrist_max_speed: f64,
+    pub shaft: ShaftParams,
+    pub torque_offset: TorqueOffsetParams,
+}
+
+impl PhysicsParams {
+    /// A Classic PSM: limits of the IO generator (±91°, ±53°, 0-0.24 m, ±174° wrist actuators,
+    /// jaw -40°..80°), effort limits = Imax·gear·Kt (3.316 N·m, 9.878 N), paper shaft.
+    pub const CLASSIC: PhysicsParams = PhysicsParams {
+        inertia: [0.05, 0.05, 0.5],
+        viscous: [0.2, 0.2, 5.0],
+        pid: [
+            PidGains {
+                kp: 150.0,
+                ki: 3000.0,
+                kd: 6.0,
+                integral_limit: 3.316101,
+                effort_limit: 3.316101,
+            },
+            PidGains {
+                kp: 150.0,
+                ki: 3000.0,
+                kd: 6.0,
+                integral_limit: 3.316101,
+                effort_limit: 3.316101,
+            },
+            PidGains {
+                kp: 3000.0,
+                ki: 30000.0,
+                kd: 60.0,
+                integral_limit: 9.877926,
+                effort_limit: 9.877926,
+            },
+        ],
+        position_min: [
+            -1.588, -0.925025, 0.0, -3.0369, -1.39626, -1.39626, -0.698132,
+        ],
+        position_max: [1.588, 0.925025, 0.24, 3.0369, 1.39626, 1.39626, 1.39626],
+        hard_stop_stiffness: [500.0, 500.0, 50_000.0],
+        wrist_max_speed: 3.0,
+        shaft: ShaftParams::PAPER,
+        torque_offset: TorqueOffsetParams::CLASSIC,
+    };
+}
+
+impl Default for PhysicsParams {
+    fn default() -> Self {
+        Self::CLASSIC
+    }
+}
+
+/// What the tip touches. Clamp, divot and surface are anchored where the shaft is when the
+/// environment is set ([`SimPsm::set_environment`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Environment {
+    /// No external force.
+    Free,
+    /// The shaft clamped to a rigid beam at the current tip (paper Fig. 3): both lateral shaft
+    /// angles are held; insertion stays free.
+    Clamp,
+    /// The tip in a divot of a rigid plate perpendicular to the shaft at the current tip
+    /// (paper Figs. 7-8). The plate pushes back axially when the tip goes deeper; while the tip
+    /// sits in the divot (less than `capture_depth_m` above the plate face) both lateral shaft
+    /// angles are held.
+    Divot {
+        plate_stiffness_n_per_m: f64,
+        plate_damping_n_s_per_m: f64,
+        capture_depth_m: f64,
+    },
+    /// A frictionless compliant plane `gap_m` beyond the current tip along the shaft; its normal is
+    /// the reversed shaft direction tilted by `tilt_rad` toward the joint-1 direction.
+    Surface {
+        stiffness_n_per_m: f64,
+        gap_m: f64,
+        tilt_rad: f64,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum EnvState {
+    Free,
+    Clamp {
+        anchor: [f64; 2],
+    },
+    Divot {
+        anchor: [f64; 2],
+        plate_l_m: f64,
+        stiffness: f64,
+        damping: f64,
+        capture_m: f64,
+    },
+    Surface {
+        point: [f64; 3],
+        normal: [f64; 3],
+        stiffness: f64,
+    },
+}
+
+/// Ground truth, for tests and evaluation.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Truth {
+    /// Simulated time, s.
+    pub t_s: f64,
+    /// True joint positions: index 0, 1 are the shaft angles; the others equal the motor side.
+    pub q_true: [f64; NUM_JOINTS],
+    /// Motor-side joint positions (what the encoders measure, before quantization).
+    pub q_motor: [f64; NUM_JOINTS],
+    /// Tip position from the true joint positions, RCM frame, m.
+    pub tip_position_m: [f64; 3],
+    /// `q_motor - q_true` of joints 1, 2, rad.
+    pub deflection_rad: [f64; 2],
+    /// Torque transmitted by the shaft to the environment (the paper's tau_ext), N·m.
+    pub tau_ext_nm: [f64; 2],
+    /// Force of the environment on the tip, RCM frame, N.
+    pub tip_force_n: [f64; 3],
+    /// Internal torque `tau_0(q_motor)` of joints 1-3.
+    pub tau_0: [f64; NUM_DYNAMIC],
+    /// The environment currently exerts a force or holds the shaft.
+    pub in_contact: bool,
+}
+
+/// Motor-side joint state before any measurement model: what an ideal sensor would report.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct JointState {
+    pub position: [f64; NUM_JOINTS],
+    pub velocity: [f64; NUM_JOINTS],
+    /// Controller output of joints 1-3 (what the motor currents measure); 0 for joints 4-7.
+    pub effort: [f64; NUM_JOINTS],
+}
+
+/// The simulated Classic PSM. See the module docs.
+#[derive(Clone, Debug)]
+pub struct SimPsm {
+    p: PhysicsParams,
+    t_s: f64,
+    steps: u64,
+    q: [f64; NUM_JOINTS],
+    qd: [f64; NUM_JOINTS],
+    q_shaft: [f64; 2],
+    setpoint: [f64; NUM_JOINTS],
+    setpoint_velocity: [f64; NUM_JOINTS],
+    integral: [f64; NUM_DYNAMIC],
+    effort: [f64; NUM_JOINTS],
+    tau_shaft: [f64; 2],
+    tip_force: [f64; 3],
+    env: EnvState,
+    env_holding: bool,
+    amps_enabled: bool,
+}
+
+/// Regularization of the quasi-static shaft solve for the compliant surface, N·m/rad: the shaft
+/// settles within a few steps and lags by this fraction of the spring force.
+const SHAFT_REGULARIZATION: f64 = 1e-4;
+
+impl SimPsm {
+    /// An arm at rest at `initial` (clamped into the limits), in free space, amplifiers on, the
+    /// controller holding its position (integrators preloaded with `tau_0`).
+    pub fn new(params: PhysicsParams, initial: [f64; NUM_JOINTS]) -> Self {
+        let mut q = initial;
+        for (j, v) in q.iter_mut().enumerate() {
+            *v = v.clamp(params.position_min[j], params.position_max[j]);
+        }
+        let tau0 = params.torque_offset.eval(&q);
+        let mut integral = [0.0; NUM_DYNAMIC];
+        let mut effort = [0.0; NUM_JOINTS];
+        for j in 0..NUM_DYNAMIC {
+            let g = params.pid[j];
+            let i_term = tau0[j].clamp(-g.integral_limit, g.integral_limit);
+            integral[j] = if g.ki > 0.0 { i_term / g.ki } else { 0.0 };
+            effort[j] = tau0[j].clamp(-g.effort_limit, g.effort_limit);
+        }
+        Self {
+            p: params,
+            t_s: 0.0,
+            steps: 0,
+            q,
+            qd: [0.0; NUM_JOINTS],
+            q_shaft: [q[0], q[1]],
+            setpoint: q,
+            setpoint_velocity: [0.0; NUM_JOINTS],
+            integral,
+            effort,
+            tau_shaft: [0.0; 2],
+            tip_force: [0.0; 3],
+            env: EnvState::Free,
+            env_holding: false,
+            amps_enabled: true,
+        }
+    }
+
+    pub fn params(&self) -> &PhysicsParams {
+        &self.p
+    }
+
+    /// Simulated time since construction, s.
+    pub fn time_s(&self) -> f64 {
+        self.t_s
+    }
+
+    /// Number of steps taken.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Position setpoint of joint `j` (clamped into the limits), zero setpoint velocity.
+    /// Out-of-range `j` is ignored.
+    pub fn set_setpoint(&mut self, j: usize, position: f64) {
+        self.set_setpoint_with_velocity(j, position, 0.0);
+    }
+
+    /// Position and velocity setpoint of joint `j` (velocity feeds the PID's derivative term).
+    pub fn set_setpoint_with_velocity(&mut self, j: usize, position: f64, velocity: f64) {
+        if j < NUM_JOINTS && position.is_finite() && velocity.is_finite() {
+            self.setpoint[j] = position.clamp(self.p.position_min[j], self.p.position_max[j]);
+            self.setpoint_velocity[j] = velocity;
+        }
+    }
+
+    /// All seven setpoints at once.
+    pub fn set_setpoints(&mut self, position: &[f64; NUM_JOINTS]) {
+        for (j, &v) in position.iter().enumerate() {
+            self.set_setpoint(j, v);
+        }
+    }
+
+    pub fn setpoints(&self) -> [f64; NUM_JOINTS] {
+        self.setpoint
+    }
+
+    /// Amplifiers on or off. Off: no motor torque and the integrators restart from zero.
+    pub fn set_amps_enabled(&mut self, on: bool) {
+        if !on {
+            self.integral = [0.0; NUM_DYNAMIC];
+        }
+        self.amps_enabled = on;
+    }
+
+    pub fn amps_enabled(&self) -> bool {
+        self.amps_enabled
+    }
+
+    /// Place the environment at the current pose of the shaft.
+    pub fn set_environment(&mut self, env: Environment) {
+        let anchor = self.q_shaft;
+        let l = self.q[2];
+        self.env = match env {
+            Environment::Free => EnvState::Free,
+            Environment::Clamp => EnvState::Clamp { anchor },
+            Environment::Divot {
+                plate_stiffness_n_per_m,
+                plate_damping_n_s_per_m,
+                capture_depth_m,
+            } => EnvState::Divot {
+                anchor,
+                plate_l_m: l,
+                stiffness: plate_stiffness_n_per_m,
+                damping: plate_damping_n_s_per_m,
+                capture_m: capture_depth_m,
+            },
+            Environment::Surface {
+                stiffness_n_per_m,
+                gap_m,
+                tilt_rad,
+            } => {
+                let u = kinematics::shaft_direction(anchor[0], anchor[1]);
+                let e1 = [anchor[0].cos(), 0.0, anchor[0].sin()];
+                let tip = kinematics::tip_position(anchor[0], anchor[1], l);
+                let (s, c) = tilt_rad.sin_cos();
+                let normal = [
+                    -u[0] * c + e1[0] * s,
+                    -u[1] * c + e1[1] * s,
+                    -u[2] * c + e1[2] * s,
+                ];
+                let point = [
+                    tip[0] + gap_m * u[0],
+                    tip[1] + gap_m * u[1],
+                    tip[2] + gap_m * u[2],
+                ];
+                EnvState::Surface {
+                    point,
+                    normal,
+                    stiffness: stiffness_n_per_m,
+                }
+            }
+        };
+        self.update_shaft();
+    }
+
+    /// Internal torque `tau_0` of joints 1-3 at joint position `q` (the simulator's truth).
+    pub fn torque_offset(&self, q: &[f64; NUM_JOINTS]) -> [f64; NUM_DYNAMIC] {
+        self.p.torque_offset.eval(q)
+    }
+
+    /// Motor-side state: what ideal sensors would read.
+    pub fn joint_state(&self) -> JointState {
+        JointState {
+            position: self.q,
+            velocity: self.qd,
+            effort: self.effort,
+        }
+    }
+
+    /// Ground truth at the current instant.
+    pub fn truth(&self) -> Truth {
+        let mut q_true = self.q;
+        q_true[0] = self.q_shaft[0];
+        q_true[1] = self.q_shaft[1];
+        Truth {
+            t_s: self.t_s,
+            q_true,
+            q_motor: self.q,
+            tip_position_m: kinematics::tool_tip_position(&q_true),
+            deflection_rad: [self.q[0] - self.q_shaft[0], self.q[1] - self.q_shaft[1]],
+            tau_ext_nm: self.tau_shaft,
+            tip_force_n: self.tip_force,
+            tau_0: self.p.torque_offset.eval(&self.q),
+            in_contact: self.env_holding || self.tip_force.iter().any(|f| *f != 0.0),
+        }
+    }
+
+    /// Kinetic energy of joints 1-3 plus the energy stored in the shaft springs, J.
+    pub fn mechanical_energy_j(&self) -> f64 {
+        let mut e = 0.0;
+        for j in 0..NUM_DYNAMIC {
+            e += 0.5 * self.p.inertia[j] * self.qd[j] * self.qd[j];
+        }
+        for j in 0..2 {
+            let k = self.p.shaft.stiffness_nm_per_rad(j, self.q[2]);
+            let tau = self.tau_shaft[j];
+            e += 0.5 * tau * tau / k;
+        }
+        e
+    }
+
+    /// Advance by `dt_s` seconds (semi-implicit Euler for joints 1-3, then the quasi-static
+    /// shaft, then the kinematic joints). Non-positive or non-finite `dt_s` does nothing.
+    pub fn step(&mut self, dt_s: f64) {
+        if !(dt_s > 0.0 && dt_s.is_finite()) {
+            return;
+        }
+        let p = self.p;
+        let tau0 = p.torque_offset.eval(&self.q);
+        let l = self.q[2];
+        let k_shaft = [
+            p.shaft.stiffness_nm_per_rad(0, l),
+            p.shaft.stiffness_nm_per_rad(1, l),
+        ];
+
+        // Controller (the console's PID) on the motor-side positions.
+        for j in 0..NUM_DYNAMIC {
+            let g = p.pid[j];
+            if !self.amps_enabled {
+                self.effort[j] = 0.0;
+                continue;
+            }
+            let e = self.setpoint[j] - self.q[j];
+            if g.ki > 0.0 {
+                let lim = g.integral_limit / g.ki;
+                self.integral[j] = (self.integral[j] + e * dt_s).clamp(-lim, lim);
+            }
+            let u = g.kp * e
+                + g.ki * self.integral[j]
+                + g.kd * (self.setpoint_velocity[j] - self.qd[j]);
+            self.effort[j] = u.clamp(-g.effort_limit, g.effort_limit);
+        }
+
+        // Loads: shaft springs (joints 1, 2), environment along the shaft (insertion), hard stops.
+        let mut load = [0.0; NUM_DYNAMIC];
+        for j in 0..2 {
+            self.tau_shaft[j] =
+                p.shaft
+                    .transmitted_torque_nm(j, self.q[j] - self.q_shaft[j], k_shaft[j]);
+            load[j] = self.tau_shaft[j];
+        }
+        load[2] = -self.axial_force();
+        for (j, lj) in load.iter_mut().enumerate() {
+            let (lo, hi) = (p.position_min[j], p.position_max[j]);
+            let ks = p.hard_stop_stiffness[j];
+            if self.q[j] > hi {
+                *lj += ks * (self.q[j] - hi) + 0.1 * ks.sqrt() * self.qd[j].max(0.0);
+            } else if self.q[j] < lo {
+                *lj += ks * (self.q[j] - lo) + 0.1 * ks.sqrt() * self.qd[j].min(0.0);
+            }
+        }
+
+        for j in 0..NUM_DYNAMIC {
+            let acc =
+                (self.effort[j] - tau0[j] - p.viscous[j] * self.qd[j] - load[j]) / p.inertia[j];
+            self.qd[j] += acc * dt_s;
+            self.q[j] += self.qd[j] * dt_s;
+        }
+
+        // Kinematic joints 4-7: rate-limited tracking of the setpoints.
+        let max_step = p.wrist_max_speed * dt_s;
+        for j in NUM_DYNAMIC..NUM_JOINTS {
+            let d = (self.setpoint[j] - self.q[j]).clamp(-max_step, max_step);
+            self.q[j] += d;
+            self.qd[j] = d / dt_s;
+        }
+
+        self.update_shaft();
+        self.t_s += dt_s;
+        self.steps += 1;
+    }
+
+    /// Environment force along the shaft on the insertion joint (positive pushes outward, toward
+    /// larger L), and update of the recorded tip force. Uses the current shaft pose.
+    fn axial_force(&mut self) -> f64 {
+        match self.env {
+            EnvState::Free => {
+                self.tip_force = [0.0; 3];
+                0.0
+            }
+            EnvState::Clamp { .. } => {
+                self.tip_force = self.lateral_reaction();
+                0.0
+            }
+            EnvState::Divot {
+                plate_l_m,
+                stiffness,
+                damping,
+                ..
+            } => {
+                let pen = self.q[2] - plate_l_m;
+                let f = if pen > 0.0 {
+                    (stiffness * pen + damping * self.qd[2]).max(0.0)
+                } else {
+                    0.0
+                };
+                let u = kinematics::shaft_direction(self.q_shaft[0], self.q_shaft[1]);
+                let lat = if self.env_holding {
+                    self.lateral_reaction()
+                } else {
+                    [0.0; 3]
+                };
+                self.tip_force = [lat[0] - f * u[0], lat[1] - f * u[1], lat[2] - f * u[2]];
+                -f
+            }
+            EnvState::Surface {
+                point,
+                normal,
+                stiffness,
+            } => {
+                let (f, _, _) = surface_force(point, normal, stiffness, self.q_shaft, self.q[2]);
+                self.tip_force = f;
+                let u = kinematics::shaft_direction(self.q_shaft[0], self.q_shaft[1]);
+                f[0] * u[0] + f[1] * u[1] + f[2] * u[2]
+            }
+        }
+    }
+
+    /// Lateral force of a rigid holder on the tip that balances the shaft torques:
+    /// `J_lat^T F = -tau_shaft` (the two lateral Jacobian columns are orthogonal).
+    fn lateral_reaction(&self) -> [f64; 3] {
+        let (dp1, dp2) =
+            kinematics::tip_lateral_jacobian(self.q_shaft[0], self.q_shaft[1], self.q[2]);
+        let n1 = dp1[0] * dp1[0] + dp1[1] * dp1[1] + dp1[2] * dp1[2];
+        let n2 = dp2[0] * dp2[0] + dp2[1] * dp2[1] + dp2[2] * dp2[2];
+        let c1 = if n1 > 1e-12 {
+            -self.tau_shaft[0] / n1
+        } else {
+            0.0
+        };
+        let c2 = if n2 > 1e-12 {
+            -self.tau_shaft[1] / n2
+        } else {
+            0.0
+        };
+        [
+            c1 * dp1[0] + c2 * dp2[0],
+            c1 * dp1[1] + c2 * dp2[1],
+            c1 * dp1[2] + c2 * dp2[2],
+        ]
+    }
+
+    /// Quasi-static shaft: the true lateral angles that balance the play/spring against the
+    /// environment, given the motor-side angles.
+    fn update_shaft(&mut self) {
+        let delta = self.p.shaft.backlash_rad;
+        let play = |q: f64, qs: f64, d: f64| qs.clamp(q - d, q + d);
+        match self.env {
+            EnvState::Free => {
+                self.env_holding = false;
+                for j in 0..2 {
+                    self.q_shaft[j] = play(self.q[j], self.q_shaft[j], delta[j]);
+                }
+            }
+            EnvState::Clamp { anchor } => {
+                self.env_holding = true;
+                self.q_shaft = anchor;
+            }
+            EnvState::Divot {
+                anchor,
+                plate_l_m,
+                capture_m,
+                ..
+            } => {
+                let in_divot = self.q[2] >= plate_l_m - capture_m;
+                // The tip re-enters the divot only where it is (within the capture cone).
+                let r = (self.q[2] - kinematics::TIP_OFFSET_M).max(1e-3);
+                let near = (self.q_shaft[0] - anchor[0]).abs() * r <= capture_m
+                    && (self.q_shaft[1] - anchor[1]).abs() * r <= capture_m;
+                if in_divot && (self.env_holding || near) {
+                    self.env_holding = true;
+                    self.q_shaft = anchor;
+                } else {
+                    self.env_holding = false;
+                    for j in 0..2 {
+                        self.q_shaft[j] = play(self.q[j], self.q_shaft[j], delta[j]);
+                    }
+                }
+            }
+            EnvState::Surface {
+                point,
+                normal,
+                stiffness,
+            } => {
+                self.env_holding = false;
+                let l = self.q[2];
+                let k = [
+                    self.p.shaft.stiffness_nm_per_rad(0, l),
+                    self.p.shaft.stiffness_nm_per_rad(1, l),
+                ];
+                // Start from the free-play answer; if the tip then penetrates, solve the balance
+                // f(q - q_shaft) + J^T F(q_shaft) = 0 by a few regularized Newton steps.
+                for j in 0..2 {
+                    self.q_shaft[j] = play(self.q[j], self.q_shaft[j], delta[j]);
+                }
+                for _ in 0..4 {
+                    let (f, a, pen) = surface_force(point, normal, stiffness, self.q_shaft, l);
+                    if pen <= 0.0 {
+                        break;
+                    }
+                    let g = [a[0] * f_mag(f, normal), a[1] * f_mag(f, normal)];
+                    let mut r = [0.0; 2];
+                    let mut diag = [SHAFT_REGULARIZATION; 2];
+                    for j in 0..2 {
+                        let x = self.q[j] - self.q_shaft[j];
+                        r[j] = self.p.shaft.transmitted_torque_nm(j, x, k[j]) + g[j];
+                        if x.abs() > delta[j] {
+                            diag[j] += k[j];
+                        }
+                    }
+                    // A = diag + stiffness * a a^T (2x2, symmetric positive definite).
+                    let a00 = diag[0] + stiffness * a[0] * a[0];
+                    let a11 = diag[1] + stiffness * a[1] * a[1];
+                    let a01 = stiffness * a[0] * a[1];
+                    let det = a00 * a11 - a01 * a01;
+                    if !(det > 0.0 && det.is_finite()) {
+                        break;
+                    }
+                    let d0 = (a11 * r[0] - a01 * r[1]) / det;
+                    let d1 = (a00 * r[1] - a01 * r[0]) / det;
+                    self.q_shaft[0] += d0;
+                    self.q_shaft[1] += d1;
+                    if d0.abs() < 1e-12 && d1.abs() < 1e-12 {
+                        break;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Signed magnitude of a force along the surface normal.
+#[inline]
+fn f_mag(f: [f64; 3], n: [f64; 3]) -> f64 {
+    f[0] * n[0] + f[1] * n[1] + f[2] * n[2]
+}
+
+/// Force of a compliant plane on the tip at shaft angles `qs` and insertion `l`; also the
+/// lateral lever arms `a_j = (dp/dq_j) . n` and the penetration depth.
+#[inline]
+fn surface_force(
+    point: [f64; 3],
+    n: [f64; 3],
+    k: f64,
+    qs: [f64; 2],
+    l: f64,
+) -> ([f64; 3], [f64; 2], f64) {
+    let p = kinematics::tip_position(qs[0], qs[1], l);
+    let pen = (point[0] - p[0]) * n[0] + (point[1] - p[1]) * n[1] + (point[2] - p[2]) * n[2];
+    let (dp1, dp2) = kinematics::tip_lateral_jacobian(qs[0], qs[1], l);
+    let a = [
+        dp1[0] * n[0] + dp1[1] * n[1] + dp1[2] * n[2],
+        dp2[0] * n[0] + dp2[1] * n[1] + dp2[2] * n[2],
+    ];
+    if pen > 0.0 {
+        let f = k * pen;
+        ([f * n[0], f * n[1], f * n[2]], a, pen)
+    } else {
+        ([0.0; 3], a, pen)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DT: f64 = 1e-4;
+
+    fn settle(psm: &mut SimPsm, seconds: f64) {
+        let n = (seconds / DT).round() as usize;
+        for _ in 0..n {
+            psm.step(DT);
+        }
+    }
+
+    fn start() -> [f64; NUM_JOINTS] {
+        [0.05, -0.1, 0.13, 0.0, 0.0, 0.0, 0.3]
+    }
+
+    #[test]
+    fn paper_stiffness_matches_equations_3_and_4() {
+        let s = ShaftParams::PAPER;
+        // 1/K1(0.10) = 0.63916 - 4.3235 + 13.632 + 3.12
+        assert!((s.stiffness_nm_per_rad(0, 0.10) - 13.06766).abs() < 1e-5);
+        assert!(
+            (s.stiffness_nm_per_rad(1, 0.10) - (3.16317 - 19.6915 + 44.892 - 6.0)).abs() < 1e-9
+        );
+        assert!(s.min_stiffness_nm_per_rad().iter().all(|k| *k > 1.0));
+        // Clamped below the range.
+        assert_eq!(
+            s.stiffness_nm_per_rad(1, 0.0),
+            s.stiffness_nm_per_rad(1, 0.05)
+        );
+    }
+
+    #[test]
+    fn dead_zone_transmits_nothing_inside_the_play() {
+        let s = ShaftParams::PAPER;
+        assert_eq!(s.transmitted_torque_nm(0, 0.0029, 13.0), 0.0);
+        assert_eq!(s.transmitted_torque_nm(0, -0.0029, 13.0), 0.0);
+        assert!((s.transmitted_torque_nm(0, 0.004, 13.0) - 0.013).abs() < 1e-12);
+        assert!((s.transmitted_torque_nm(0, -0.004, 13.0) + 0.013).abs() < 1e-12);
+    }
+
+    #[test]
+    fn torque_offset_has_the_size_of_the_2017_sweep() {
+        let t = TorqueOffsetParams::CLASSIC;
+        for i in 0..=100 {
+            let q0 = -1.5 + 3.0 * f64::from(i) / 100.0;
+            let q1 = -0.9 + 1.8 * f64::from(i) / 100.0;
+            let tau = t.eval(&[q0, q1, 0.1, 0.0, 0.0, 0.0, 0.0]);
+            assert!(
+                tau[0].abs() <= 0.3 + 1e-12 && tau[0].abs() >= 0.04,
+                "j1 {tau:?}"
+            );
+            assert!(tau[1].abs() <= 0.3, "j2 {tau:?}");
+        }
+        let at0 = t.eval(&[0.0; NUM_JOINTS])[0];
+        let at_m01 = t.eval(&[-0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])[0];
+        assert!((0.14..0.20).contains(&at0), "{at0}");
+        assert!((0.05..0.11).contains(&at_m01), "{at_m01}");
+    }
+
+    #[test]
+    fn holds_still_at_rest_and_effort_equals_torque_offset() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        settle(&mut psm, 2.0);
+        let js = psm.joint_state();
+        let tau0 = psm.torque_offset(&js.position);
+        for j in 0..NUM_DYNAMIC {
+            assert!(
+                (js.position[j] - start()[j]).abs() < 1e-6,
+                "joint {j}: {js:?}"
+            );
+            assert!((js.effort[j] - tau0[j]).abs() < 1e-6, "joint {j}: {js:?}");
+        }
+        assert!(psm.mechanical_energy_j() < 1e-9);
+    }
+
+    #[test]
+    fn free_space_shaft_follows_inside_the_play() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        // A slow ramp (no overshoot): the shaft is dragged from behind.
+        for i in 0..=20_000 {
+            psm.set_setpoint_with_velocity(0, 0.05 + 0.1 * f64::from(i) / 20_000.0, 0.05);
+            psm.step(DT);
+            if i > 1000 {
+                // Moving in +q drags the shaft from behind: it trails by exactly delta.
+                let t = psm.truth();
+                assert!((t.deflection_rad[0] - 0.003).abs() < 1e-12, "{t:?}");
+                assert_eq!(t.tau_ext_nm, [0.0, 0.0]);
+                assert!(!t.in_contact);
+            }
+        }
+        psm.set_setpoint(0, 0.15);
+        settle(&mut psm, 1.0);
+        let t = psm.truth();
+        assert!(t.deflection_rad[0].abs() <= 0.003 + 1e-12);
+        psm.set_setpoint(0, 0.149);
+        settle(&mut psm, 2.0);
+        // Reversing by less than the play leaves the shaft where it was.
+        let t2 = psm.truth();
+        assert!((t2.q_true[0] - t.q_true[0]).abs() < 1e-12);
+    }
+
+    #[test]
+    fn clamp_obeys_equation_1_in_both_directions() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_environment(Environment::Clamp);
+        let anchor = psm.truth().q_true;
+        let l = start()[2];
+        for (j, dq) in [(0usize, 0.02), (0, -0.02), (1, 0.015), (1, -0.015)] {
+            psm.set_setpoint(j, start()[j] + dq);
+            settle(&mut psm, 3.0);
+            let t = psm.truth();
+            assert_eq!(t.q_true[j], anchor[j]);
+            let tau = t.tau_ext_nm[j];
+            let k = psm.params().shaft.compliance_rad_per_nm(j, l);
+            let delta = psm.params().shaft.backlash_rad[j];
+            let expect = delta * tau.signum() + k * tau;
+            assert!(
+                (t.deflection_rad[j] - expect).abs() < 1e-9,
+                "joint {j}: {t:?}"
+            );
+            assert!(
+                tau.signum() == dq.signum() && tau.abs() > 0.1,
+                "joint {j}: {t:?}"
+            );
+            // Effort = tau_0 + tau_ext once settled.
+            let js = psm.joint_state();
+            assert!((js.effort[j] - t.tau_0[j] - tau).abs() < 1e-6);
+            psm.set_setpoint(j, start()[j]);
+            settle(&mut psm, 3.0);
+        }
+    }
+
+    #[test]
+    fn clamp_shows_backlash_hysteresis() {
+        // Same motor angle, approached from both sides: the transmitted torques differ by
+        // 2*delta/K (the gap between the two lines of the paper's Fig. 5).
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_environment(Environment::Clamp);
+        let q0 = start()[0];
+        psm.set_setpoint(0, q0 + 0.02);
+        settle(&mut psm, 3.0);
+        psm.set_setpoint(0, q0 + 0.002);
+        settle(&mut psm, 3.0);
+        let down = psm.truth().tau_ext_nm[0];
+        psm.set_setpoint(0, q0 - 0.02);
+        settle(&mut psm, 3.0);
+        psm.set_setpoint(0, q0 + 0.002);
+        settle(&mut psm, 3.0);
+        let up = psm.truth().tau_ext_nm[0];
+        // At +2 mrad (inside the 3 mrad play) the shaft transmits nothing from either side.
+        assert_eq!(down, 0.0);
+        assert_eq!(up, 0.0);
+        psm.set_setpoint(0, q0 + 0.01);
+        settle(&mut psm, 3.0);
+        let rising = psm.truth().tau_ext_nm[0];
+        let k = psm.params().shaft.stiffness_nm_per_rad(0, start()[2]);
+        assert!((rising - k * (0.01 - 0.003)).abs() < 1e-6, "{rising}");
+    }
+
+    #[test]
+    fn divot_holds_the_tip_and_the_plate_pushes_back() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_environment(Environment::Divot {
+            plate_stiffness_n_per_m: 20_000.0,
+            plate_damping_n_s_per_m: 50.0,
+            capture_depth_m: 0.001,
+        });
+        let tip0 = psm.truth().tip_position_m;
+        psm.set_setpoint(2, start()[2] + 2.0 / 20_000.0);
+        psm.set_setpoint(0, start()[0] + 0.01);
+        settle(&mut psm, 4.0);
+        let t = psm.truth();
+        let moved = ((t.tip_position_m[0] - tip0[0]).powi(2)
+            + (t.tip_position_m[1] - tip0[1]).powi(2))
+        .sqrt();
+        assert!(moved < 2.5e-4, "lateral tip motion {moved}");
+        let u = kinematics::shaft_direction(t.q_true[0], t.q_true[1]);
+        let f = -(t.tip_force_n[0] * u[0] + t.tip_force_n[1] * u[1] + t.tip_force_n[2] * u[2]);
+        assert!((f - 2.0).abs() < 0.05, "axial force {f}");
+        // The lateral part of the divot's reaction balances the shaft torque.
+        let (dp1, _) = kinematics::tip_lateral_jacobian(t.q_true[0], t.q_true[1], t.q_true[2]);
+        let g = dp1[0] * t.tip_force_n[0] + dp1[1] * t.tip_force_n[1] + dp1[2] * t.tip_force_n[2];
+        assert!((g + t.tau_ext_nm[0]).abs() < 1e-9);
+        assert!(t.tau_ext_nm[0] > 0.05 && t.in_contact);
+        // Pull out of the divot: the tip is released.
+        psm.set_setpoint(2, start()[2] - 0.01);
+        settle(&mut psm, 2.0);
+        let t = psm.truth();
+        assert!(!t.in_contact && t.tau_ext_nm == [0.0, 0.0], "{t:?}");
+    }
+
+    #[test]
+    fn compliant_surface_balances_spring_and_shaft() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        let k = 1000.0;
+        psm.set_environment(Environment::Surface {
+            stiffness_n_per_m: k,
+            gap_m: 0.0,
+            tilt_rad: 0.3,
+        });
+        psm.set_setpoint(2, start()[2] + 0.003);
+        settle(&mut psm, 4.0);
+        let t = psm.truth();
+        let f =
+            (t.tip_force_n[0].powi(2) + t.tip_force_n[1].powi(2) + t.tip_force_n[2].powi(2)).sqrt();
+        assert!(f > 0.5, "{t:?}");
+        // Quasi-static balance on joint 1: shaft torque equals the lever of the tip force.
+        let (dp1, _) = kinematics::tip_lateral_jacobian(t.q_true[0], t.q_true[1], t.q_true[2]);
+        let g = dp1[0] * t.tip_force_n[0] + dp1[1] * t.tip_force_n[1] + dp1[2] * t.tip_force_n[2];
+        assert!((t.tau_ext_nm[0] + g).abs() < 1e-3, "{t:?} g={g}");
+        assert!(
+            t.tau_ext_nm[0].abs() > 0.01,
+            "tilt makes a lateral load: {t:?}"
+        );
+        assert!(psm.joint_state().position.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn amps_off_gives_zero_effort_and_hard_stops_hold() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_amps_enabled(false);
+        settle(&mut psm, 20.0);
+        let js = psm.joint_state();
+        assert_eq!(&js.effort[..3], &[0.0, 0.0, 0.0]);
+        let p = PhysicsParams::CLASSIC;
+        for j in 0..NUM_DYNAMIC {
+            assert!(
+                js.position[j] > p.position_min[j] - 0.01
+                    && js.position[j] < p.position_max[j] + 0.01
+            );
+            assert!(js.velocity[j].abs() < 1e-3);
+        }
+    }
+
+    #[test]
+    fn setpoints_are_clamped_and_bad_values_ignored() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_setpoint(0, 10.0);
+        assert_eq!(psm.setpoints()[0], PhysicsParams::CLASSIC.position_max[0]);
+        psm.set_setpoint(1, f64::NAN);
+        assert_eq!(psm.setpoints()[1], start()[1]);
+        psm.set_setpoint(99, 1.0);
+        psm.step(f64::NAN);
+        psm.step(-1.0);
+        assert_eq!(psm.steps(), 0);
+    }
+
+    #[test]
+    fn wrist_follows_setpoint_at_limited_speed() {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_setpoint(4, 0.5);
+        settle(&mut psm, 0.1);
+        assert!((psm.joint_state().position[4] - 0.3).abs() < 1e-9);
+        settle(&mut psm, 0.2);
+        assert!((psm.joint_state().position[4] - 0.5).abs() < 1e-12);
+    }
+
+    /// Simulated minute at 10 kHz with a moving setpoint and a clamp: bounded, no NaN.
+    #[test]
+    fn sixty_seconds_at_10_khz_stay_bounded() {
+        run_bounded(60.0);
+    }
+
+    /// One simulated hour at 10 kHz (3.6e7 steps); run with `--ignored --release`.
+    #[test]
+    #[ignore]
+    fn one_hour_at_10_khz_stays_bounded() {
+        run_bounded(3600.0);
+    }
+
+    fn run_bounded(seconds: f64) {
+        let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+        psm.set_environment(Environment::Clamp);
+        let n = (seconds / DT) as u64;
+        let mut max_energy: f64 = 0.0;
+        for i in 0..n {
+            let t = i as f64 * DT;
+            psm.set_setpoint(0, start()[0] + 0.02 * (0.5 * t).sin());
+            psm.set_setpoint(1, start()[1] + 0.015 * (0.3 * t).cos());
+            psm.step(DT);
+            if i % 1000 == 0 {
+                let e = psm.mechanical_energy_j();
+                assert!(e.is_finite());
+                max_energy = max_energy.max(e);
+            }
+        }
+        let js = psm.joint_state();
+        assert!(
+            js.position
+                .iter()
+                .chain(js.velocity.iter())
+                .all(|v| v.is_finite())
+        );
+        // 0.02 rad beyond the play against ~15 N·m/rad stores well under 0.01 J.
+        assert!(max_energy < 0.01, "max energy {max_energy}");
+        let lim = PhysicsParams::CLASSIC.pid[0].effort_limit;
+        assert!(js.effort.iter().all(|e| e.abs() <= lim * 3.0));
+    }
+}
