@@ -1,1 +1,15 @@
-//! dvrk-io
+//! dvrk-io: read-only access to dVRK controller boards (FPGA1394 + QLA, DQLA, dRAC) and
+//! conversion of their raw bits to joint positions, velocities and efforts in SI units.
+//!
+//! - [`wire`]: pure, checked views and emitters for the board protocol.
+//! - [`port`]: the read-only [`port::Port`] trait, the Ethernet protocol engine
+//!   [`port::EthPort`] over a datagram [`port::Link`] (UDP, or dvrk-sim's in-process
+//!   emulator), the explicit write capability, discovery, and test doubles.
+//! - [`convert`]: conversion config ([`IoConfig`], from TOML or sawRobotIO1394 JSON v6) and
+//!   the pure raw-to-SI functions producing an [`ArmSample`].
+//! - [`reader`]: [`ArmReader`], one call per cycle, in shared or exclusive access mode.
+//!
+//! Facts and constants come from `shared/reference/dvrk-board-protocol.md`; doc comments cite
+//! its sections as "reference §N".
+
+pub mod wire;
