@@ -1,1 +1,1229 @@
-//! Parameter fitting from calibration data (paper section 4).
+//! Parameter fitting from calibration data (paper sections 3-4).
+//!
+//! Input is a list of [`DataRow`]s, one averaged step of a calibration procedure each, the same
+//! rows the calibration CSV file holds. Two fits exist:
+//!
+//! - [`fit_clamp`] / [`fit_joint`]: the clamp-beam experiment. Per joint and insertion depth,
+//!   `tau_ext = effort - torque_offset`, a least-squares line of `tau_ext` against the joint
+//!   position for each direction of motion, stiffness = mean of the two slopes, backlash = half the
+//!   horizontal gap between the two lines at `tau_ext = 0`. Across depths, 1/K(L) is a least-squares
+//!   cubic of stiffness against insertion and the backlash is the mean over depths.
+//! - [`fit_torque_offset`]: the unloaded sweep, averaged per angle into a tau_0(q) table, with how
+//!   much it varies with depth.
+//!
+//! # Which samples the lines leave out, and why
+//!
+//! The shaft sits in the cannula with a play of half-width `delta` in series with its compliance
+//! (paper Fig. 2, Eq. 1). While the joint keeps moving one way, the shaft is pressed against one
+//! side of the play and `tau_ext` follows a straight line of slope 1/K. When the joint reverses,
+//! the shaft first has to cross the play: for a joint travel of `2 * delta` (the full horizontal
+//! gap between the two direction lines) the torque is still reversing and lies between the two
+//! lines, on neither of them. So, per run of rows moving in one direction (a *segment*), the rows
+//! whose position is less than the current gap estimate away from the reversal point (the position
+//! of the last row before the segment) are left out of the line fits. The first segment of a depth
+//! is treated the same way from its first row, because the side of the play the shaft rests on
+//! when a depth starts is unknown.
+//!
+//! The gap is not known before the fit, so the fit iterates: a plain fit with every row, then the
+//! exclusion with the gap that fit gives, refit, until the set of excluded rows stops changing
+//! (at most [`FitOptions::max_transition_iterations`] rounds). Rows with direction 0 (stationary)
+//! are never in a line fit but still mark where a segment starts. How many rows were left out is
+//! reported per depth ([`DepthFit::excluded_transition`]).
+//!
+//! # Direction of motion
+//!
+//! A row's direction comes from its `direction` column. When every row of a depth says 0 (files
+//! that do not record it, such as the dVRK 2017 layout), it comes from the sign of the position
+//! change from the previous row of the same depth, in recorded order. A change smaller than
+//! [`FitOptions::direction_step_fraction`] of the depth's median step is noise (for example the
+//! second sample the 2017 procedure records at each turnaround, at the same setpoint) and keeps the
+//! previous direction; rows before the first real change take the first direction seen.
+//!
+//! # Settling samples
+//!
+//! A row whose insertion differs from the median insertion of its depth by more than
+//! [`FitOptions::insertion_tolerance_m`] was recorded while joint 3 was still moving to the depth
+//! (the 2017 files start with one such row) and is dropped before anything else.
+
+use nalgebra::{DMatrix, DVector};
+
+/// One averaged step of a calibration procedure: one line of the calibration CSV file
+/// `joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DataRow {
+    /// Paper joint number: 1 (yaw) or 2 (pitch).
+    pub joint: u8,
+    /// Insertion depth index within the procedure (0-based).
+    pub depth_index: u32,
+    /// Joint 3 position L (m).
+    pub insertion_m: f64,
+    /// Position of the joint under test (rad).
+    pub position_rad: f64,
+    /// Measured effort of the joint under test (N·m).
+    pub effort_nm: f64,
+    /// tau_0 in effect at this position when recorded (N·m). Ignored by the torque-offset fit,
+    /// whose samples are the unloaded efforts themselves.
+    pub torque_offset_nm: f64,
+    /// Direction of motion: +1, -1, or 0 (stationary / not recorded).
+    pub direction: i8,
+}
+
+impl DataRow {
+    /// External torque, `effort - torque_offset` (N·m).
+    pub fn tau_ext_nm(&self) -> f64 {
+        self.effort_nm - self.torque_offset_nm
+    }
+}
+
+/// Knobs of the fits. `Default` gives the values documented on each field.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FitOptions {
+    /// Minimum rows per direction line at one depth (default 5).
+    pub min_points_per_direction: usize,
+    /// Position changes smaller than this fraction of the depth's median step carry no direction
+    /// (default 0.25). Also the angle-grouping tolerance of the torque-offset table.
+    pub direction_step_fraction: f64,
+    /// Rows further than this from their depth's median insertion are settling samples and are
+    /// dropped (default 0.002 m).
+    pub insertion_tolerance_m: f64,
+    /// Rounds of the turnaround exclusion (default 10).
+    pub max_transition_iterations: usize,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        Self {
+            min_points_per_direction: 5,
+            direction_step_fraction: 0.25,
+            insertion_tolerance_m: 0.002,
+            max_transition_iterations: 10,
+        }
+    }
+}
+
+/// Why a fit failed. Each names the joint (paper number) and, where it applies, the depth index
+/// and the offending value. No partial result is returned with an error.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FitError {
+    #[error("joint {joint}: no data rows")]
+    NoData { joint: u8 },
+    #[error("joint {joint} must be 1 or 2")]
+    BadJoint { joint: u8 },
+    #[error("joint {joint} depth {depth_index} row {row}: {field} is not finite")]
+    NonFinite {
+        joint: u8,
+        depth_index: u32,
+        row: usize,
+        field: &'static str,
+    },
+    #[error(
+        "joint {joint} depth {depth_index}: {got} usable points moving in direction {direction:+}, need at least {need}"
+    )]
+    TooFewPoints {
+        joint: u8,
+        depth_index: u32,
+        direction: i8,
+        got: usize,
+        need: usize,
+    },
+    #[error(
+        "joint {joint} depth {depth_index}: the joint only moved in direction {direction:+}; the clamp procedure must reverse"
+    )]
+    SingleDirection {
+        joint: u8,
+        depth_index: u32,
+        direction: i8,
+    },
+    #[error(
+        "joint {joint} depth {depth_index}: all positions moving in direction {direction:+} are equal, no line can be fitted"
+    )]
+    DegeneratePositions {
+        joint: u8,
+        depth_index: u32,
+        direction: i8,
+    },
+    #[error(
+        "joint {joint} depth {depth_index}: the direction {direction:+} line has slope {slope_nm_per_rad} N·m/rad; stiffness must be positive"
+    )]
+    NonPositiveStiffness {
+        joint: u8,
+        depth_index: u32,
+        direction: i8,
+        slope_nm_per_rad: f64,
+    },
+    #[error("joint {joint}: {got} distinct insertion depths, a cubic 1/K(L) needs at least {need}")]
+    TooFewDepths { joint: u8, got: usize, need: usize },
+    #[error(
+        "joint {joint}: the fitted cubic 1/K(L) is {value_nm_per_rad} N·m/rad at L = {insertion_m} m, inside the depth range; it must stay > 0"
+    )]
+    CubicNotPositive {
+        joint: u8,
+        insertion_m: f64,
+        value_nm_per_rad: f64,
+    },
+    #[error("joint {joint}: torque-offset sweep covers {got} distinct angles, need at least 2")]
+    TooFewAngles { joint: u8, got: usize },
+}
+
+/// A least-squares line `tau_ext = slope * q + intercept`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Line {
+    /// N·m/rad.
+    pub slope: f64,
+    /// N·m.
+    pub intercept: f64,
+    /// Rows the line was fitted to.
+    pub points: usize,
+    /// Root-mean-square residual (N·m).
+    pub residual_rms_nm: f64,
+}
+
+impl Line {
+    /// Position where the line crosses `tau_ext = 0` (rad).
+    pub fn zero_crossing_rad(&self) -> f64 {
+        -self.intercept / self.slope
+    }
+
+    /// tau_ext on the line at `q` (N·m).
+    pub fn at(&self, q: f64) -> f64 {
+        self.slope * q + self.intercept
+    }
+}
+
+/// Result at one insertion depth of one joint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthFit {
+    pub joint: u8,
+    pub depth_index: u32,
+    /// Mean insertion of the rows kept (m).
+    pub insertion_m: f64,
+    /// `[line of rows moving +, line of rows moving -]`.
+    pub lines: [Line; 2],
+    /// Mean of the two slopes (N·m/rad).
+    pub stiffness_nm_per_rad: f64,
+    /// Half the horizontal gap between the two lines at tau_ext = 0 (rad, >= 0).
+    pub backlash_rad: f64,
+    /// Signed gap `zero(-) - zero(+)` (rad); its sign says on which side the moving-+ branch lies.
+    pub hysteresis_gap_rad: f64,
+    /// Rows in the two line fits.
+    pub points: usize,
+    /// Rows left out as turnaround transitions.
+    pub excluded_transition: usize,
+    /// Rows dropped as settling samples (insertion off the depth).
+    pub dropped_settling: usize,
+    /// Rows with no direction (stationary), not in a line.
+    pub stationary: usize,
+    /// Whether the directions were derived from position changes.
+    pub directions_derived: bool,
+}
+
+/// Result for one joint over all depths.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JointFit {
+    pub joint: u8,
+    /// Ascending depth index.
+    pub depths: Vec<DepthFit>,
+    /// 1/K(L) = c3 L^3 + c2 L^2 + c1 L + c0, `[c3, c2, c1, c0]` (N·m/rad, L in m).
+    pub inverse_compliance_nm_per_rad: [f64; 4],
+    /// Mean backlash over depths (rad).
+    pub backlash_rad: f64,
+    /// Coefficient of determination of the cubic against the per-depth stiffnesses.
+    pub r_squared: f64,
+    /// `[min, max]` insertion of the depths (m): where the cubic is valid.
+    pub insertion_range_m: [f64; 2],
+}
+
+/// Evaluates `c3 L^3 + c2 L^2 + c1 L + c0` (Horner).
+pub fn eval_cubic(c: &[f64; 4], l: f64) -> f64 {
+    ((c[0] * l + c[1]) * l + c[2]) * l + c[3]
+}
+
+/// The minimum of the cubic on `[a, b]` and where it is: `(L, value)`. Checks both ends and every
+/// stationary point inside, so it is exact, not sampled.
+pub fn cubic_min_on(c: &[f64; 4], range: [f64; 2]) -> (f64, f64) {
+    let [a, b] = range;
+    let mut best = (a, eval_cubic(c, a));
+    let mut consider = |l: f64| {
+        if l >= a && l <= b {
+            let v = eval_cubic(c, l);
+            if v < best.1 {
+                best = (l, v);
+            }
+        }
+    };
+    consider(b);
+    // derivative 3 c3 L^2 + 2 c2 L + c1
+    let (qa, qb, qc) = (3.0 * c[0], 2.0 * c[1], c[2]);
+    if qa.abs() > f64::MIN_POSITIVE {
+        let disc = qb * qb - 4.0 * qa * qc;
+        if disc >= 0.0 {
+            let s = disc.sqrt();
+            consider((-qb + s) / (2.0 * qa));
+            consider((-qb - s) / (2.0 * qa));
+        }
+    } else if qb.abs() > f64::MIN_POSITIVE {
+        consider(-qc / qb);
+    }
+    best
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
+}
+
+fn check_finite(rows: &[DataRow]) -> Result<(), FitError> {
+    for (i, r) in rows.iter().enumerate() {
+        let fields = [
+            ("insertion_m", r.insertion_m),
+            ("position_rad", r.position_rad),
+            ("effort_nm", r.effort_nm),
+            ("torque_offset_nm", r.torque_offset_nm),
+        ];
+        for (field, v) in fields {
+            if !v.is_finite() {
+                return Err(FitError::NonFinite {
+                    joint: r.joint,
+                    depth_index: r.depth_index,
+                    row: i,
+                    field,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Drops settling rows (insertion off the depth's median). Returns the kept rows, in order.
+fn drop_settling(rows: &[DataRow], tolerance_m: f64) -> Vec<DataRow> {
+    let mut l: Vec<f64> = rows.iter().map(|r| r.insertion_m).collect();
+    let m = median(&mut l);
+    rows.iter()
+        .copied()
+        .filter(|r| (r.insertion_m - m).abs() <= tolerance_m)
+        .collect()
+}
+
+/// Directions of motion of rows of one depth, in order; see the module docs. Uses the `direction`
+/// column unless every row says 0. Returns `(directions, derived)`.
+pub fn label_directions(rows: &[DataRow], step_fraction: f64) -> (Vec<i8>, bool) {
+    if rows.iter().any(|r| r.direction != 0) {
+        return (rows.iter().map(|r| r.direction.signum()).collect(), false);
+    }
+    let mut steps: Vec<f64> = rows
+        .windows(2)
+        .map(|w| (w[1].position_rad - w[0].position_rad).abs())
+        .collect();
+    let threshold = (step_fraction * median(&mut steps)).max(f64::MIN_POSITIVE);
+    let mut dirs = vec![0i8; rows.len()];
+    let mut current = 0i8;
+    for i in 1..rows.len() {
+        let dq = rows[i].position_rad - rows[i - 1].position_rad;
+        if dq.abs() > threshold {
+            current = if dq > 0.0 { 1 } else { -1 };
+        }
+        dirs[i] = current;
+    }
+    let first = dirs.iter().copied().find(|&d| d != 0).unwrap_or(0);
+    for d in dirs.iter_mut() {
+        if *d == 0 {
+            *d = first;
+        } else {
+            break;
+        }
+    }
+    (dirs, true)
+}
+
+/// Marks the rows left out as turnaround transitions for a gap of `gap_rad` (see module docs).
+fn transition_mask(rows: &[DataRow], dirs: &[i8], gap_rad: f64, out: &mut [bool]) {
+    out.iter_mut().for_each(|x| *x = false);
+    let mut i = 0;
+    while i < rows.len() {
+        if dirs[i] == 0 {
+            i += 1;
+            continue;
+        }
+        let dir = dirs[i];
+        let q_ref = if i > 0 {
+            rows[i - 1].position_rad
+        } else {
+            rows[i].position_rad
+        };
+        let mut j = i;
+        let mut in_transition = true;
+        while j < rows.len() && dirs[j] == dir {
+            if in_transition && (rows[j].position_rad - q_ref).abs() < gap_rad {
+                out[j] = true;
+            } else {
+                in_transition = false;
+            }
+            j += 1;
+        }
+        i = j;
+    }
+}
+
+fn fit_line(points: impl Iterator<Item = (f64, f64)> + Clone) -> Option<Line> {
+    let (mut n, mut sx, mut sy) = (0usize, 0.0, 0.0);
+    for (x, y) in points.clone() {
+        n += 1;
+        sx += x;
+        sy += y;
+    }
+    if n < 2 {
+        return None;
+    }
+    let (mx, my) = (sx / n as f64, sy / n as f64);
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (x, y) in points.clone() {
+        sxx += (x - mx) * (x - mx);
+        sxy += (x - mx) * (y - my);
+    }
+    if sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    let intercept = my - slope * mx;
+    let ss: f64 = points
+        .map(|(x, y)| {
+            let r = y - (slope * x + intercept);
+            r * r
+        })
+        .sum();
+    Some(Line {
+        slope,
+        intercept,
+        points: n,
+        residual_rms_nm: (ss / n as f64).sqrt(),
+    })
+}
+
+/// Fits the two direction lines at one depth of one joint. `rows` are that depth's rows in
+/// recorded order (all with the same joint).
+pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitError> {
+    let Some(first) = rows.first() else {
+        return Err(FitError::NoData { joint: 0 });
+    };
+    let (joint, depth_index) = (first.joint, first.depth_index);
+    check_finite(rows)?;
+    let kept = drop_settling(rows, opts.insertion_tolerance_m);
+    let dropped_settling = rows.len() - kept.len();
+    let (dirs, directions_derived) = label_directions(&kept, opts.direction_step_fraction);
+    let stationary = dirs.iter().filter(|&&d| d == 0).count();
+    for dir in [1i8, -1] {
+        if !dirs.contains(&dir) {
+            return Err(FitError::SingleDirection {
+                joint,
+                depth_index,
+                direction: -dir,
+            });
+        }
+    }
+
+    let mut excluded = vec![false; kept.len()];
+    let fit_both = |excluded: &[bool]| -> Result<[Line; 2], FitError> {
+        let mut lines = [None, None];
+        for (k, dir) in [1i8, -1].into_iter().enumerate() {
+            let pts = kept
+                .iter()
+                .zip(dirs.iter())
+                .zip(excluded.iter())
+                .filter(move |((_, d), ex)| **d == dir && !**ex)
+                .map(|((r, _), _)| (r.position_rad, r.tau_ext_nm()));
+            let got = pts.clone().count();
+            if got < opts.min_points_per_direction.max(2) {
+                return Err(FitError::TooFewPoints {
+                    joint,
+                    depth_index,
+                    direction: dir,
+                    got,
+                    need: opts.min_points_per_direction.max(2),
+                });
+            }
+            let line = fit_line(pts).ok_or(FitError::DegeneratePositions {
+                joint,
+                depth_index,
+                direction: dir,
+            })?;
+            if line.slope <= 0.0 || !line.slope.is_finite() {
+                return Err(FitError::NonPositiveStiffness {
+                    joint,
+                    depth_index,
+                    direction: dir,
+                    slope_nm_per_rad: line.slope,
+                });
+            }
+            lines[k] = Some(line);
+        }
+        match lines {
+            [Some(p), Some(n)] => Ok([p, n]),
+            _ => Err(FitError::NoData { joint }),
+        }
+    };
+
+    let mut lines = fit_both(&excluded)?;
+    let mut next = vec![false; kept.len()];
+    for _ in 0..opts.max_transition_iterations {
+        let gap = (lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad()).abs();
+        transition_mask(&kept, &dirs, gap, &mut next);
+        if next == excluded {
+            break;
+        }
+        lines = fit_both(&next)?;
+        std::mem::swap(&mut excluded, &mut next);
+    }
+
+    let gap = lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad();
+    let used = lines[0].points + lines[1].points;
+    let insertion_m = kept.iter().map(|r| r.insertion_m).sum::<f64>() / kept.len() as f64;
+    Ok(DepthFit {
+        joint,
+        depth_index,
+        insertion_m,
+        lines,
+        stiffness_nm_per_rad: 0.5 * (lines[0].slope + lines[1].slope),
+        backlash_rad: 0.5 * gap.abs(),
+        hysteresis_gap_rad: gap,
+        points: used,
+        excluded_transition: excluded.iter().filter(|&&e| e).count(),
+        dropped_settling,
+        stationary,
+        directions_derived,
+    })
+}
+
+/// Least-squares cubic through `(insertion_m[i], stiffness[i])`, solved by QR on an insertion
+/// axis centred on the mean and scaled to [-1, 1] (the raw Vandermonde matrix of L ~ 0.1 m has a
+/// condition number near 1e6), then expanded back to raw coefficients `[c3, c2, c1, c0]`.
+/// Returns the coefficients and r².
+pub fn fit_inverse_compliance(
+    joint: u8,
+    insertion_m: &[f64],
+    stiffness_nm_per_rad: &[f64],
+) -> Result<([f64; 4], f64), FitError> {
+    let n = insertion_m.len().min(stiffness_nm_per_rad.len());
+    let mut distinct: Vec<f64> = insertion_m[..n].to_vec();
+    distinct.sort_by(f64::total_cmp);
+    distinct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    if distinct.len() < 4 {
+        return Err(FitError::TooFewDepths {
+            joint,
+            got: distinct.len(),
+            need: 4,
+        });
+    }
+    let mean = insertion_m[..n].iter().sum::<f64>() / n as f64;
+    let scale = insertion_m[..n]
+        .iter()
+        .map(|l| (l - mean).abs())
+        .fold(0.0, f64::max);
+    let v = DMatrix::from_fn(n, 4, |i, k| {
+        ((insertion_m[i] - mean) / scale).powi(k as i32)
+    });
+    let y = DVector::from_column_slice(&stiffness_nm_per_rad[..n]);
+    let qr = v.qr();
+    let r = qr.r();
+    let r00 = r[(0, 0)].abs();
+    if (0..4).any(|k| r[(k, k)].abs() <= 1e-12 * r00) {
+        return Err(FitError::TooFewDepths {
+            joint,
+            got: distinct.len(),
+            need: 4,
+        });
+    }
+    let qtb = qr.q().transpose() * &y;
+    let a = r
+        .solve_upper_triangular(&qtb)
+        .ok_or(FitError::TooFewDepths {
+            joint,
+            got: distinct.len(),
+            need: 4,
+        })?;
+    // p(L) = sum_k a_k ((L - m)/s)^k = sum_k a_k s^-k sum_j C(k,j) L^j (-m)^(k-j)
+    const BINOM: [[f64; 4]; 4] = [
+        [1.0, 0.0, 0.0, 0.0],
+        [1.0, 1.0, 0.0, 0.0],
+        [1.0, 2.0, 1.0, 0.0],
+        [1.0, 3.0, 3.0, 1.0],
+    ];
+    let mut raw = [0.0f64; 4]; // raw[j] = coefficient of L^j
+    for k in 0..4 {
+        let ak = a[k] / scale.powi(k as i32);
+        for j in 0..=k {
+            raw[j] += ak * BINOM[k][j] * (-mean).powi((k - j) as i32);
+        }
+    }
+    let c = [raw[3], raw[2], raw[1], raw[0]];
+    let ybar = y.mean();
+    let (mut ss_res, mut ss_tot) = (0.0, 0.0);
+    for i in 0..n {
+        let e = stiffness_nm_per_rad[i] - eval_cubic(&c, insertion_m[i]);
+        ss_res += e * e;
+        ss_tot += (stiffness_nm_per_rad[i] - ybar).powi(2);
+    }
+    let r_squared = if ss_tot > 0.0 {
+        1.0 - ss_res / ss_tot
+    } else if ss_res <= f64::EPSILON {
+        1.0
+    } else {
+        0.0
+    };
+    Ok((c, r_squared))
+}
+
+fn check_joint(joint: u8) -> Result<(), FitError> {
+    if joint == 1 || joint == 2 {
+        Ok(())
+    } else {
+        Err(FitError::BadJoint { joint })
+    }
+}
+
+/// Rows of `joint` grouped by depth index (ascending), each group in recorded order.
+fn group_by_depth(rows: &[DataRow], joint: u8) -> Vec<Vec<DataRow>> {
+    let mut indices: Vec<u32> = rows
+        .iter()
+        .filter(|r| r.joint == joint)
+        .map(|r| r.depth_index)
+        .collect();
+    indices.sort_unstable();
+    indices.dedup();
+    indices
+        .into_iter()
+        .map(|d| {
+            rows.iter()
+                .filter(|r| r.joint == joint && r.depth_index == d)
+                .copied()
+                .collect()
+        })
+        .collect()
+}
+
+/// Fits one joint of a clamp data set: every depth, then the cubic and the mean backlash.
+pub fn fit_joint(rows: &[DataRow], joint: u8, opts: &FitOptions) -> Result<JointFit, FitError> {
+    check_joint(joint)?;
+    let groups = group_by_depth(rows, joint);
+    if groups.is_empty() {
+        return Err(FitError::NoData { joint });
+    }
+    let depths = groups
+        .iter()
+        .map(|g| fit_depth(g, opts))
+        .collect::<Result<Vec<_>, _>>()?;
+    let l: Vec<f64> = depths.iter().map(|d| d.insertion_m).collect();
+    let k: Vec<f64> = depths.iter().map(|d| d.stiffness_nm_per_rad).collect();
+    let (c, r_squared) = fit_inverse_compliance(joint, &l, &k)?;
+    let range = [
+        l.iter().copied().fold(f64::INFINITY, f64::min),
+        l.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    ];
+    let (at, value) = cubic_min_on(&c, range);
+    if value.is_nan() || value <= 0.0 {
+        return Err(FitError::CubicNotPositive {
+            joint,
+            insertion_m: at,
+            value_nm_per_rad: value,
+        });
+    }
+    let backlash_rad = depths.iter().map(|d| d.backlash_rad).sum::<f64>() / depths.len() as f64;
+    Ok(JointFit {
+        joint,
+        depths,
+        inverse_compliance_nm_per_rad: c,
+        backlash_rad,
+        r_squared,
+        insertion_range_m: range,
+    })
+}
+
+/// Fits every joint present in `rows` (ascending joint number). All or nothing.
+pub fn fit_clamp(rows: &[DataRow], opts: &FitOptions) -> Result<Vec<JointFit>, FitError> {
+    let mut joints: Vec<u8> = rows.iter().map(|r| r.joint).collect();
+    joints.sort_unstable();
+    joints.dedup();
+    if joints.is_empty() {
+        return Err(FitError::NoData { joint: 0 });
+    }
+    joints
+        .into_iter()
+        .map(|j| fit_joint(rows, j, opts))
+        .collect()
+}
+
+/// tau_0(q) table of one joint from an unloaded sweep.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TorqueOffsetTable {
+    pub joint: u8,
+    /// Strictly increasing angles (rad): the mean measured position of each angle group.
+    pub position_rad: Vec<f64>,
+    /// tau_0 per angle (N·m): mean over depths of the per-depth means, so both directions of the
+    /// sweep count equally at each depth and their friction cancels.
+    pub effort_nm: Vec<f64>,
+    /// Depths that contributed.
+    pub depths: usize,
+    /// Per angle, max - min of the per-depth means (N·m); its largest value over angles.
+    pub max_depth_spread_nm: f64,
+    /// Mean over angles of that spread (N·m).
+    pub mean_depth_spread_nm: f64,
+    /// Per depth `(depth_index, insertion_m, mean deviation from the table over its angles)`:
+    /// a systematic dependence on depth shows up here.
+    pub depth_bias_nm: Vec<(u32, f64, f64)>,
+    /// Rows dropped as settling samples.
+    pub dropped_settling: usize,
+}
+
+/// Averages an unloaded sweep of `joint` into a tau_0 table. The sample of tau_0 is each row's
+/// `effort_nm`. Rows are grouped into angles by sorting all positions and starting a new group
+/// where the next position is more than `direction_step_fraction` of the median step beyond the
+/// group's first one.
+pub fn fit_torque_offset(
+    rows: &[DataRow],
+    joint: u8,
+    opts: &FitOptions,
+) -> Result<TorqueOffsetTable, FitError> {
+    check_joint(joint)?;
+    let groups = group_by_depth(rows, joint);
+    if groups.is_empty() {
+        return Err(FitError::NoData { joint });
+    }
+    // (position, effort, depth slot)
+    let mut samples: Vec<(f64, f64, usize)> = Vec::new();
+    let mut steps: Vec<f64> = Vec::new();
+    let mut depth_info: Vec<(u32, f64)> = Vec::new();
+    let mut dropped_settling = 0;
+    for (slot, g) in groups.iter().enumerate() {
+        check_finite(g)?;
+        let kept = drop_settling(g, opts.insertion_tolerance_m);
+        dropped_settling += g.len() - kept.len();
+        steps.extend(
+            kept.windows(2)
+                .map(|w| (w[1].position_rad - w[0].position_rad).abs())
+                .filter(|s| *s > 0.0),
+        );
+        let l = kept.iter().map(|r| r.insertion_m).sum::<f64>() / kept.len().max(1) as f64;
+        depth_info.push((g[0].depth_index, l));
+        samples.extend(kept.iter().map(|r| (r.position_rad, r.effort_nm, slot)));
+    }
+    let tolerance = opts.direction_step_fraction * median(&mut steps);
+    samples.sort_by(|a, b| a.0.total_cmp(&b.0));
+
+    let ndepth = groups.len();
+    let mut position_rad = Vec::new();
+    let mut effort_nm = Vec::new();
+    let mut per_angle_depth_means: Vec<Vec<Option<f64>>> = Vec::new();
+    let mut start = 0;
+    while start < samples.len() {
+        let q0 = samples[start].0;
+        let mut end = start;
+        while end < samples.len() && samples[end].0 - q0 <= tolerance {
+            end += 1;
+        }
+        let group = &samples[start..end];
+        let mut sum = vec![0.0; ndepth];
+        let mut cnt = vec![0usize; ndepth];
+        for &(_, e, s) in group {
+            sum[s] += e;
+            cnt[s] += 1;
+        }
+        let means: Vec<Option<f64>> = (0..ndepth)
+            .map(|s| (cnt[s] > 0).then(|| sum[s] / cnt[s] as f64))
+            .collect();
+        let present: Vec<f64> = means.iter().flatten().copied().collect();
+        position_rad.push(group.iter().map(|s| s.0).sum::<f64>() / group.len() as f64);
+        effort_nm.push(present.iter().sum::<f64>() / present.len() as f64);
+        per_angle_depth_means.push(means);
+        start = end;
+    }
+    if position_rad.len() < 2 {
+        return Err(FitError::TooFewAngles {
+            joint,
+            got: position_rad.len(),
+        });
+    }
+    let spreads: Vec<f64> = per_angle_depth_means
+        .iter()
+        .map(|m| {
+            let v: Vec<f64> = m.iter().flatten().copied().collect();
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            hi - lo
+        })
+        .collect();
+    let depth_bias_nm = (0..ndepth)
+        .map(|s| {
+            let dev: Vec<f64> = per_angle_depth_means
+                .iter()
+                .zip(effort_nm.iter())
+                .filter_map(|(m, t)| m[s].map(|v| v - t))
+                .collect();
+            let bias = dev.iter().sum::<f64>() / dev.len().max(1) as f64;
+            (depth_info[s].0, depth_info[s].1, bias)
+        })
+        .collect();
+    Ok(TorqueOffsetTable {
+        joint,
+        depths: ndepth,
+        max_depth_spread_nm: spreads.iter().copied().fold(0.0, f64::max),
+        mean_depth_spread_nm: spreads.iter().sum::<f64>() / spreads.len() as f64,
+        position_rad,
+        effort_nm,
+        depth_bias_nm,
+        dropped_settling,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic noise in [-1, 1).
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        }
+    }
+
+    /// Clamp procedure on a shaft with a play of half-width `delta` (play operator) in series
+    /// with stiffness `k`: out in `first_dir` until |tau| > 1, back until |tau| > 1, out again
+    /// until past the start. Returns rows with direction 0 (as the 2017 files) and the indices of
+    /// rows recorded while the shaft crossed the play after a reversal.
+    struct Clamp {
+        joint: u8,
+        depth_index: u32,
+        insertion_m: f64,
+        k: f64,
+        delta: f64,
+        noise_nm: f64,
+        first_dir: f64,
+    }
+
+    impl Clamp {
+        fn rows(&self, seed: u64) -> (Vec<DataRow>, Vec<usize>) {
+            let mut rng = Lcg(seed);
+            let step = 0.25e-3 / self.insertion_m;
+            let q_tip = 0.01;
+            let mut q = q_tip;
+            let mut root = q_tip; // shaft root, starts centred in the play
+            let mut rows = Vec::new();
+            let mut crossing = Vec::new();
+            let mut dir = self.first_dir;
+            let mut phase = 0;
+            loop {
+                q += dir * step;
+                let before = root;
+                if q - root > self.delta {
+                    root = q - self.delta;
+                } else if q - root < -self.delta {
+                    root = q + self.delta;
+                }
+                let engaged = root != before;
+                let tau = self.k * (root - q_tip);
+                let offset = 0.1 + 0.2 * q;
+                if !engaged {
+                    crossing.push(rows.len());
+                }
+                rows.push(DataRow {
+                    joint: self.joint,
+                    depth_index: self.depth_index,
+                    insertion_m: self.insertion_m,
+                    position_rad: q,
+                    effort_nm: tau + offset + self.noise_nm * rng.next(),
+                    torque_offset_nm: offset,
+                    direction: 0,
+                });
+                match phase {
+                    0 | 1 if tau.abs() > 1.0 && tau.signum() == dir => {
+                        dir = -dir;
+                        phase += 1;
+                    }
+                    2 if (q - q_tip) * dir > 0.0 => break,
+                    _ => {}
+                }
+            }
+            (rows, crossing)
+        }
+    }
+
+    fn clamp(k: f64, delta: f64) -> Clamp {
+        Clamp {
+            joint: 1,
+            depth_index: 0,
+            insertion_m: 0.12,
+            k,
+            delta,
+            noise_nm: 0.0,
+            first_dir: -1.0,
+        }
+    }
+
+    #[test]
+    fn exact_play_data_gives_exact_stiffness_and_backlash() {
+        let (rows, crossing) = clamp(20.0, 0.003).rows(1);
+        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert!((fit.stiffness_nm_per_rad - 20.0).abs() < 1e-9, "{fit:?}");
+        assert!((fit.backlash_rad - 0.003).abs() < 1e-9, "{fit:?}");
+        // play operator: the moving-+ branch lies 2 delta to the right
+        assert!((fit.hysteresis_gap_rad + 0.006).abs() < 1e-9);
+        assert!(fit.directions_derived);
+        assert_eq!(fit.points + fit.excluded_transition, rows.len());
+        // every row that was crossing the play is left out...
+        assert!(crossing.len() >= 4);
+        assert!(fit.excluded_transition >= crossing.len());
+        // ...and no more than one extra per segment start (the row exactly 2 delta away)
+        assert!(fit.excluded_transition <= crossing.len() + 3, "{fit:?}");
+    }
+
+    #[test]
+    fn leaving_the_turnarounds_in_biases_the_fit() {
+        let (rows, _) = clamp(20.0, 0.003).rows(1);
+        let plain = FitOptions {
+            max_transition_iterations: 0,
+            ..FitOptions::default()
+        };
+        let biased = fit_depth(&rows, &plain).unwrap();
+        assert_eq!(biased.excluded_transition, 0);
+        assert!(
+            (biased.backlash_rad - 0.003).abs() > 5e-5,
+            "plain fit unexpectedly exact: {biased:?}"
+        );
+        let good = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert!((good.backlash_rad - 0.003).abs() < (biased.backlash_rad - 0.003).abs());
+    }
+
+    #[test]
+    fn noisy_data_within_tolerance() {
+        let mut c = clamp(25.0, 0.002);
+        c.noise_nm = 0.02;
+        c.first_dir = 1.0;
+        let (rows, _) = c.rows(7);
+        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert!((fit.stiffness_nm_per_rad - 25.0).abs() < 0.5, "{fit:?}");
+        assert!((fit.backlash_rad - 0.002).abs() < 3e-4, "{fit:?}");
+    }
+
+    #[test]
+    fn explicit_direction_column_is_used() {
+        let (mut rows, _) = clamp(20.0, 0.003).rows(1);
+        // label every row by hand the way a recorder does
+        let (dirs, derived) = label_directions(&rows, 0.25);
+        assert!(derived);
+        for (r, d) in rows.iter_mut().zip(dirs.iter()) {
+            r.direction = *d;
+        }
+        // a stationary row at the start is kept out of the lines
+        let mut start = rows[0];
+        start.direction = 0;
+        rows.insert(0, start);
+        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert!(!fit.directions_derived);
+        assert_eq!(fit.stationary, 1);
+        assert!((fit.stiffness_nm_per_rad - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn small_position_change_keeps_direction() {
+        let mk = |q: f64| DataRow {
+            joint: 1,
+            depth_index: 0,
+            insertion_m: 0.1,
+            position_rad: q,
+            effort_nm: 0.0,
+            torque_offset_nm: 0.0,
+            direction: 0,
+        };
+        // steps of 2.5 mrad, then the repeated turnaround sample moving 0.3 mrad further
+        let q = [0.0, -0.0025, -0.005, -0.0075, -0.0078, -0.0053, -0.0028];
+        let rows: Vec<DataRow> = q.iter().map(|&q| mk(q)).collect();
+        let (dirs, _) = label_directions(&rows, 0.25);
+        assert_eq!(dirs, vec![-1, -1, -1, -1, -1, 1, 1]);
+    }
+
+    #[test]
+    fn settling_row_at_another_depth_is_dropped() {
+        let (mut rows, _) = clamp(20.0, 0.003).rows(1);
+        let mut settling = rows[0];
+        settling.insertion_m = 0.16;
+        settling.effort_nm = 5.0;
+        rows.insert(0, settling);
+        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert_eq!(fit.dropped_settling, 1);
+        assert!((fit.stiffness_nm_per_rad - 20.0).abs() < 1e-9);
+        assert!((fit.insertion_m - 0.12).abs() < 1e-12);
+    }
+
+    #[test]
+    fn single_direction_is_an_error() {
+        let (rows, _) = clamp(20.0, 0.003).rows(1);
+        let first_leg: Vec<DataRow> = rows
+            .windows(2)
+            .take_while(|w| w[1].position_rad < w[0].position_rad)
+            .map(|w| w[0])
+            .collect();
+        assert!(first_leg.len() > 10);
+        assert_eq!(
+            fit_depth(&first_leg, &FitOptions::default()),
+            Err(FitError::SingleDirection {
+                joint: 1,
+                depth_index: 0,
+                direction: -1
+            })
+        );
+    }
+
+    #[test]
+    fn too_few_points_is_an_error() {
+        let (rows, _) = clamp(20.0, 0.003).rows(1);
+        let opts = FitOptions {
+            min_points_per_direction: 1000,
+            ..FitOptions::default()
+        };
+        assert!(matches!(
+            fit_depth(&rows, &opts),
+            Err(FitError::TooFewPoints {
+                joint: 1,
+                depth_index: 0,
+                need: 1000,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn negative_slope_is_an_error() {
+        let (mut rows, _) = clamp(20.0, 0.003).rows(1);
+        for r in rows.iter_mut() {
+            r.effort_nm = -r.effort_nm;
+            r.torque_offset_nm = -r.torque_offset_nm;
+        }
+        assert!(matches!(
+            fit_depth(&rows, &FitOptions::default()),
+            Err(FitError::NonPositiveStiffness { joint: 1, slope_nm_per_rad, .. }) if slope_nm_per_rad < 0.0
+        ));
+    }
+
+    #[test]
+    fn non_finite_is_an_error() {
+        let (mut rows, _) = clamp(20.0, 0.003).rows(1);
+        rows[3].effort_nm = f64::NAN;
+        assert_eq!(
+            fit_depth(&rows, &FitOptions::default()),
+            Err(FitError::NonFinite {
+                joint: 1,
+                depth_index: 0,
+                row: 3,
+                field: "effort_nm"
+            })
+        );
+    }
+
+    const PAPER_J1: [f64; 4] = [639.16, -432.35, 136.32, 3.12];
+    const PAPER_J2: [f64; 4] = [3163.17, -1969.15, 448.92, -6.00];
+
+    fn depths() -> Vec<f64> {
+        (0..14).map(|i| 0.09 + 0.01 * i as f64).collect()
+    }
+
+    #[test]
+    fn cubic_recovers_paper_coefficients() {
+        for c in [PAPER_J1, PAPER_J2] {
+            let l = depths();
+            let k: Vec<f64> = l.iter().map(|&l| eval_cubic(&c, l)).collect();
+            let (got, r2) = fit_inverse_compliance(1, &l, &k).unwrap();
+            for i in 0..4 {
+                assert!(
+                    (got[i] - c[i]).abs() < 1e-6 * c[i].abs().max(1.0),
+                    "{got:?}"
+                );
+            }
+            assert!((r2 - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn cubic_r_squared_drops_with_noise() {
+        let l = depths();
+        let mut rng = Lcg(3);
+        let k: Vec<f64> = l
+            .iter()
+            .map(|&l| eval_cubic(&PAPER_J1, l) + 0.5 * rng.next())
+            .collect();
+        let (_, r2) = fit_inverse_compliance(1, &l, &k).unwrap();
+        assert!(r2 < 1.0 && r2 > 0.9, "{r2}");
+    }
+
+    #[test]
+    fn cubic_needs_four_depths() {
+        assert_eq!(
+            fit_inverse_compliance(2, &[0.1, 0.1, 0.2, 0.2, 0.15], &[1.0, 1.0, 2.0, 2.0, 1.5]),
+            Err(FitError::TooFewDepths {
+                joint: 2,
+                got: 3,
+                need: 4
+            })
+        );
+    }
+
+    #[test]
+    fn cubic_minimum_is_exact() {
+        // (L - 0.15)^2 (L + 1) + 1e-4 -> interior local minimum at L = 0.15, value 1e-4
+        // expand: L^3 + 0.7 L^2 - 0.2775 L + 0.0225 + 1e-4
+        let c = [1.0, 0.7, -0.2775, 0.0225 + 1e-4];
+        let (at, v) = cubic_min_on(&c, [0.09, 0.22]);
+        assert!((at - 0.15).abs() < 1e-9);
+        assert!((v - 1e-4).abs() < 1e-12);
+        // the paper's joint-2 cubic is positive on its range but not near its root 0.0142 m
+        assert!(cubic_min_on(&PAPER_J2, [0.09, 0.22]).1 > 0.0);
+        assert!(cubic_min_on(&PAPER_J2, [0.0, 0.22]).1 < 0.0);
+    }
+
+    fn clamp_set(joint: u8, c: &[f64; 4], delta: f64) -> Vec<DataRow> {
+        depths()
+            .into_iter()
+            .enumerate()
+            .flat_map(|(i, l)| {
+                Clamp {
+                    joint,
+                    depth_index: i as u32,
+                    insertion_m: l,
+                    k: eval_cubic(c, l),
+                    delta,
+                    noise_nm: 0.0,
+                    first_dir: if i % 2 == 0 { -1.0 } else { 1.0 },
+                }
+                .rows(i as u64)
+                .0
+            })
+            .collect()
+    }
+
+    #[test]
+    fn full_two_joint_fit_recovers_parameters() {
+        let mut rows = clamp_set(1, &PAPER_J1, 0.003);
+        rows.extend(clamp_set(2, &PAPER_J2, 0.0017));
+        let fits = fit_clamp(&rows, &FitOptions::default()).unwrap();
+        assert_eq!(fits.len(), 2);
+        for (fit, c, d) in [(&fits[0], PAPER_J1, 0.003), (&fits[1], PAPER_J2, 0.0017)] {
+            assert_eq!(fit.depths.len(), 14);
+            for l in depths() {
+                let rel = eval_cubic(&fit.inverse_compliance_nm_per_rad, l) / eval_cubic(&c, l);
+                assert!((rel - 1.0).abs() < 1e-6, "joint {} L {l}: {rel}", fit.joint);
+            }
+            assert!((fit.backlash_rad - d).abs() < 1e-9);
+            assert!(fit.r_squared > 0.999_999);
+            assert!((fit.insertion_range_m[0] - 0.09).abs() < 1e-12);
+            assert!((fit.insertion_range_m[1] - 0.22).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn cubic_dipping_below_zero_is_an_error() {
+        // stiff at both ends, soft in the middle: every depth is fine, the cubic is not
+        let wobble = |l: f64| {
+            if !(0.105..=0.205).contains(&l) {
+                60.0
+            } else {
+                2.0
+            }
+        };
+        let mut rows = Vec::new();
+        for (i, l) in depths().into_iter().enumerate() {
+            rows.extend(
+                Clamp {
+                    joint: 2,
+                    depth_index: i as u32,
+                    insertion_m: l,
+                    k: wobble(l),
+                    delta: 0.002,
+                    noise_nm: 0.0,
+                    first_dir: -1.0,
+                }
+                .rows(1)
+                .0,
+            );
+        }
+        assert!(matches!(
+            fit_joint(&rows, 2, &FitOptions::default()),
+            Err(FitError::CubicNotPositive { joint: 2, value_nm_per_rad, insertion_m })
+                if value_nm_per_rad <= 0.0 && (0.09..=0.22).contains(&insertion_m)
+        ));
+    }
+
+    #[test]
+    fn joint_must_be_one_or_two() {
+        assert_eq!(
+            fit_joint(&[], 3, &FitOptions::default()),
+            Err(FitError::BadJoint { joint: 3 })
+        );
+        assert_eq!(
+            fit_joint(&[], 1, &FitOptions::default()),
+            Err(FitError::NoData { joint: 1 })
+        );
+    }
+
+    /// Sweep out and back over `angles` with Coulomb friction `f` (effort = tau0 + f * dir).
+    fn sweep(joint: u8, depth_index: u32, l: f64, f: f64, bias: f64) -> Vec<DataRow> {
+        let tau0 = |q: f64| 0.1 + 0.05 * q + 0.02 * (5.0 * q).sin();
+        let step = 5f64.to_radians();
+        let mut rows = Vec::new();
+        let mut push = |q: f64, dir: f64| {
+            rows.push(DataRow {
+                joint,
+                depth_index,
+                insertion_m: l,
+                position_rad: q + 1e-5 * dir,
+                effort_nm: tau0(q) + f * dir + bias,
+                torque_offset_nm: 0.0,
+                direction: dir as i8,
+            })
+        };
+        for i in 0..=12 {
+            push(-0.5 + step * i as f64, 1.0);
+        }
+        for i in (0..=12).rev() {
+            push(-0.5 + step * i as f64, -1.0);
+        }
+        rows
+    }
+
+    #[test]
+    fn torque_offset_averages_directions_and_reports_depth_spread() {
+        let mut rows = sweep(2, 0, 0.09, 0.04, 0.0);
+        rows.extend(sweep(2, 1, 0.15, 0.04, 0.01));
+        rows.extend(sweep(2, 2, 0.22, 0.04, -0.01));
+        let t = fit_torque_offset(&rows, 2, &FitOptions::default()).unwrap();
+        assert_eq!(t.position_rad.len(), 13);
+        assert_eq!(t.depths, 3);
+        for (q, e) in t.position_rad.iter().zip(t.effort_nm.iter()) {
+            let expect = 0.1 + 0.05 * q + 0.02 * (5.0 * q).sin();
+            assert!((e - expect).abs() < 1e-6, "{q}: {e} vs {expect}");
+        }
+        assert!(t.position_rad.windows(2).all(|w| w[1] > w[0]));
+        assert!((t.max_depth_spread_nm - 0.02).abs() < 1e-9);
+        assert!((t.depth_bias_nm[1].2 - 0.01).abs() < 1e-9);
+        assert!((t.depth_bias_nm[2].2 + 0.01).abs() < 1e-9);
+    }
+
+    #[test]
+    fn torque_offset_needs_two_angles() {
+        let rows: Vec<DataRow> = sweep(1, 0, 0.1, 0.0, 0.0).into_iter().take(1).collect();
+        assert_eq!(
+            fit_torque_offset(&rows, 1, &FitOptions::default()),
+            Err(FitError::TooFewAngles { joint: 1, got: 1 })
+        );
+    }
+}
