@@ -1,0 +1,646 @@
+//! Scenarios: what the simulated PSM is doing (config/sim/*.toml).
+//!
+//! A scenario fixes the seed and step of the physics, the starting pose, the environment at the
+//! tip, a motion (the setpoints the stand-in console commands over time) and the measurement
+//! noise; optionally the shaft's true compliance and backlash. Files are parsed into
+//! [`ScenarioParams`] (`deny_unknown_fields`) and validated into a [`Scenario`]; every error names
+//! the field and the value.
+//!
+//! ```toml
+//! description = "tip in a divot, pushing with a slow ±1.5 N·m cycle"
+//! seed = 7
+//! dt_s = 0.0001
+//! initial_position = [0.05, -0.1, 0.13, 0.0, 0.0, 0.0, 0.3]
+//!
+//! [environment]
+//! kind = "divot"                 # free | clamp | divot | surface
+//! plate_stiffness_n_per_m = 20000.0
+//! plate_damping_n_s_per_m = 50.0
+//! capture_depth_m = 0.001
+//!
+//! [motion]
+//! kind = "push_cycle"            # hold | push_cycle | trajectory
+//! effort_amplitude_nm = [1.5, 1.5]
+//! period_s = 20.0
+//! insertion_force_n = 2.0
+//!
+//! [noise]
+//! current_noise_amps = 0.002
+//! pot_noise_volts = 0.001
+//! ```
+
+use serde::Deserialize;
+
+use crate::SimError;
+use crate::measure::NoiseParams;
+use crate::physics::{Environment, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm};
+
+/// Environment section, as written in the file.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum EnvironmentParams {
+    // Empty struct variants (not unit variants) so that deny_unknown_fields applies to them.
+    Free {},
+    Clamp {},
+    Divot {
+        plate_stiffness_n_per_m: f64,
+        plate_damping_n_s_per_m: f64,
+        capture_depth_m: f64,
+    },
+    Surface {
+        stiffness_n_per_m: f64,
+        gap_m: f64,
+        tilt_rad: f64,
+    },
+}
+
+/// Motion section, as written in the file.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MotionParams {
+    /// Setpoints stay where they are (at the initial pose unless a caller changes them).
+    Hold {},
+    /// Push against what holds the tip with a slow sinusoidal effort on joints 1 and 2 (joint 2 a
+    /// quarter period later): the setpoint moves by `(delta + K(L)·A)·sin`, so the controller
+    /// pushes with peak effort `A` once the play is taken up. With a divot, the insertion setpoint
+    /// goes `insertion_force_n / plate stiffness` past the plate to keep the tip seated.
+    PushCycle {
+        effort_amplitude_nm: [f64; 2],
+        period_s: f64,
+        insertion_force_n: f64,
+    },
+    /// Smooth sinusoids around the initial pose, one per joint (amplitude 0 = still).
+    Trajectory {
+        amplitude: [f64; NUM_JOINTS],
+        period_s: [f64; NUM_JOINTS],
+    },
+}
+
+/// Noise section.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NoiseSection {
+    pub current_noise_amps: f64,
+    pub pot_noise_volts: f64,
+}
+
+/// Optional shaft section (default: the paper's values).
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ShaftSection {
+    /// `[a, b, c, d]` of `1/K1(L) = a L^3 + b L^2 + c L + d`, N·m/rad.
+    pub inverse_compliance_j1: [f64; 4],
+    pub inverse_compliance_j2: [f64; 4],
+    pub backlash_rad: [f64; 2],
+    pub insertion_range_m: [f64; 2],
+}
+
+/// A scenario file as parsed.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioParams {
+    #[serde(default)]
+    pub description: String,
+    pub seed: u64,
+    pub dt_s: f64,
+    pub initial_position: [f64; NUM_JOINTS],
+    pub environment: EnvironmentParams,
+    pub motion: MotionParams,
+    pub noise: NoiseSection,
+    #[serde(default)]
+    pub shaft: Option<ShaftSection>,
+}
+
+/// What the stand-in console commands over time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Motion {
+    Hold,
+    PushCycle {
+        effort_amplitude_nm: [f64; 2],
+        period_s: f64,
+        insertion_force_n: f64,
+    },
+    Trajectory {
+        amplitude: [f64; NUM_JOINTS],
+        period_s: [f64; NUM_JOINTS],
+    },
+}
+
+/// A validated scenario.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scenario {
+    pub description: String,
+    pub seed: u64,
+    pub dt_s: f64,
+    pub initial_position: [f64; NUM_JOINTS],
+    pub environment: Environment,
+    pub motion: Motion,
+    pub noise: NoiseParams,
+    pub physics: PhysicsParams,
+}
+
+fn invalid(
+    field: impl Into<String>,
+    value: impl std::fmt::Display,
+    reason: &'static str,
+) -> SimError {
+    SimError::InvalidScenario {
+        field: field.into(),
+        value: value.to_string(),
+        reason,
+    }
+}
+
+fn check_finite(field: &str, v: f64) -> Result<f64, SimError> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(invalid(field, v, "must be a finite number"))
+    }
+}
+
+fn check_positive(field: &str, v: f64) -> Result<f64, SimError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(invalid(field, v, "must be a finite number > 0"))
+    }
+}
+
+fn check_non_negative(field: &str, v: f64) -> Result<f64, SimError> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(invalid(field, v, "must be a finite number >= 0"))
+    }
+}
+
+impl Scenario {
+    /// Parse and validate a scenario file's text.
+    pub fn from_toml_str(text: &str) -> Result<Self, SimError> {
+        let params: ScenarioParams =
+            toml::from_str(text).map_err(|e| SimError::ScenarioParse(e.to_string()))?;
+        Self::from_params(params)
+    }
+
+    /// Validate parsed parameters.
+    pub fn from_params(p: ScenarioParams) -> Result<Self, SimError> {
+        let mut physics = PhysicsParams::CLASSIC;
+        if !(p.dt_s.is_finite() && p.dt_s > 0.0 && p.dt_s <= 0.001) {
+            return Err(invalid("dt_s", p.dt_s, "must be in (0, 0.001] s"));
+        }
+        if let Some(s) = p.shaft {
+            for (i, c) in s.inverse_compliance_j1.iter().enumerate() {
+                check_finite(&format!("shaft.inverse_compliance_j1[{i}]"), *c)?;
+            }
+            for (i, c) in s.inverse_compliance_j2.iter().enumerate() {
+                check_finite(&format!("shaft.inverse_compliance_j2[{i}]"), *c)?;
+            }
+            for (i, b) in s.backlash_rad.iter().enumerate() {
+                check_non_negative(&format!("shaft.backlash_rad[{i}]"), *b)?;
+                if *b > 0.05 {
+                    return Err(invalid(
+                        format!("shaft.backlash_rad[{i}]"),
+                        b,
+                        "must be at most 0.05 rad",
+                    ));
+                }
+            }
+            let [lo, hi] = s.insertion_range_m;
+            check_non_negative("shaft.insertion_range_m[0]", lo)?;
+            if !(hi.is_finite() && hi > lo) {
+                return Err(invalid(
+                    "shaft.insertion_range_m[1]",
+                    hi,
+                    "must be finite and above insertion_range_m[0]",
+                ));
+            }
+            let shaft = ShaftParams {
+                inverse_compliance_cubic: [s.inverse_compliance_j1, s.inverse_compliance_j2],
+                backlash_rad: s.backlash_rad,
+                insertion_range_m: s.insertion_range_m,
+            };
+            let kmin = shaft.min_stiffness_nm_per_rad();
+            if !(kmin[0] >= 0.5) {
+                return Err(invalid(
+                    "shaft.inverse_compliance_j1",
+                    format!("{:?} (min {:.3} N·m/rad)", s.inverse_compliance_j1, kmin[0]),
+                    "1/K(L) must stay >= 0.5 N·m/rad over insertion_range_m",
+                ));
+            }
+            if !(kmin[1] >= 0.5) {
+                return Err(invalid(
+                    "shaft.inverse_compliance_j2",
+                    format!("{:?} (min {:.3} N·m/rad)", s.inverse_compliance_j2, kmin[1]),
+                    "1/K(L) must stay >= 0.5 N·m/rad over insertion_range_m",
+                ));
+            }
+            physics.shaft = shaft;
+        }
+        for (j, v) in p.initial_position.iter().enumerate() {
+            let field = format!("initial_position[{j}]");
+            check_finite(&field, *v)?;
+            if *v < physics.position_min[j] || *v > physics.position_max[j] {
+                return Err(invalid(
+                    field,
+                    v,
+                    "outside the joint limits of a Classic PSM",
+                ));
+            }
+        }
+        let environment = match p.environment {
+            EnvironmentParams::Free {} => Environment::Free,
+            EnvironmentParams::Clamp {} => Environment::Clamp,
+            EnvironmentParams::Divot {
+                plate_stiffness_n_per_m,
+                plate_damping_n_s_per_m,
+                capture_depth_m,
+            } => {
+                check_positive(
+                    "environment.plate_stiffness_n_per_m",
+                    plate_stiffness_n_per_m,
+                )?;
+                if plate_stiffness_n_per_m > 1.0e6 {
+                    return Err(invalid(
+                        "environment.plate_stiffness_n_per_m",
+                        plate_stiffness_n_per_m,
+                        "must be at most 1e6 N/m (stability of the explicit step)",
+                    ));
+                }
+                check_non_negative(
+                    "environment.plate_damping_n_s_per_m",
+                    plate_damping_n_s_per_m,
+                )?;
+                check_non_negative("environment.capture_depth_m", capture_depth_m)?;
+                Environment::Divot {
+                    plate_stiffness_n_per_m,
+                    plate_damping_n_s_per_m,
+                    capture_depth_m,
+                }
+            }
+            EnvironmentParams::Surface {
+                stiffness_n_per_m,
+                gap_m,
+                tilt_rad,
+            } => {
+                check_positive("environment.stiffness_n_per_m", stiffness_n_per_m)?;
+                if stiffness_n_per_m > 1.0e6 {
+                    return Err(invalid(
+                        "environment.stiffness_n_per_m",
+                        stiffness_n_per_m,
+                        "must be at most 1e6 N/m (stability of the explicit step)",
+                    ));
+                }
+                check_finite("environment.gap_m", gap_m)?;
+                check_finite("environment.tilt_rad", tilt_rad)?;
+                if tilt_rad.abs() > 1.2 {
+                    return Err(invalid(
+                        "environment.tilt_rad",
+                        tilt_rad,
+                        "must be within ±1.2 rad",
+                    ));
+                }
+                Environment::Surface {
+                    stiffness_n_per_m,
+                    gap_m,
+                    tilt_rad,
+                }
+            }
+        };
+        let motion = match p.motion {
+            MotionParams::Hold {} => Motion::Hold,
+            MotionParams::PushCycle {
+                effort_amplitude_nm,
+                period_s,
+                insertion_force_n,
+            } => {
+                for (i, a) in effort_amplitude_nm.iter().enumerate() {
+                    let field = format!("motion.effort_amplitude_nm[{i}]");
+                    check_non_negative(&field, *a)?;
+                    if *a > physics.pid[i].effort_limit {
+                        return Err(invalid(
+                            field,
+                            a,
+                            "exceeds the joint's effort limit (3.316 N·m)",
+                        ));
+                    }
+                }
+                check_positive("motion.period_s", period_s)?;
+                check_non_negative("motion.insertion_force_n", insertion_force_n)?;
+                if insertion_force_n > physics.pid[2].effort_limit {
+                    return Err(invalid(
+                        "motion.insertion_force_n",
+                        insertion_force_n,
+                        "exceeds the insertion effort limit (9.878 N)",
+                    ));
+                }
+                Motion::PushCycle {
+                    effort_amplitude_nm,
+                    period_s,
+                    insertion_force_n,
+                }
+            }
+            MotionParams::Trajectory {
+                amplitude,
+                period_s,
+            } => {
+                for j in 0..NUM_JOINTS {
+                    check_non_negative(&format!("motion.amplitude[{j}]"), amplitude[j])?;
+                    check_positive(&format!("motion.period_s[{j}]"), period_s[j])?;
+                    let (lo, hi) = (physics.position_min[j], physics.position_max[j]);
+                    let c = p.initial_position[j];
+                    if c - amplitude[j] < lo || c + amplitude[j] > hi {
+                        return Err(invalid(
+                            format!("motion.amplitude[{j}]"),
+                            amplitude[j],
+                            "initial_position ± amplitude leaves the joint limits",
+                        ));
+                    }
+                }
+                Motion::Trajectory {
+                    amplitude,
+                    period_s,
+                }
+            }
+        };
+        let noise = NoiseParams {
+            current_noise_amps: check_non_negative(
+                "noise.current_noise_amps",
+                p.noise.current_noise_amps,
+            )?,
+            pot_noise_volts: check_non_negative("noise.pot_noise_volts", p.noise.pot_noise_volts)?,
+        };
+        Ok(Self {
+            description: p.description,
+            seed: p.seed,
+            dt_s: p.dt_s,
+            initial_position: p.initial_position,
+            environment,
+            motion,
+            noise,
+            physics,
+        })
+    }
+
+    /// The arm at its initial pose with the environment placed there.
+    pub fn build_psm(&self) -> SimPsm {
+        let mut psm = SimPsm::new(self.physics, self.initial_position);
+        psm.set_environment(self.environment);
+        psm
+    }
+
+    /// The driver of this scenario's motion, anchored at the initial pose.
+    pub fn motion_driver(&self) -> MotionDriver {
+        let plate = match self.environment {
+            Environment::Divot {
+                plate_stiffness_n_per_m,
+                ..
+            } => Some(plate_stiffness_n_per_m),
+            _ => None,
+        };
+        MotionDriver {
+            motion: self.motion,
+            anchor: self.initial_position,
+            plate_stiffness_n_per_m: plate,
+        }
+    }
+}
+
+/// Turns a [`Motion`] into setpoints over time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionDriver {
+    motion: Motion,
+    anchor: [f64; NUM_JOINTS],
+    plate_stiffness_n_per_m: Option<f64>,
+}
+
+impl MotionDriver {
+    /// A driver that never touches the setpoints.
+    pub const HOLD: MotionDriver = MotionDriver {
+        motion: Motion::Hold,
+        anchor: [0.0; NUM_JOINTS],
+        plate_stiffness_n_per_m: None,
+    };
+
+    pub fn motion(&self) -> Motion {
+        self.motion
+    }
+
+    /// Set the setpoints for time `t_s` (no-op for `Hold`). No allocation.
+    pub fn apply(&self, t_s: f64, psm: &mut SimPsm) {
+        use core::f64::consts::TAU;
+        match self.motion {
+            Motion::Hold => {}
+            Motion::PushCycle {
+                effort_amplitude_nm,
+                period_s,
+                insertion_force_n,
+            } => {
+                let w = TAU / period_s;
+                let l = self.anchor[2];
+                let shaft = psm.params().shaft;
+                for j in 0..2 {
+                    // Joint 2 starts a quarter period later (no setpoint jump at t = 0).
+                    let t = t_s - 0.25 * period_s * j as f64;
+                    if t < 0.0 {
+                        continue;
+                    }
+                    let reach = shaft.backlash_rad[j]
+                        + shaft.compliance_rad_per_nm(j, l) * effort_amplitude_nm[j];
+                    let (s, c) = (w * t).sin_cos();
+                    psm.set_setpoint_with_velocity(j, self.anchor[j] + reach * s, reach * w * c);
+                }
+                if let Some(k) = self.plate_stiffness_n_per_m {
+                    psm.set_setpoint(2, l + insertion_force_n / k);
+                }
+            }
+            Motion::Trajectory {
+                amplitude,
+                period_s,
+            } => {
+                for j in 0..NUM_JOINTS {
+                    if amplitude[j] == 0.0 {
+                        continue;
+                    }
+                    let w = TAU / period_s[j];
+                    let (s, c) = (w * t_s).sin_cos();
+                    psm.set_setpoint_with_velocity(
+                        j,
+                        self.anchor[j] + amplitude[j] * s,
+                        amplitude[j] * w * c,
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config_dir() -> std::path::PathBuf {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sim")
+    }
+
+    const BASE: &str = r#"
+seed = 1
+dt_s = 0.0001
+initial_position = [0.05, -0.1, 0.13, 0.0, 0.0, 0.0, 0.3]
+[environment]
+kind = "clamp"
+[motion]
+kind = "hold"
+[noise]
+current_noise_amps = 0.0
+pot_noise_volts = 0.0
+"#;
+
+    #[test]
+    fn every_config_sim_file_loads() {
+        let mut names = Vec::new();
+        for entry in std::fs::read_dir(config_dir()).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().and_then(|e| e.to_str()) != Some("toml") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let sc = Scenario::from_toml_str(&text)
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            // Each one runs for a simulated second without leaving the limits.
+            let mut psm = sc.build_psm();
+            let drv = sc.motion_driver();
+            for i in 0..(1.0 / sc.dt_s) as usize {
+                drv.apply(i as f64 * sc.dt_s, &mut psm);
+                psm.step(sc.dt_s);
+            }
+            assert!(psm.joint_state().position.iter().all(|v| v.is_finite()));
+            names.push(path.file_name().unwrap().to_string_lossy().into_owned());
+        }
+        names.sort();
+        for want in [
+            "clamp.toml",
+            "divot-push.toml",
+            "free-motion.toml",
+            "idle.toml",
+        ] {
+            assert!(
+                names.iter().any(|n| n == want),
+                "missing {want} in {names:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn base_scenario_parses() {
+        let sc = Scenario::from_toml_str(BASE).unwrap();
+        assert_eq!(sc.environment, Environment::Clamp);
+        assert_eq!(sc.motion, Motion::Hold);
+        assert_eq!(sc.physics.shaft, ShaftParams::PAPER);
+    }
+
+    fn err_of(text: &str) -> String {
+        Scenario::from_toml_str(text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn unknown_fields_are_rejected_with_their_name() {
+        let e = err_of(&format!("{BASE}\nspeed = 3\n"));
+        assert!(e.contains("speed"), "{e}");
+        let e = err_of(&BASE.replace(
+            "kind = \"clamp\"",
+            "kind = \"clamp\"\nstiffness_n_per_m = 3.0",
+        ));
+        assert!(e.contains("stiffness_n_per_m"), "{e}");
+        let e = err_of(&BASE.replace("kind = \"clamp\"", "kind = \"vice\""));
+        assert!(e.contains("vice"), "{e}");
+    }
+
+    #[test]
+    fn bad_values_name_field_and_value() {
+        let e = err_of(&BASE.replace("dt_s = 0.0001", "dt_s = 0.5"));
+        assert!(e.contains("dt_s") && e.contains("0.5"), "{e}");
+        let e = err_of(&BASE.replace("0.13, 0.0, 0.0", "0.3, 0.0, 0.0"));
+        assert!(
+            e.contains("initial_position[2]") && e.contains("0.3"),
+            "{e}"
+        );
+        let e = err_of(&BASE.replace("current_noise_amps = 0.0", "current_noise_amps = -1.0"));
+        assert!(
+            e.contains("noise.current_noise_amps") && e.contains("-1"),
+            "{e}"
+        );
+        let e = err_of(&BASE.replace(
+            "kind = \"clamp\"",
+            "kind = \"surface\"\nstiffness_n_per_m = 0.0\ngap_m = 0.0\ntilt_rad = 0.0",
+        ));
+        assert!(
+            e.contains("environment.stiffness_n_per_m") && e.contains('0'),
+            "{e}"
+        );
+        let e = err_of(&BASE.replace(
+            "kind = \"hold\"",
+            "kind = \"push_cycle\"\neffort_amplitude_nm = [5.0, 1.0]\nperiod_s = 10.0\ninsertion_force_n = 1.0",
+        ));
+        assert!(
+            e.contains("motion.effort_amplitude_nm[0]") && e.contains('5'),
+            "{e}"
+        );
+        let shaft = "\n[shaft]\ninverse_compliance_j1 = [0.0, 0.0, 0.0, -1.0]\ninverse_compliance_j2 = [0.0, 0.0, 0.0, 20.0]\nbacklash_rad = [0.003, 0.0017]\ninsertion_range_m = [0.05, 0.24]\n";
+        let e = err_of(&format!("{BASE}{shaft}"));
+        assert!(
+            e.contains("shaft.inverse_compliance_j1") && e.contains("-1"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn custom_shaft_is_used() {
+        let shaft = "\n[shaft]\ninverse_compliance_j1 = [0.0, 0.0, 0.0, 20.0]\ninverse_compliance_j2 = [0.0, 0.0, 0.0, 30.0]\nbacklash_rad = [0.001, 0.002]\ninsertion_range_m = [0.05, 0.24]\n";
+        let sc = Scenario::from_toml_str(&format!("{BASE}{shaft}")).unwrap();
+        assert_eq!(sc.physics.shaft.stiffness_nm_per_rad(0, 0.1), 20.0);
+        assert_eq!(sc.physics.shaft.backlash_rad, [0.001, 0.002]);
+    }
+
+    #[test]
+    fn push_cycle_reaches_the_requested_effort_in_a_divot() {
+        let text = BASE
+            .replace(
+                "kind = \"clamp\"",
+                "kind = \"divot\"\nplate_stiffness_n_per_m = 20000.0\nplate_damping_n_s_per_m = 50.0\ncapture_depth_m = 0.001",
+            )
+            .replace(
+                "kind = \"hold\"",
+                "kind = \"push_cycle\"\neffort_amplitude_nm = [1.5, 1.0]\nperiod_s = 8.0\ninsertion_force_n = 2.0",
+            );
+        let sc = Scenario::from_toml_str(&text).unwrap();
+        let mut psm = sc.build_psm();
+        let drv = sc.motion_driver();
+        let (mut lo, mut hi) = ([0.0f64; 2], [0.0f64; 2]);
+        let tip0 = psm.truth().tip_position_m;
+        let mut max_tip_move: f64 = 0.0;
+        for i in 0..(16.0 / sc.dt_s) as usize {
+            drv.apply(i as f64 * sc.dt_s, &mut psm);
+            psm.step(sc.dt_s);
+            let t = psm.truth();
+            for j in 0..2 {
+                lo[j] = lo[j].min(t.tau_ext_nm[j]);
+                hi[j] = hi[j].max(t.tau_ext_nm[j]);
+            }
+            let d = ((t.tip_position_m[0] - tip0[0]).powi(2)
+                + (t.tip_position_m[1] - tip0[1]).powi(2))
+            .sqrt();
+            max_tip_move = max_tip_move.max(d);
+        }
+        assert!(
+            (hi[0] - 1.5).abs() < 0.1 && (lo[0] + 1.5).abs() < 0.1,
+            "{lo:?} {hi:?}"
+        );
+        assert!(
+            (hi[1] - 1.0).abs() < 0.1 && (lo[1] + 1.0).abs() < 0.1,
+            "{lo:?} {hi:?}"
+        );
+        // The tip stays in the divot (axial compression only, 0.1 mm).
+        assert!(max_tip_move < 2e-4, "{max_tip_move}");
+    }
+}
