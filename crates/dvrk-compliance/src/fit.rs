@@ -5,30 +5,47 @@
 //!
 //! - [`fit_clamp`] / [`fit_joint`]: the clamp-beam experiment. Per joint and insertion depth,
 //!   `tau_ext = effort - torque_offset`, a least-squares line of `tau_ext` against the joint
-//!   position for each direction of motion, stiffness = mean of the two slopes, backlash = half the
-//!   horizontal gap between the two lines at `tau_ext = 0`. Across depths, 1/K(L) is a least-squares
+//!   position for each branch (direction of motion, or sign of the load: see below), stiffness =
+//!   mean of the two slopes, backlash = half the horizontal gap between the two lines at
+//!   `tau_ext = 0`. Across depths, 1/K(L) is a least-squares
 //!   cubic of stiffness against insertion and the backlash is the mean over depths.
 //! - [`fit_torque_offset`]: the unloaded sweep, averaged per angle into a tau_0(q) table, with how
 //!   much it varies with depth.
 //!
-//! # Which samples the lines leave out, and why
+//! # Which rows go into which line, which are left out, and why
 //!
-//! The shaft sits in the cannula with a play of half-width `delta` in series with its compliance
-//! (paper Fig. 2, Eq. 1). While the joint keeps moving one way, the shaft is pressed against one
-//! side of the play and `tau_ext` follows a straight line of slope 1/K. When the joint reverses,
-//! the shaft first has to cross the play: for a joint travel of `2 * delta` (the full horizontal
-//! gap between the two direction lines) the torque is still reversing and lies between the two
-//! lines, on neither of them. So, per run of rows moving in one direction (a *segment*), the rows
-//! whose position is less than the current gap estimate away from the reversal point (the position
-//! of the last row before the segment) are left out of the line fits. The first segment of a depth
-//! is treated the same way from its first row, because the side of the play the shaft rests on
-//! when a depth starts is unknown.
+//! Eq. 1 says the joint angle leads the shaft by `delta` on one side of the play or the other,
+//! plus `K * tau_ext`. Which side the shaft is pressed against depends on the mechanism, and two
+//! kinds of clamp data exist:
 //!
-//! The gap is not known before the fit, so the fit iterates: a plain fit with every row, then the
-//! exclusion with the gap that fit gives, refit, until the set of excluded rows stops changing
-//! (at most [`FitOptions::max_transition_iterations`] rounds). Rows with direction 0 (stationary)
-//! are never in a line fit but still mark where a segment starts. How many rows were left out is
-//! reported per depth ([`DepthFit::excluded_transition`]).
+//! - **Hysteresis by direction of motion** (the paper's Fig. 5, and the real 2017 recordings):
+//!   each direction of motion traces its own straight line over the whole torque range, the two
+//!   lines parallel and offset. Rows are split by direction of motion (*motion split*). Right
+//!   after a reversal the torque is still reversing: for a joint travel of about the full
+//!   horizontal gap between the lines (`2 * delta` for a play) it lies between the two lines, on
+//!   neither. So, per run of rows moving one way (a *segment*), the rows whose position is less
+//!   than the current gap estimate away from the reversal point (the position of the last row
+//!   before the segment) are left out. The first segment of a depth is treated the same way from
+//!   its first row, because the side the shaft rests on when a depth starts is unknown.
+//! - **A dead zone** (a play whose shaft side is set by the load alone, as dvrk-sim models it):
+//!   both directions of motion trace the same curve, a line of slope 1/K for `tau_ext > 0`
+//!   crossing zero at `q_tip + delta`, a flat zero inside the play, and a parallel line for
+//!   `tau_ext < 0` crossing at `q_tip - delta`. Lines per direction of motion cannot see this
+//!   (both directions give the same line, the gap is zero); the rows are split by the sign of
+//!   `tau_ext` instead (*load split*, the two branches of Eq. 1). Left out are rows inside the
+//!   play (position strictly between the two zero crossings) and rows whose |tau_ext| is within
+//!   3 residual RMS of zero, whose side is only noise.
+//!
+//! [`BranchRule::Auto`] (the default) fits both and keeps the split whose two lines leave the
+//! smaller pooled RMS residual, i.e. the model that explains the data. On the 2017 recordings the
+//! motion split wins by a factor of 3 or more; on dead-zone data the load split fits exactly.
+//! The result says which one was used ([`DepthFit::branches`]).
+//!
+//! Neither set of left-out rows is known before the lines are, so both fits iterate: a fit with
+//! every row, then the exclusion that fit implies, refit, until the set of left-out rows stops
+//! changing (at most [`FitOptions::max_transition_iterations`] rounds). Rows with direction 0
+//! (stationary) are never in a motion line but still mark where a segment starts. How many rows
+//! were left out is reported per depth ([`DepthFit::excluded`]).
 //!
 //! # Direction of motion
 //!
@@ -86,8 +103,10 @@ pub struct FitOptions {
     /// Rows further than this from their depth's median insertion are settling samples and are
     /// dropped (default 0.002 m).
     pub insertion_tolerance_m: f64,
-    /// Rounds of the turnaround exclusion (default 10).
+    /// Rounds of the turnaround / play exclusion (default 10).
     pub max_transition_iterations: usize,
+    /// How rows are split into the two lines (default [`BranchRule::Auto`]).
+    pub branches: BranchRule,
 }
 
 impl Default for FitOptions {
@@ -97,6 +116,7 @@ impl Default for FitOptions {
             direction_step_fraction: 0.25,
             insertion_tolerance_m: 0.002,
             max_transition_iterations: 10,
+            branches: BranchRule::Auto,
         }
     }
 }
@@ -198,18 +218,22 @@ pub struct DepthFit {
     pub depth_index: u32,
     /// Mean insertion of the rows kept (m).
     pub insertion_m: f64,
-    /// `[line of rows moving +, line of rows moving -]`.
+    /// `[+ line, - line]`: rows moving + / - (motion split) or with tau_ext > 0 / < 0 (load split).
     pub lines: [Line; 2],
     /// Mean of the two slopes (N·m/rad).
     pub stiffness_nm_per_rad: f64,
     /// Half the horizontal gap between the two lines at tau_ext = 0 (rad, >= 0).
     pub backlash_rad: f64,
-    /// Signed gap `zero(-) - zero(+)` (rad); its sign says on which side the moving-+ branch lies.
+    /// Signed gap `zero(-) - zero(+)` (rad). A play gives a negative gap (the `+` line crosses
+    /// zero to the right); friction-like hysteresis, where the torque leads the motion, a positive
+    /// one.
     pub hysteresis_gap_rad: f64,
+    /// Which split the lines come from.
+    pub branches: Branches,
     /// Rows in the two line fits.
     pub points: usize,
-    /// Rows left out as turnaround transitions.
-    pub excluded_transition: usize,
+    /// Rows left out: turnaround transitions (motion split) or rows inside the play (load split).
+    pub excluded: usize,
     /// Rows dropped as settling samples (insertion off the depth).
     pub dropped_settling: usize,
     /// Rows with no direction (stationary), not in a line.
@@ -408,8 +432,168 @@ fn fit_line(points: impl Iterator<Item = (f64, f64)> + Clone) -> Option<Line> {
     })
 }
 
-/// Fits the two direction lines at one depth of one joint. `rows` are that depth's rows in
-/// recorded order (all with the same joint).
+/// How the rows of one depth are split into the two lines.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BranchRule {
+    /// Fit both and keep the one whose lines explain the data better (smaller pooled RMS
+    /// residual). See the module docs.
+    #[default]
+    Auto,
+    /// Lines by direction of motion (paper Fig. 5), turnaround transitions left out.
+    Motion,
+    /// Lines by the sign of tau_ext (the two branches of Eq. 1), rows inside the play left out.
+    Load,
+}
+
+/// Which split a [`DepthFit`] used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Branches {
+    Motion,
+    Load,
+}
+
+struct BranchFit {
+    lines: [Line; 2],
+    excluded: usize,
+}
+
+impl BranchFit {
+    fn pooled_rms_nm(&self) -> f64 {
+        let [a, b] = self.lines;
+        let ss = a.residual_rms_nm.powi(2) * a.points as f64
+            + b.residual_rms_nm.powi(2) * b.points as f64;
+        (ss / (a.points + b.points) as f64).sqrt()
+    }
+}
+
+/// Fits `+` and `-` lines to the rows whose `side` is +1 / -1 and not excluded.
+fn fit_sides(
+    rows: &[DataRow],
+    side: &[i8],
+    excluded: &[bool],
+    joint: u8,
+    depth_index: u32,
+    opts: &FitOptions,
+) -> Result<[Line; 2], FitError> {
+    let need = opts.min_points_per_direction.max(2);
+    let fit_one = |dir: i8| -> Result<Line, FitError> {
+        let pts = rows
+            .iter()
+            .zip(side.iter())
+            .zip(excluded.iter())
+            .filter(move |((_, s), ex)| **s == dir && !**ex)
+            .map(|((r, _), _)| (r.position_rad, r.tau_ext_nm()));
+        let got = pts.clone().count();
+        if got < need {
+            return Err(FitError::TooFewPoints {
+                joint,
+                depth_index,
+                direction: dir,
+                got,
+                need,
+            });
+        }
+        let line = fit_line(pts).ok_or(FitError::DegeneratePositions {
+            joint,
+            depth_index,
+            direction: dir,
+        })?;
+        if line.slope <= 0.0 || !line.slope.is_finite() {
+            return Err(FitError::NonPositiveStiffness {
+                joint,
+                depth_index,
+                direction: dir,
+                slope_nm_per_rad: line.slope,
+            });
+        }
+        Ok(line)
+    };
+    Ok([fit_one(1)?, fit_one(-1)?])
+}
+
+/// Motion branches: the turnaround rule of the module docs, iterated to a fixed point.
+fn fit_motion(
+    rows: &[DataRow],
+    dirs: &[i8],
+    joint: u8,
+    depth_index: u32,
+    opts: &FitOptions,
+) -> Result<BranchFit, FitError> {
+    let mut excluded = vec![false; rows.len()];
+    let mut lines = fit_sides(rows, dirs, &excluded, joint, depth_index, opts)?;
+    let mut next = vec![false; rows.len()];
+    for _ in 0..opts.max_transition_iterations {
+        let gap = (lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad()).abs();
+        transition_mask(rows, dirs, gap, &mut next);
+        if next == excluded {
+            break;
+        }
+        lines = fit_sides(rows, dirs, &next, joint, depth_index, opts)?;
+        std::mem::swap(&mut excluded, &mut next);
+    }
+    Ok(BranchFit {
+        lines,
+        excluded: excluded.iter().filter(|&&e| e).count(),
+    })
+}
+
+/// Rows whose |tau_ext| is within this many pooled residual RMS of zero have no reliable side in
+/// the load split.
+const LOAD_BAND_SIGMAS: f64 = 3.0;
+
+/// Load branches: side = sign of tau_ext. Left out: rows whose |tau_ext| is within
+/// [`LOAD_BAND_SIGMAS`] residual RMS of zero (their sign is noise), and rows whose position lies
+/// inside the play (strictly between the zero crossings of the `-` and `+` lines, when the `+`
+/// line crosses to the right); iterated to a fixed point.
+fn fit_load(
+    rows: &[DataRow],
+    joint: u8,
+    depth_index: u32,
+    opts: &FitOptions,
+) -> Result<BranchFit, FitError> {
+    let side: Vec<i8> = rows
+        .iter()
+        .map(|r| {
+            let t = r.tau_ext_nm();
+            if t > 0.0 {
+                1
+            } else if t < 0.0 {
+                -1
+            } else {
+                0
+            }
+        })
+        .collect();
+    let mut excluded: Vec<bool> = side.iter().map(|&s| s == 0).collect();
+    let mut fit = BranchFit {
+        lines: fit_sides(rows, &side, &excluded, joint, depth_index, opts)?,
+        excluded: 0,
+    };
+    for _ in 0..opts.max_transition_iterations {
+        let lines = fit.lines;
+        let (lo, hi) = (lines[1].zero_crossing_rad(), lines[0].zero_crossing_rad());
+        let band = LOAD_BAND_SIGMAS * fit.pooled_rms_nm();
+        let next: Vec<bool> = rows
+            .iter()
+            .zip(side.iter())
+            .map(|(r, &s)| {
+                s == 0
+                    || r.tau_ext_nm().abs() <= band
+                    || (lo < r.position_rad && r.position_rad < hi)
+            })
+            .collect();
+        if next == excluded {
+            break;
+        }
+        fit.lines = fit_sides(rows, &side, &next, joint, depth_index, opts)?;
+        excluded = next;
+    }
+    fit.excluded = excluded.iter().filter(|&&e| e).count();
+    Ok(fit)
+}
+
+/// Fits the two lines at one depth of one joint (see the module docs for the rules). `rows` are
+/// that depth's rows in recorded order (all with the same joint).
 pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitError> {
     let Some(first) = rows.first() else {
         return Err(FitError::NoData { joint: 0 });
@@ -430,61 +614,33 @@ pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitErr
         }
     }
 
-    let mut excluded = vec![false; kept.len()];
-    let fit_both = |excluded: &[bool]| -> Result<[Line; 2], FitError> {
-        let mut lines = [None, None];
-        for (k, dir) in [1i8, -1].into_iter().enumerate() {
-            let pts = kept
-                .iter()
-                .zip(dirs.iter())
-                .zip(excluded.iter())
-                .filter(move |((_, d), ex)| **d == dir && !**ex)
-                .map(|((r, _), _)| (r.position_rad, r.tau_ext_nm()));
-            let got = pts.clone().count();
-            if got < opts.min_points_per_direction.max(2) {
-                return Err(FitError::TooFewPoints {
-                    joint,
-                    depth_index,
-                    direction: dir,
-                    got,
-                    need: opts.min_points_per_direction.max(2),
-                });
+    let (branches, fit) = match opts.branches {
+        BranchRule::Motion => (
+            Branches::Motion,
+            fit_motion(&kept, &dirs, joint, depth_index, opts)?,
+        ),
+        BranchRule::Load => (Branches::Load, fit_load(&kept, joint, depth_index, opts)?),
+        BranchRule::Auto => {
+            match (
+                fit_motion(&kept, &dirs, joint, depth_index, opts),
+                fit_load(&kept, joint, depth_index, opts),
+            ) {
+                (Ok(m), Ok(l)) => {
+                    if l.pooled_rms_nm() < m.pooled_rms_nm() {
+                        (Branches::Load, l)
+                    } else {
+                        (Branches::Motion, m)
+                    }
+                }
+                (Ok(m), Err(_)) => (Branches::Motion, m),
+                (Err(_), Ok(l)) => (Branches::Load, l),
+                (Err(e), Err(_)) => return Err(e),
             }
-            let line = fit_line(pts).ok_or(FitError::DegeneratePositions {
-                joint,
-                depth_index,
-                direction: dir,
-            })?;
-            if line.slope <= 0.0 || !line.slope.is_finite() {
-                return Err(FitError::NonPositiveStiffness {
-                    joint,
-                    depth_index,
-                    direction: dir,
-                    slope_nm_per_rad: line.slope,
-                });
-            }
-            lines[k] = Some(line);
-        }
-        match lines {
-            [Some(p), Some(n)] => Ok([p, n]),
-            _ => Err(FitError::NoData { joint }),
         }
     };
 
-    let mut lines = fit_both(&excluded)?;
-    let mut next = vec![false; kept.len()];
-    for _ in 0..opts.max_transition_iterations {
-        let gap = (lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad()).abs();
-        transition_mask(&kept, &dirs, gap, &mut next);
-        if next == excluded {
-            break;
-        }
-        lines = fit_both(&next)?;
-        std::mem::swap(&mut excluded, &mut next);
-    }
-
+    let lines = fit.lines;
     let gap = lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad();
-    let used = lines[0].points + lines[1].points;
     let insertion_m = kept.iter().map(|r| r.insertion_m).sum::<f64>() / kept.len() as f64;
     Ok(DepthFit {
         joint,
@@ -494,8 +650,9 @@ pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitErr
         stiffness_nm_per_rad: 0.5 * (lines[0].slope + lines[1].slope),
         backlash_rad: 0.5 * gap.abs(),
         hysteresis_gap_rad: gap,
-        points: used,
-        excluded_transition: excluded.iter().filter(|&&e| e).count(),
+        branches,
+        points: lines[0].points + lines[1].points,
+        excluded: fit.excluded,
         dropped_settling,
         stationary,
         directions_derived,
@@ -810,6 +967,9 @@ mod tests {
         delta: f64,
         noise_nm: f64,
         first_dir: f64,
+        /// Shaft held by the clamp with a dead zone (dvrk-sim's model) instead of a play
+        /// operator: the torque depends on the twist alone.
+        dead_zone: bool,
     }
 
     impl Clamp {
@@ -831,8 +991,18 @@ mod tests {
                 } else if q - root < -self.delta {
                     root = q + self.delta;
                 }
-                let engaged = root != before;
-                let tau = self.k * (root - q_tip);
+                let (engaged, tau) = if self.dead_zone {
+                    let x = q - q_tip;
+                    if x > self.delta {
+                        (true, self.k * (x - self.delta))
+                    } else if x < -self.delta {
+                        (true, self.k * (x + self.delta))
+                    } else {
+                        (false, 0.0)
+                    }
+                } else {
+                    (root != before, self.k * (root - q_tip))
+                };
                 let offset = 0.1 + 0.2 * q;
                 if !engaged {
                     crossing.push(rows.len());
@@ -868,6 +1038,7 @@ mod tests {
             delta,
             noise_nm: 0.0,
             first_dir: -1.0,
+            dead_zone: false,
         }
     }
 
@@ -879,13 +1050,14 @@ mod tests {
         assert!((fit.backlash_rad - 0.003).abs() < 1e-9, "{fit:?}");
         // play operator: the moving-+ branch lies 2 delta to the right
         assert!((fit.hysteresis_gap_rad + 0.006).abs() < 1e-9);
+        assert_eq!(fit.branches, Branches::Motion);
         assert!(fit.directions_derived);
-        assert_eq!(fit.points + fit.excluded_transition, rows.len());
+        assert_eq!(fit.points + fit.excluded, rows.len());
         // every row that was crossing the play is left out...
         assert!(crossing.len() >= 4);
-        assert!(fit.excluded_transition >= crossing.len());
+        assert!(fit.excluded >= crossing.len());
         // ...and no more than one extra per segment start (the row exactly 2 delta away)
-        assert!(fit.excluded_transition <= crossing.len() + 3, "{fit:?}");
+        assert!(fit.excluded <= crossing.len() + 3, "{fit:?}");
     }
 
     #[test]
@@ -896,13 +1068,59 @@ mod tests {
             ..FitOptions::default()
         };
         let biased = fit_depth(&rows, &plain).unwrap();
-        assert_eq!(biased.excluded_transition, 0);
+        assert_eq!(biased.excluded, 0);
         assert!(
             (biased.backlash_rad - 0.003).abs() > 5e-5,
             "plain fit unexpectedly exact: {biased:?}"
         );
         let good = fit_depth(&rows, &FitOptions::default()).unwrap();
         assert!((good.backlash_rad - 0.003).abs() < (biased.backlash_rad - 0.003).abs());
+    }
+
+    #[test]
+    fn dead_zone_data_is_split_by_load_sign() {
+        let mut c = clamp(20.0, 0.003);
+        c.dead_zone = true;
+        let (rows, in_play) = c.rows(1);
+        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert_eq!(fit.branches, Branches::Load);
+        assert!((fit.stiffness_nm_per_rad - 20.0).abs() < 1e-9, "{fit:?}");
+        assert!((fit.backlash_rad - 0.003).abs() < 1e-9, "{fit:?}");
+        // exactly the rows with no torque (inside the play) are left out
+        assert_eq!(fit.excluded, in_play.len());
+        // the direction-of-motion split cannot see a dead zone: both directions trace the same
+        // curve, so the gap and the backlash vanish
+        let motion = FitOptions {
+            branches: BranchRule::Motion,
+            ..FitOptions::default()
+        };
+        let wrong = fit_depth(&rows, &motion).unwrap();
+        assert!(wrong.backlash_rad < 0.001, "{wrong:?}");
+    }
+
+    #[test]
+    fn noisy_dead_zone_within_tolerance() {
+        let mut c = clamp(15.0, 0.0017);
+        c.dead_zone = true;
+        c.noise_nm = 0.02;
+        let (rows, _) = c.rows(11);
+        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
+        assert_eq!(fit.branches, Branches::Load);
+        assert!((fit.stiffness_nm_per_rad - 15.0).abs() < 0.3, "{fit:?}");
+        assert!((fit.backlash_rad - 0.0017).abs() < 3e-4, "{fit:?}");
+    }
+
+    #[test]
+    fn play_data_forced_to_load_split_fits_worse() {
+        let (rows, _) = clamp(20.0, 0.003).rows(1);
+        let load = FitOptions {
+            branches: BranchRule::Load,
+            ..FitOptions::default()
+        };
+        let forced = fit_depth(&rows, &load).unwrap();
+        let auto = fit_depth(&rows, &FitOptions::default()).unwrap();
+        let rms = |f: &DepthFit| f.lines[0].residual_rms_nm.max(f.lines[1].residual_rms_nm);
+        assert!(rms(&forced) > 10.0 * rms(&auto).max(1e-6), "{forced:?}");
     }
 
     #[test]
@@ -1104,6 +1322,7 @@ mod tests {
                     delta,
                     noise_nm: 0.0,
                     first_dir: if i % 2 == 0 { -1.0 } else { 1.0 },
+                    dead_zone: i % 3 == 0,
                 }
                 .rows(i as u64)
                 .0
@@ -1151,6 +1370,7 @@ mod tests {
                     delta: 0.002,
                     noise_nm: 0.0,
                     first_dir: -1.0,
+                    dead_zone: false,
                 }
                 .rows(1)
                 .0,
