@@ -12,4 +12,11 @@
 //! Facts and constants come from `shared/reference/dvrk-board-protocol.md`; doc comments cite
 //! its sections as "reference §N".
 
+pub mod convert;
+pub mod port;
 pub mod wire;
+
+pub use convert::{
+    ArmSample, AxisHealth, BoardHealth, IoConfig, IoConfigError, MAX_BOARDS, NUM_JOINTS,
+};
+pub use port::{EthPort, Link, Port, PortError, UdpLink, UdpPort, WriteAccess};

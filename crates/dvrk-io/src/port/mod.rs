@@ -1,0 +1,158 @@
+//! Ports: how bytes reach the boards.
+//!
+//! - [`Port`]: the read-only interface the reader uses (quadlet read, block read, broadcast
+//!   query plus hub read). Writes are not on it.
+//! - [`Link`]: one datagram transport. [`EthPort`] is the Ethernet protocol engine (request
+//!   building, transaction labels, reply validation, counters) over any link: [`UdpLink`] (a
+//!   real UDP socket), dvrk-sim's in-process emulator, [`ReplayLink`] (recorded frames) or a
+//!   [`FaultInjector`].
+//! - [`WriteAccess`]: the write capability, reachable only through [`EthPort::allow_writes`],
+//!   because any accepted register write refreshes the boards' watchdog (reference §4, §8).
+//! - `FirewirePort` (feature `firewire`): libraw1394 through FFI, same wire module.
+
+mod discovery;
+mod eth;
+mod udp;
+
+pub use discovery::{BoardInfo, BoardProbe, Discovery, EthMode, FpgaGeneration, reg, scan_boards};
+pub use eth::{EthCounters, EthPort, MAX_READ_BYTES, MAX_WRITE_BYTES, WriteAccess};
+pub use udp::{DEFAULT_BOARD_IP, DEFAULT_TIMEOUT, FPGA_UDP_PORT, UdpLink, UdpPort, UdpTarget};
+
+use crate::wire::WireError;
+
+/// Board value used in errors that a [`Link`] reports before the protocol engine knows which
+/// board the datagram belonged to.
+pub const UNKNOWN_BOARD: u8 = 0xFF;
+
+/// Read-only access to the boards. Implementations: [`EthPort`] (UDP, in-process emulator,
+/// replay), `FirewirePort`, [`FaultInjector`].
+pub trait Port {
+    /// Quadlet read of `addr` on `board` (board id 0–15).
+    fn read_quadlet(&mut self, board: u8, addr: u16) -> Result<u32, PortError>;
+    /// Block read of `out.len()` bytes (a multiple of 4) starting at `addr` on `board`.
+    /// A block read of address 0 takes a new sample and resets the board timestamp (§8).
+    fn read_block(&mut self, board: u8, addr: u16, out: &mut [u8]) -> Result<(), PortError>;
+    /// Broadcast-read query for the boards in `board_mask` (a write of the query register,
+    /// which refreshes the watchdog, §4/§8), then a block read of the hub memory into `out`
+    /// (reference §3.4). Implementations refuse it unless explicitly enabled.
+    fn broadcast_query_hub_read(
+        &mut self,
+        board_mask: u16,
+        out: &mut [u8],
+    ) -> Result<(), PortError>;
+}
+
+impl<P: Port + ?Sized> Port for &mut P {
+    fn read_quadlet(&mut self, board: u8, addr: u16) -> Result<u32, PortError> {
+        (**self).read_quadlet(board, addr)
+    }
+    fn read_block(&mut self, board: u8, addr: u16, out: &mut [u8]) -> Result<(), PortError> {
+        (**self).read_block(board, addr, out)
+    }
+    fn broadcast_query_hub_read(
+        &mut self,
+        board_mask: u16,
+        out: &mut [u8],
+    ) -> Result<(), PortError> {
+        (**self).broadcast_query_hub_read(board_mask, out)
+    }
+}
+
+/// One datagram transport under [`EthPort`], so the UDP socket and dvrk-sim's in-process
+/// emulator share all request building and reply validation code.
+pub trait Link {
+    /// Sends one request datagram (control word + FireWire request) meant for `dest_node`
+    /// (0x3F = broadcast).
+    fn send(&mut self, dest_node: u8, datagram: &[u8]) -> Result<(), PortError>;
+    /// Receives one reply datagram into `buf`; `Err(PortError::Timeout { .. })` when nothing
+    /// arrives in time (board [`UNKNOWN_BOARD`]; the engine fills in board and address).
+    fn recv(&mut self, buf: &mut [u8]) -> Result<usize, PortError>;
+}
+
+impl<L: Link + ?Sized> Link for &mut L {
+    fn send(&mut self, dest_node: u8, datagram: &[u8]) -> Result<(), PortError> {
+        (**self).send(dest_node, datagram)
+    }
+    fn recv(&mut self, buf: &mut [u8]) -> Result<usize, PortError> {
+        (**self).recv(buf)
+    }
+}
+
+/// Errors of ports and links. `Copy`, numbers only: returned on the per-cycle path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PortError {
+    #[error("board {board}: no reply to address 0x{addr:04x} in time")]
+    Timeout { board: u8, addr: u16 },
+    #[error("board {board}: reply truncated, {got} bytes, need {need}")]
+    Truncated { board: u8, got: usize, need: usize },
+    #[error("board {board}: reply oversized, {got} bytes, expected {expected}")]
+    Oversized {
+        board: u8,
+        got: usize,
+        expected: usize,
+    },
+    #[error("board {board}: reply tcode {got}, expected {expected}")]
+    WrongTcode { board: u8, expected: u8, got: u8 },
+    #[error("board {board}: reply label {got}, expected {expected}")]
+    WrongLabel { board: u8, expected: u8, got: u8 },
+    #[error("board {board}: reply from node {got}, expected node {expected}")]
+    WrongSource { board: u8, expected: u8, got: u8 },
+    #[error("board {board}: block reply of {got} bytes, requested {expected}")]
+    WrongLength { board: u8, expected: u16, got: u16 },
+    #[error("board {board}: response code {rcode}")]
+    ResponseCode { board: u8, rcode: u8 },
+    #[error("board {board}: packet dropped by the FPGA (extra-data flags 0x{flags:02x})")]
+    PacketDropped { board: u8, flags: u8 },
+    #[error("board {board}: FireWire bus reset (FPGA bus generation {generation})")]
+    BusReset { board: u8, generation: u8 },
+    #[error("board {board}: FPGA internal error (extra-data flags 0x{flags:02x})")]
+    InternalError { board: u8, flags: u8 },
+    #[error("board {board}: malformed reply: {error}")]
+    Malformed { board: u8, error: WireError },
+    #[error("block of {len} bytes not allowed (multiple of 4, at most {max})")]
+    BlockSize { len: usize, max: usize },
+    #[error("board id {board} out of range 0..=15")]
+    BoardOutOfRange { board: u8 },
+    #[error("board {board}: unknown hardware version 0x{hardware:08x}")]
+    UnknownHardware { board: u8, hardware: u32 },
+    #[error("board {board}: firmware version {firmware} not supported (Rev 7, 8, 9 are)")]
+    UnsupportedFirmware { board: u8, firmware: u32 },
+    #[error("board {board}: hardware is {got:?}, configuration expects {expected:?}")]
+    HardwareMismatch {
+        board: u8,
+        expected: crate::wire::BoardKind,
+        got: crate::wire::BoardKind,
+    },
+    #[error("board {board} missing: no reply at discovery")]
+    BoardMissing { board: u8 },
+    #[error("node {node}: status reports board id {got}, expected {expected}")]
+    BoardIdMismatch { node: u8, expected: u8, got: u8 },
+    #[error("broadcast query is a register write; enable it through allow_writes()")]
+    QueryNotAllowed,
+    #[error("socket error: {kind}")]
+    Io { kind: std::io::ErrorKind },
+    #[error("replay: request {index} does not match the recording")]
+    ReplayMismatch { index: u32 },
+    #[error("replay: recording exhausted after {frames} frames")]
+    ReplayExhausted { frames: u32 },
+    #[error("operation not supported by this port")]
+    Unsupported,
+}
+
+impl PortError {
+    /// The timeout a [`Link`] reports.
+    pub const LINK_TIMEOUT: Self = Self::Timeout {
+        board: UNKNOWN_BOARD,
+        addr: 0,
+    };
+}
+
+impl From<std::io::Error> for PortError {
+    fn from(e: std::io::Error) -> Self {
+        match e.kind() {
+            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut => Self::LINK_TIMEOUT,
+            kind => Self::Io { kind },
+        }
+    }
+}
