@@ -12,6 +12,9 @@
 //! Facts and constants come from `shared/reference/dvrk-board-protocol.md`; doc comments cite
 //! its sections as "reference §N".
 
+// Index loops over the fixed 7-joint / 4x4 arrays read more clearly than zipped iterators.
+#![allow(clippy::needless_range_loop)]
+
 pub mod convert;
 pub mod port;
 pub mod wire;
@@ -20,3 +23,5 @@ pub use convert::{
     ArmSample, AxisHealth, BoardHealth, IoConfig, IoConfigError, MAX_BOARDS, NUM_JOINTS,
 };
 pub use port::{EthPort, Link, Port, PortError, UdpLink, UdpPort, WriteAccess};
+pub use reader::{AccessMode, ArmReader, ReadError};
+pub mod reader;

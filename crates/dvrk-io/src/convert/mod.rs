@@ -17,7 +17,7 @@ mod sample;
 mod saw;
 
 pub use sample::{
-    ArmSample, AxisHealth, BoardHealth, SharedRaw, decode_blocks, decode_shared,
+    ActuatorState, ArmSample, AxisHealth, BoardHealth, SharedRaw, decode_blocks, decode_shared,
     joints_from_actuators,
 };
 

@@ -63,6 +63,19 @@ pub struct ArmSample {
     pub valid: bool,
 }
 
+/// Actuator-space values of one sample (before coupling), SI units.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ActuatorState {
+    /// rad, m for insertion.
+    pub position: [f64; NUM_JOINTS],
+    /// rad/s, m/s.
+    pub velocity: [f64; NUM_JOINTS],
+    /// N·m, N.
+    pub effort: [f64; NUM_JOINTS],
+    /// Motor current, A.
+    pub current_amps: [f64; NUM_JOINTS],
+}
+
 /// Raw per-cycle values of shared mode (quadlet reads only): the status of each board slot and
 /// the ADC and encoder-position quadlets of each actuator. `None` = not read this cycle.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -111,13 +124,13 @@ pub fn joints_from_actuators(
 
 /// Converts the feedback blocks of the arm's boards (by slot; `None` = read failed) into `out`.
 /// Velocity is the firmware velocity (encoder period) for every actuator; a caller that wants
-/// software velocity overrides it. Pure and allocation-free.
+/// software velocity overrides it. Pure and allocation-free. Returns the actuator-space values.
 pub fn decode_blocks<T: AsRef<[u8]>>(
     cfg: &IoConfig,
     blocks: &[Option<FeedbackBlock<T>>; MAX_BOARDS],
     t_ns: u64,
     out: &mut ArmSample,
-) {
+) -> ActuatorState {
     out.t_ns = t_ns;
     let mut all_ok = true;
     for (slot, block) in blocks.iter().enumerate() {
@@ -130,6 +143,7 @@ pub fn decode_blocks<T: AsRef<[u8]>>(
     let mut pos = [0.0; NUM_JOINTS];
     let mut vel = [0.0; NUM_JOINTS];
     let mut eff = [0.0; NUM_JOINTS];
+    let mut cur = [0.0; NUM_JOINTS];
     for (i, a) in cfg.actuators().iter().enumerate() {
         let axis = a.axis as usize;
         let Some(b) = blocks.get(a.board_slot as usize).and_then(|b| b.as_ref()) else {
@@ -150,6 +164,7 @@ pub fn decode_blocks<T: AsRef<[u8]>>(
         pos[i] = a.counts_to_position(enc.counts());
         vel[i] = a.bits_to_position.scale * period.velocity_counts_per_s(clk);
         let amps = a.current_bits_to_amps(adc.current_bits());
+        cur[i] = amps;
         eff[i] = a.amps_to_effort(amps);
         let status = b.status();
         let mut h = AxisHealth {
@@ -174,17 +189,23 @@ pub fn decode_blocks<T: AsRef<[u8]>>(
     }
     joints_from_actuators(cfg, &pos, &vel, &eff, out);
     out.valid = all_ok;
+    ActuatorState {
+        position: pos,
+        velocity: vel,
+        effort: eff,
+        current_amps: cur,
+    }
 }
 
 /// Converts shared-mode quadlets into `out`. Velocity is left to the caller (finite difference
 /// of positions over its own time base); this sets it to 0. Pure and allocation-free.
-/// Returns the actuator positions, which the caller differentiates.
+/// Returns the actuator-space values (velocity 0), whose positions the caller differentiates.
 pub fn decode_shared(
     cfg: &IoConfig,
     raw: &SharedRaw,
     t_ns: u64,
     out: &mut ArmSample,
-) -> [f64; NUM_JOINTS] {
+) -> ActuatorState {
     out.t_ns = t_ns;
     let mut all_ok = true;
     for slot in 0..MAX_BOARDS {
@@ -196,6 +217,7 @@ pub fn decode_shared(
     }
     let mut pos = [0.0; NUM_JOINTS];
     let mut eff = [0.0; NUM_JOINTS];
+    let mut cur = [0.0; NUM_JOINTS];
     for (i, a) in cfg.actuators().iter().enumerate() {
         let (Some(enc), Some(adc)) = (raw.encoder_position[i], raw.adc[i]) else {
             out.axes[i] = AxisHealth::default();
@@ -206,6 +228,7 @@ pub fn decode_shared(
         let adc = Adc(adc);
         pos[i] = a.counts_to_position(enc.counts());
         let amps = a.current_bits_to_amps(adc.current_bits());
+        cur[i] = amps;
         eff[i] = a.amps_to_effort(amps);
         let status = raw
             .status
@@ -228,5 +251,10 @@ pub fn decode_shared(
     }
     joints_from_actuators(cfg, &pos, &[0.0; NUM_JOINTS], &eff, out);
     out.valid = all_ok;
-    pos
+    ActuatorState {
+        position: pos,
+        velocity: [0.0; NUM_JOINTS],
+        effort: eff,
+        current_amps: cur,
+    }
 }

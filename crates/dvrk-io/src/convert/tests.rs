@@ -412,7 +412,7 @@ fn decode_shared_hand_computed() {
         raw.adc[i] = Some(Adc::new(0, 0x8000).0);
     }
     let mut s = ArmSample::default();
-    let pos = decode_shared(&c, &raw, 7, &mut s);
+    let pos = decode_shared(&c, &raw, 7, &mut s).position;
     assert!(s.valid);
     assert_relative_eq!(
         pos[1],

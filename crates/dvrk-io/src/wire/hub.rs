@@ -68,12 +68,12 @@ pub struct HubLayout {
 impl HubLayout {
     /// `boards` = (board id, layout) in the order the hub stores them (ascending board id).
     pub fn new(boards: &[(u8, BlockLayout)]) -> Result<Self, WireError> {
-        if boards.len() > MAX_HUB_BOARDS {
-            return Err(WireError::TooLong {
-                len: boards.len(),
-                max: MAX_HUB_BOARDS,
-            });
-        }
+        Self::from_boards(boards.iter().copied())
+    }
+    /// Same as [`HubLayout::new`] from an iterator (no allocation).
+    pub fn from_boards(
+        boards: impl IntoIterator<Item = (u8, BlockLayout)>,
+    ) -> Result<Self, WireError> {
         let mut s = Self {
             count: 0,
             board_ids: [0; MAX_HUB_BOARDS],
@@ -82,13 +82,21 @@ impl HubLayout {
             len: 0,
         };
         let mut off = 0usize;
-        for (i, (id, lay)) in boards.iter().enumerate() {
-            s.board_ids[i] = *id;
-            s.layouts[i] = Some(*lay);
-            s.offsets[i] = off as u16;
+        let mut count = 0usize;
+        for (id, lay) in boards {
+            if count == MAX_HUB_BOARDS {
+                return Err(WireError::TooLong {
+                    len: count + 1,
+                    max: MAX_HUB_BOARDS,
+                });
+            }
+            s.board_ids[count] = id;
+            s.layouts[count] = Some(lay);
+            s.offsets[count] = off as u16;
             off += 4 + lay.len_bytes();
+            count += 1;
         }
-        s.count = boards.len() as u8;
+        s.count = count as u8;
         s.len = (off + 4) as u16;
         Ok(s)
     }
@@ -150,33 +158,44 @@ impl<T: AsRef<[u8]>> HubView<T> {
     }
     /// Slot `i`'s block, after checking its header's size against the layout.
     pub fn block(&self, i: usize) -> Result<FeedbackBlock<&[u8]>, WireError> {
-        let Some((o, l)) = self.lay.slot(i) else {
-            return Err(WireError::IndexOutOfRange {
-                index: i,
-                count: self.lay.num_boards(),
-            });
-        };
-        let h = HubHeader(get_be32(self.buf.as_ref(), o));
-        let expected = l.len_quadlets() as u32 + 1;
-        if h.size_quadlets() != expected {
-            return Err(WireError::HubBlockSize {
-                index: i,
-                got: h.size_quadlets(),
-                expected,
-            });
-        }
-        let b = self
-            .buf
-            .as_ref()
-            .get(o + 4..o + 4 + l.len_bytes())
-            .unwrap_or(&[]);
-        FeedbackBlock::new_checked(b, l)
+        slot_block(self.buf.as_ref(), &self.lay, i)
     }
     /// Final timing quadlet: (read start, read finish) in ticks.
     pub fn timing(&self) -> (u16, u16) {
         let t = get_be32(self.buf.as_ref(), self.lay.len_bytes() - 4);
         ((t >> 16) as u16, t as u16)
     }
+}
+
+impl<'a> HubView<&'a [u8]> {
+    /// Like [`HubView::block`], borrowing from the underlying buffer rather than the view.
+    pub fn block_of(&self, i: usize) -> Result<FeedbackBlock<&'a [u8]>, WireError> {
+        slot_block(self.buf, &self.lay, i)
+    }
+}
+
+fn slot_block<'a>(
+    buf: &'a [u8],
+    lay: &HubLayout,
+    i: usize,
+) -> Result<FeedbackBlock<&'a [u8]>, WireError> {
+    let Some((o, l)) = lay.slot(i) else {
+        return Err(WireError::IndexOutOfRange {
+            index: i,
+            count: lay.num_boards(),
+        });
+    };
+    let h = HubHeader(get_be32(buf, o));
+    let expected = l.len_quadlets() as u32 + 1;
+    if h.size_quadlets() != expected {
+        return Err(WireError::HubBlockSize {
+            index: i,
+            got: h.size_quadlets(),
+            expected,
+        });
+    }
+    let b = buf.get(o + 4..o + 4 + l.len_bytes()).unwrap_or(&[]);
+    FeedbackBlock::new_checked(b, l)
 }
 
 impl<T: AsRef<[u8]> + AsMut<[u8]>> HubView<T> {
