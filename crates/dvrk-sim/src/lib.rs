@@ -4,13 +4,21 @@
 //!   backlash, contacts) with ground truth ([`Truth`]).
 //! - [`measure`]: measurement models (encoder quantization, motor-current ADC with noise, pots).
 //! - [`scenario`]: config/sim/*.toml: seed, step, pose, environment, motion, noise.
+//! - [`emulator`]: boards 6 and 7 (QLA1, Rev 9) answering the real Ethernet/FireWire protocol.
+//! - [`link`]: [`SimLink`], the emulator as an in-process `dvrk_io::Link`; [`SimPort`].
+//! - [`server`]: `serve_udp`, the standalone UDP shell (the only place that reads a clock).
 
+pub mod emulator;
 pub mod kinematics;
+pub mod link;
 pub mod measure;
 pub mod physics;
 pub mod rng;
 pub mod scenario;
+pub mod server;
 
+pub use emulator::{ActuatorMap, ActuatorSlot, Emulator, EmulatorCounters};
+pub use link::{SimLink, SimPort, sim_port};
 pub use measure::{ActuatorScales, NoiseParams};
 pub use physics::{Environment, JointState, PhysicsParams, ShaftParams, SimPsm, Truth};
 pub use rng::SimRng;
@@ -30,4 +38,26 @@ pub enum SimError {
         value: String,
         reason: &'static str,
     },
+    /// An actuator of the IO config is not on board 6 or 7, axis 0..3.
+    #[error(
+        "io config: actuator {actuator} on board {board_id} axis {axis}: the emulator has boards 6 and 7 with axes 0-3"
+    )]
+    ActuatorPlacement {
+        actuator: usize,
+        board_id: u8,
+        axis: u8,
+    },
+    /// The IO config does not describe what the emulator emulates.
+    #[error("io config field `{field}` = {value}: {reason}")]
+    IoConfig {
+        field: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+    /// The wrist coupling matrix cannot be inverted.
+    #[error("io config: the actuator-to-joint coupling of joints 4-7 is singular")]
+    Coupling,
+    /// The feedback-block layout could not be built.
+    #[error("wire layout: {0}")]
+    Wire(#[from] dvrk_io::wire::WireError),
 }

@@ -11,8 +11,6 @@ use crate::rng::SimRng;
 
 /// Encoder counter range: 24-bit counter started at mid-range (reference §2.3).
 pub const ENCODER_MIDRANGE: i32 = 0x80_0000;
-/// Clock of the encoder period/velocity counters on Rev 7+ firmware, Hz.
-pub const VELOCITY_CLOCK_HZ: f64 = 49_152_000.0;
 
 /// Conversion constants of one actuator, SI on one side and raw register bits on the other.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,10 +23,14 @@ pub struct ActuatorScales {
     pub current_amps_per_bit: f64,
     /// `drive.bits_to_current` offset, A.
     pub current_offset_amps: f64,
-    /// `drive.effort_to_current`, A per N·m (A per N for insertion).
+    /// `drive.effort_to_current` scale, A per N·m (A per N for insertion).
     pub amps_per_effort: f64,
-    /// `potentiometer.bits_to_voltage`, V per bit.
+    /// `drive.effort_to_current` offset, A (0 in the dVRK configs).
+    pub effort_offset_amps: f64,
+    /// `potentiometer.bits_to_voltage` scale, V per bit.
     pub pot_volts_per_bit: f64,
+    /// `potentiometer.bits_to_voltage` offset, V.
+    pub pot_volts_offset: f64,
     /// `potentiometer.voltage_to_position` scale, rad (m) per V.
     pub pot_position_per_volt: f64,
     /// `potentiometer.voltage_to_position` offset, rad (m).
@@ -68,7 +70,9 @@ impl ActuatorScales {
             current_amps_per_bit: 1.0 / current_to_bits,
             current_offset_amps: -dir * i_fs,
             amps_per_effort: 1.0 / (gear * kt),
+            effort_offset_amps: 0.0,
             pot_volts_per_bit: 4.5 / 65536.0,
+            pot_volts_offset: 0.0,
             pot_position_per_volt: pot_gain,
             pot_offset,
         }
@@ -104,7 +108,7 @@ impl ActuatorScales {
     /// 16-bit ADC reading of the motor current for `effort` (N·m or N) plus `noise_amps`.
     #[inline]
     pub fn current_bits(&self, effort: f64, noise_amps: f64) -> u16 {
-        let amps = effort * self.amps_per_effort + noise_amps;
+        let amps = effort * self.amps_per_effort + self.effort_offset_amps + noise_amps;
         adc16((amps - self.current_offset_amps) / self.current_amps_per_bit)
     }
 
@@ -119,7 +123,7 @@ impl ActuatorScales {
     #[inline]
     pub fn pot_bits(&self, position: f64, noise_volts: f64) -> u16 {
         let volts = (position - self.pot_offset) / self.pot_position_per_volt + noise_volts;
-        adc16(volts / self.pot_volts_per_bit)
+        adc16((volts - self.pot_volts_offset) / self.pot_volts_per_bit)
     }
 }
 
@@ -129,29 +133,6 @@ fn adc16(v: f64) -> u16 {
         v.round().clamp(0.0, 65535.0) as u16
     } else {
         0
-    }
-}
-
-/// Encoder period register value for Rev 7+ (reference §2.3 "VEL"): ticks of the 49.152 MHz
-/// clock per full quadrature cycle (4 counts), direction bit 30, overflow bit 31 when slower
-/// than the 26-bit counter can time.
-#[inline]
-pub fn encoder_period_register(velocity_counts_per_s: f64) -> u32 {
-    const TICKS_MASK: u32 = 0x03FF_FFFF;
-    let dir = if velocity_counts_per_s > 0.0 {
-        1u32 << 30
-    } else {
-        0
-    };
-    let speed = velocity_counts_per_s.abs();
-    if !(speed.is_finite() && speed > 0.0) {
-        return (1u32 << 31) | TICKS_MASK;
-    }
-    let ticks = 4.0 * VELOCITY_CLOCK_HZ / speed;
-    if ticks >= f64::from(TICKS_MASK) {
-        (1u32 << 31) | dir | TICKS_MASK
-    } else {
-        dir | (ticks.round().max(1.0) as u32)
     }
 }
 
@@ -247,18 +228,6 @@ mod tests {
         // Saturation, not wrap-around.
         assert_eq!(s.current_bits(100.0, 0.0), 0);
         assert_eq!(s.current_bits(-100.0, 0.0), 65535);
-    }
-
-    #[test]
-    fn period_register_encodes_speed_and_direction() {
-        let r = encoder_period_register(1000.0);
-        assert_eq!(r & (1 << 30), 1 << 30);
-        assert_eq!(r & (1 << 31), 0);
-        assert_eq!(r & 0x03FF_FFFF, 196_608); // 4 * 49.152e6 / 1000
-        let r = encoder_period_register(-1000.0);
-        assert_eq!(r & (1 << 30), 0);
-        assert_ne!(encoder_period_register(0.0) & (1 << 31), 0);
-        assert_ne!(encoder_period_register(0.5) & (1 << 31), 0);
     }
 
     #[test]
