@@ -12,10 +12,19 @@
 
 mod discovery;
 mod eth;
+mod fault;
+mod replay;
 mod udp;
+
+pub mod conformance;
 
 pub use discovery::{BoardInfo, BoardProbe, Discovery, EthMode, FpgaGeneration, reg, scan_boards};
 pub use eth::{EthCounters, EthPort, MAX_READ_BYTES, MAX_WRITE_BYTES, WriteAccess};
+pub use fault::{FaultConfig, FaultCounters, FaultInjector};
+pub use replay::{
+    Frame, FramesParseError, RecordingLink, ReplayLink, ReplayPort, frames_from_text,
+    frames_to_text,
+};
 pub use udp::{DEFAULT_BOARD_IP, DEFAULT_TIMEOUT, FPGA_UDP_PORT, UdpLink, UdpPort, UdpTarget};
 
 use crate::wire::WireError;

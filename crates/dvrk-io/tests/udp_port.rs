@@ -1,0 +1,395 @@
+//! The UDP port against a responder thread on 127.0.0.1 (real sockets, ephemeral ports).
+
+mod common;
+
+use std::net::{Ipv4Addr, UdpSocket};
+use std::time::Duration;
+
+use common::{Board, Boards, Fault, Responder};
+use dvrk_io::port::{BoardProbe, EthMode, Port, PortError, UdpLink, UdpPort, conformance};
+use dvrk_io::wire::Tcode;
+use dvrk_io::wire::block::hardware_version;
+
+fn port_to(r: &Responder, timeout_ms: u64) -> UdpPort {
+    let mut p = UdpPort::open_udp(r.addr).unwrap();
+    p.link_mut()
+        .set_timeout(Duration::from_millis(timeout_ms))
+        .unwrap();
+    p
+}
+
+#[test]
+fn quadlet_and_block_reads() {
+    let r = Responder::spawn(Boards::psm(8));
+    let mut p = port_to(&r, 200);
+    assert_eq!(p.read_quadlet(6, 4).unwrap(), hardware_version::QLA1);
+    assert_eq!(p.read_quadlet(7, 7).unwrap(), 8);
+    let mut blk = [0u8; 128];
+    p.read_block(6, 0, &mut blk).unwrap();
+    assert_eq!(&blk[..], &r.with(|b| b.board(6).block.clone())[..]);
+    // Labels rotate through 6 bits and wrap.
+    for _ in 0..70 {
+        p.read_quadlet(6, 0).unwrap();
+    }
+    assert_eq!(p.next_label(), (3 + 70) % 64);
+    let c = p.counters();
+    assert_eq!(c.requests, 73);
+    assert_eq!(c.replies_ok, 73);
+    assert_eq!(c.writes, 0);
+    r.with(|b| assert!(b.log.iter().all(|l| l.noforward)));
+}
+
+#[test]
+fn timeout_names_board_and_address() {
+    let r = Responder::spawn(Boards::psm(8));
+    r.set_fault(Fault::Silent);
+    let mut p = port_to(&r, 20);
+    assert_eq!(
+        p.read_quadlet(6, 0x15).unwrap_err(),
+        PortError::Timeout {
+            board: 6,
+            addr: 0x15
+        }
+    );
+    assert_eq!(p.counters().timeouts, 1);
+    // Absent board: no reply either.
+    r.set_fault(Fault::None);
+    assert_eq!(
+        p.read_quadlet(9, 4).unwrap_err(),
+        PortError::Timeout { board: 9, addr: 4 }
+    );
+}
+
+#[test]
+fn every_malformed_reply_is_its_own_error() {
+    let r = Responder::spawn(Boards::psm(8));
+    let mut p = port_to(&r, 40);
+    let mut blk = [0u8; 128];
+    let cases: [(Fault, fn(&PortError) -> bool); 10] = [
+        (Fault::Truncate, |e| {
+            matches!(
+                e,
+                PortError::Truncated {
+                    board: 6,
+                    got: 20,
+                    need: 28
+                }
+            )
+        }),
+        (Fault::Oversize, |e| {
+            matches!(
+                e,
+                PortError::Oversized {
+                    board: 6,
+                    got: 32,
+                    expected: 28
+                }
+            )
+        }),
+        (Fault::WrongTcode, |e| {
+            matches!(
+                e,
+                PortError::WrongTcode {
+                    board: 6,
+                    expected: 6,
+                    got: 7
+                }
+            )
+        }),
+        (Fault::WrongLabel, |e| {
+            matches!(e, PortError::WrongLabel { board: 6, .. })
+        }),
+        (Fault::WrongSource, |e| {
+            matches!(
+                e,
+                PortError::WrongSource {
+                    board: 6,
+                    expected: 6,
+                    got: 7
+                }
+            )
+        }),
+        (
+            Fault::Dropped8,
+            |e| matches!(e, PortError::PacketDropped { board: 6, flags } if flags & 0x02 != 0),
+        ),
+        (Fault::DroppedFlag, |e| {
+            matches!(e, PortError::PacketDropped { board: 6, .. })
+        }),
+        (Fault::BusReset, |e| {
+            matches!(
+                e,
+                PortError::BusReset {
+                    board: 6,
+                    generation: 0
+                }
+            )
+        }),
+        (Fault::InternalError, |e| {
+            matches!(e, PortError::InternalError { board: 6, .. })
+        }),
+        (Fault::Rcode, |e| {
+            matches!(e, PortError::ResponseCode { board: 6, rcode: 7 })
+        }),
+    ];
+    for (fault, ok) in cases {
+        r.set_fault(fault);
+        let e = p.read_quadlet(6, 0).unwrap_err();
+        assert!(ok(&e), "{fault:?} gave {e:?}");
+    }
+    r.set_fault(Fault::WrongLength);
+    assert_eq!(
+        p.read_block(6, 0, &mut blk).unwrap_err(),
+        PortError::WrongLength {
+            board: 6,
+            expected: 128,
+            got: 124
+        }
+    );
+    r.set_fault(Fault::WrongTcode);
+    assert_eq!(
+        p.read_block(6, 0, &mut blk).unwrap_err(),
+        PortError::WrongTcode {
+            board: 6,
+            expected: 7,
+            got: 6
+        }
+    );
+    // Nothing above was taken as data, and the port still works.
+    r.set_fault(Fault::None);
+    assert_eq!(p.read_quadlet(6, 4).unwrap(), hardware_version::QLA1);
+    assert!(p.counters().bad_replies >= 10);
+}
+
+#[test]
+fn stale_label_is_skipped_and_counted() {
+    let r = Responder::spawn(Boards::psm(8));
+    r.set_fault(Fault::StaleThenGood);
+    let mut p = port_to(&r, 200);
+    assert_eq!(p.read_quadlet(7, 4).unwrap(), hardware_version::QLA1);
+    assert_eq!(p.counters().stale_replies, 1);
+}
+
+#[test]
+fn datagrams_from_other_addresses_are_dropped_unparsed() {
+    let r = Responder::spawn(Boards::psm(8));
+    let mut p = port_to(&r, 200);
+    let me = p.link().local_addr().unwrap();
+    let intruder = UdpSocket::bind("127.0.0.1:0").unwrap();
+    // A perfectly formed reply for label 0 from the wrong address, sent before the request.
+    let forged = r.with(|b| {
+        let req = [
+            0x01, 0x00, 0xff, 0xc6, 0x00, 0x40, 0xff, 0xd0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+        ];
+        b.handle(&req).pop().unwrap()
+    });
+    intruder.send_to(&forged, me).unwrap();
+    intruder.send_to(&forged, me).unwrap();
+    std::thread::sleep(Duration::from_millis(20));
+    assert_eq!(p.read_quadlet(6, 4).unwrap(), hardware_version::QLA1);
+    assert_eq!(p.link().foreign_datagrams(), 2);
+}
+
+#[test]
+fn bad_block_sizes_are_refused_before_sending() {
+    let r = Responder::spawn(Boards::psm(8));
+    let mut p = port_to(&r, 50);
+    assert_eq!(
+        p.read_block(6, 0, &mut []).unwrap_err(),
+        PortError::BlockSize { len: 0, max: 1440 }
+    );
+    assert_eq!(
+        p.read_block(6, 0, &mut [0; 6]).unwrap_err(),
+        PortError::BlockSize { len: 6, max: 1440 }
+    );
+    assert_eq!(
+        p.read_block(6, 0, &mut vec![0; 1444]).unwrap_err(),
+        PortError::BlockSize {
+            len: 1444,
+            max: 1440
+        }
+    );
+    assert_eq!(
+        p.read_quadlet(16, 0).unwrap_err(),
+        PortError::BoardOutOfRange { board: 16 }
+    );
+    assert_eq!(p.counters().requests, 0);
+}
+
+#[test]
+fn read_only_discovery_reports_found_and_missing() {
+    let mut boards = Boards::psm(9);
+    let mut b8 = Board::qla(8, 8);
+    b8.fw = 6; // Rev 6: no supported layout
+    boards.boards.push(b8);
+    let mut b9 = Board::qla(9, 8);
+    b9.hw = hardware_version::BCFG;
+    boards.boards.push(b9);
+    let r = Responder::spawn(boards);
+    let mut p = port_to(&r, 20);
+    let d = p.discover(&[6, 7]).unwrap();
+    let i = d.found(7).unwrap();
+    assert_eq!(
+        (i.board_id, i.firmware_version, i.hardware_version),
+        (7, 9, hardware_version::QLA1)
+    );
+    assert_eq!(
+        p.discover(&[6, 7, 10]).unwrap_err(),
+        PortError::BoardMissing { board: 10 }
+    );
+    assert_eq!(
+        p.discover(&[8]).unwrap_err(),
+        PortError::UnsupportedFirmware {
+            board: 8,
+            firmware: 6
+        }
+    );
+    assert_eq!(
+        p.discover(&[9]).unwrap_err(),
+        PortError::UnknownHardware {
+            board: 9,
+            hardware: hardware_version::BCFG
+        }
+    );
+    let d = dvrk_io::port::scan_boards(&mut p, &[6, 10]);
+    assert!(matches!(d.boards[6], BoardProbe::Found(_)));
+    assert_eq!(d.boards[10], BoardProbe::Missing);
+    assert_eq!(p.counters().writes, 0);
+    r.with(|b| assert_eq!(b.count(|l| l.tcode != Tcode::QuadletRead), 0));
+}
+
+#[test]
+fn full_discovery_sequence_of_reference_3_3() {
+    let r = Responder::spawn(Boards::psm(9));
+    let mut p = port_to(&r, 10);
+    let d = p
+        .allow_writes()
+        .init_nodes(Ipv4Addr::LOCALHOST, Duration::ZERO)
+        .unwrap();
+    assert_eq!(d.mode, Some(EthMode::EthernetOnly));
+    assert_eq!(d.hub, Some(6));
+    assert!(d.found(6).is_some() && d.found(7).is_some());
+    assert_eq!(d.found(7).unwrap().git_description, Some(0x1234_5678));
+    d.check(&[6, 7]).unwrap();
+    r.with(|b| {
+        let l = &b.log;
+        // 1. broadcast write of the host IP to register 11, as the dVRK byte order (reference 9).
+        assert_eq!(
+            (l[0].node, l[0].tcode, l[0].addr, l[0].data),
+            (0x3F, Tcode::QuadletWrite, 11, 0x0100_007F)
+        );
+        // 2. broadcast + NOFORWARD read of register 4.
+        assert_eq!(
+            (l[1].node, l[1].tcode, l[1].addr, l[1].noforward),
+            (0x3F, Tcode::QuadletRead, 4, true)
+        );
+        // 3. broadcast write of 0 to the PHY request register.
+        assert_eq!(
+            (l[2].node, l[2].tcode, l[2].addr, l[2].data),
+            (0x3F, Tcode::QuadletWrite, 1, 0)
+        );
+        // 4. hub registers 0, 7, 12.
+        let hub: Vec<u64> = l[3..6].iter().map(|x| x.addr).collect();
+        assert_eq!(hub, vec![0, 7, 12]);
+        // 6. every node 0..15 asked for register 4.
+        let scanned: Vec<u8> = l
+            .iter()
+            .skip(6)
+            .filter(|x| x.addr == 4)
+            .map(|x| x.node)
+            .collect();
+        assert_eq!(scanned, (0..16).collect::<Vec<u8>>());
+    });
+    assert_eq!(p.counters().writes, 2);
+}
+
+#[test]
+fn conformance_suite_passes_on_udp() {
+    let r = Responder::spawn(Boards::psm(8));
+    let mut p = port_to(&r, 20);
+    let rep = conformance::check_port(
+        &mut p,
+        conformance::ConformanceOptions {
+            board: 6,
+            allow_block_read: true,
+            absent_board: Some(3),
+        },
+    )
+    .unwrap();
+    assert_eq!(rep.firmware_version, 8);
+    assert_eq!(rep.layout.len_quadlets(), 32);
+}
+
+#[test]
+fn conformance_suite_catches_a_wrong_board_id() {
+    let mut boards = Boards::psm(8);
+    let st = boards.board(7).status();
+    boards
+        .board(7)
+        .set_status((st & !0x0F00_0000) | 0x0500_0000);
+    let r = Responder::spawn(boards);
+    let mut p = port_to(&r, 20);
+    let e = conformance::check_port(
+        &mut p,
+        conformance::ConformanceOptions {
+            board: 7,
+            allow_block_read: false,
+            absent_board: None,
+        },
+    )
+    .unwrap_err();
+    assert_eq!(e.check, "status board id");
+}
+
+#[test]
+fn port_string_parsing() {
+    assert!(UdpLink::from_port_string("fw:0").is_err());
+    let l = UdpLink::from_port_string("udp:127.0.0.1:1394").unwrap();
+    assert_eq!(
+        l.target(),
+        dvrk_io::port::UdpTarget::Single("127.0.0.1:1394".parse().unwrap())
+    );
+    let l = UdpLink::from_port_string("udp:127.0.0.1").unwrap();
+    assert_eq!(
+        l.target(),
+        dvrk_io::port::UdpTarget::Single("127.0.0.1:1394".parse().unwrap())
+    );
+}
+
+#[test]
+fn writes_exist_only_behind_allow_writes() {
+    let r = Responder::spawn(Boards::psm(8));
+    let mut p = port_to(&r, 20);
+    let mut hub = [0u8; 4 * (2 * 33 + 1)];
+    assert_eq!(
+        p.broadcast_query_hub_read(0xC0, &mut hub).unwrap_err(),
+        PortError::QueryNotAllowed
+    );
+    r.with(|b| assert!(b.log.is_empty()));
+    {
+        let mut w = p.allow_writes();
+        w.write_quadlet(6, 3, 0).unwrap();
+        w.enable_broadcast_query();
+    }
+    p.broadcast_query_hub_read(0xC0, &mut hub).unwrap();
+    let v = dvrk_io::wire::HubView::new_checked(
+        &hub[..],
+        dvrk_io::wire::HubLayout::new(&[
+            (
+                6,
+                dvrk_io::wire::BlockLayout::new(8, dvrk_io::wire::BoardKind::Qla).unwrap(),
+            ),
+            (
+                7,
+                dvrk_io::wire::BlockLayout::new(8, dvrk_io::wire::BoardKind::Qla).unwrap(),
+            ),
+        ])
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(v.block(1).unwrap().status().board_id(), 7);
+    r.with(|b| {
+        assert_eq!(b.count(|l| l.tcode == Tcode::QuadletWrite), 2);
+        assert_eq!(b.query_mask, 0xC0);
+    });
+}
