@@ -1,7 +1,46 @@
 //! dvrk-compliance: the compliance model of Chrysilla et al. for the dVRK PSM, torque-offset
 //! tables, parameter files, PSM and instrument kinematics, calibration procedures and fitting.
 //!
-//! Pure: no I/O, no clock, no logging, and no allocation per sample.
+//! Pure: no I/O, no clock, no logging, and no allocation per sample
+//! ([`ComplianceConfig::correct`] and [`PsmKinematics::forward`] allocate nothing).
+//!
+//! ```
+//! use dvrk_compliance::{ArmKind, ComplianceConfig, PsmKinematics, instrument};
+//!
+//! let text = r#"
+//! [[joint]]
+//! index = 2
+//! backlash_rad = 0.0
+//! tau_min_nm = 0.2
+//! inverse_compliance_nm_per_rad = [3163.17, -1969.15, 448.92, -6.00]
+//! insertion_range_m = [0.09, 0.22]
+//! torque_offset = { position_rad = [0.0], effort_nm = [0.0] }
+//! "#;
+//! let config = ComplianceConfig::from_toml_str(text).unwrap();
+//! // Pitch pushed with 0.5 N·m at 12 cm insertion.
+//! let c = config.correct(&[0.0, 0.1, 0.12], &[0.0, 0.5, 0.0]);
+//! assert!(c.active[1] && c.delta_rad[1] > 0.0);
+//!
+//! let tool = instrument("LARGE_NEEDLE_DRIVER_400006").unwrap();
+//! let fk = PsmKinematics::new(ArmKind::Classic, tool);
+//! let [q1, q2, q3] = c.position;
+//! let t_rcm_tip = fk.forward(&[q1, q2, q3, 0.0, 0.0, 0.0]);
+//! assert!(t_rcm_tip.translation.vector.norm() < 0.12);
+//! ```
 
 pub mod calibration;
 pub mod fit;
+pub mod instruments;
+pub mod kinematics;
+pub mod model;
+pub mod params;
+pub mod torque_offset;
+
+pub use instruments::{Generation, Instrument, Wrist, instrument, instruments};
+pub use kinematics::{ArmKind, PsmKinematics};
+pub use model::{ComplianceConfig, Correction, JointModel, ModelKind};
+pub use params::{
+    ComplianceParams, INSERTION_LIMITS_M, JointParams, ParamsError, TorqueOffsetParams,
+    params_to_toml,
+};
+pub use torque_offset::TorqueOffsetTable;
