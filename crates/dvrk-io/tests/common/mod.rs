@@ -1,7 +1,7 @@
 //! Test boards: a small register model answering the real protocol, built with the crate's own
 //! wire emitters, reachable in-process ([`InProcLink`]) or over UDP on 127.0.0.1 ([`Responder`]).
 //! It can misbehave in every way the port must catch ([`Fault`]).
-#![allow(dead_code)]
+#![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
 use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
