@@ -1,4 +1,5 @@
 //! The UDP port against a responder thread on 127.0.0.1 (real sockets, ephemeral ports).
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common;
 
@@ -65,7 +66,8 @@ fn every_malformed_reply_is_its_own_error() {
     let r = Responder::spawn(Boards::psm(8));
     let mut p = port_to(&r, 40);
     let mut blk = [0u8; 128];
-    let cases: [(Fault, fn(&PortError) -> bool); 10] = [
+    type Check = fn(&PortError) -> bool;
+    let cases: [(Fault, Check); 10] = [
         (Fault::Truncate, |e| {
             matches!(
                 e,
