@@ -13,6 +13,8 @@
 mod discovery;
 mod eth;
 mod fault;
+#[cfg(feature = "firewire")]
+pub mod firewire;
 mod replay;
 mod udp;
 
