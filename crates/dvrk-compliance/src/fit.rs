@@ -36,8 +36,11 @@
 //!   play (position strictly between the two zero crossings) and rows whose |tau_ext| is within
 //!   3 residual RMS of zero, whose side is only noise.
 //!
-//! [`BranchRule::Auto`] (the default) fits both and keeps the split whose two lines leave the
-//! smaller pooled RMS residual, i.e. the model that explains the data. On the 2017 recordings the
+//! [`BranchRule::Auto`] (the default) fits both and keeps the split whose lines explain the data
+//! better: the smaller median, over every row, of the distance from the row's torque to its own
+//! branch line (the same rows count for both splits, and the median ignores the minority of
+//! turnaround or play rows). The load split must win by a factor of 2; in a near tie (small
+//! hysteresis, where the choice hardly matters) the paper's motion split is kept. On the 2017 recordings the
 //! motion split wins by a factor of 3 or more; on dead-zone data the load split fits exactly.
 //! The result says which one was used ([`DepthFit::branches`]).
 //!
@@ -435,8 +438,8 @@ fn fit_line(points: impl Iterator<Item = (f64, f64)> + Clone) -> Option<Line> {
 /// How the rows of one depth are split into the two lines.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BranchRule {
-    /// Fit both and keep the one whose lines explain the data better (smaller pooled RMS
-    /// residual). See the module docs.
+    /// Fit both and keep the one whose lines explain the data better (smaller median residual
+    /// over all rows). See the module docs.
     #[default]
     Auto,
     /// Lines by direction of motion (paper Fig. 5), turnaround transitions left out.
@@ -463,6 +466,40 @@ impl BranchFit {
         let ss = a.residual_rms_nm.powi(2) * a.points as f64
             + b.residual_rms_nm.powi(2) * b.points as f64;
         (ss / (a.points + b.points) as f64).sqrt()
+    }
+
+    /// Median over every row with a side of |tau_ext - its side's line|: the same rows count for
+    /// both splits, left out or not, and the median ignores the minority of turnaround or play
+    /// rows that neither line describes.
+    fn median_abs_residual_nm(
+        &self,
+        rows: &[DataRow],
+        side: impl Fn(&DataRow, usize) -> i8,
+    ) -> f64 {
+        let mut r: Vec<f64> = rows
+            .iter()
+            .enumerate()
+            .filter_map(|(i, row)| {
+                let line = match side(row, i) {
+                    1 => self.lines[0],
+                    -1 => self.lines[1],
+                    _ => return None,
+                };
+                Some((row.tau_ext_nm() - line.at(row.position_rad)).abs())
+            })
+            .collect();
+        median(&mut r)
+    }
+}
+
+fn load_side(row: &DataRow) -> i8 {
+    let t = row.tau_ext_nm();
+    if t > 0.0 {
+        1
+    } else if t < 0.0 {
+        -1
+    } else {
+        0
     }
 }
 
@@ -537,6 +574,11 @@ fn fit_motion(
     })
 }
 
+/// [`BranchRule::Auto`] keeps the paper's motion split unless the load split's median residual
+/// is smaller by at least this factor: where the hysteresis is too small to tell the two models
+/// apart (one depth of the 2017 file is a near tie), the documented procedure wins.
+const LOAD_PREFERENCE_RATIO: f64 = 2.0;
+
 /// Rows whose |tau_ext| is within this many pooled residual RMS of zero have no reliable side in
 /// the load split.
 const LOAD_BAND_SIGMAS: f64 = 3.0;
@@ -551,19 +593,7 @@ fn fit_load(
     depth_index: u32,
     opts: &FitOptions,
 ) -> Result<BranchFit, FitError> {
-    let side: Vec<i8> = rows
-        .iter()
-        .map(|r| {
-            let t = r.tau_ext_nm();
-            if t > 0.0 {
-                1
-            } else if t < 0.0 {
-                -1
-            } else {
-                0
-            }
-        })
-        .collect();
+    let side: Vec<i8> = rows.iter().map(load_side).collect();
     let mut excluded: Vec<bool> = side.iter().map(|&s| s == 0).collect();
     let mut fit = BranchFit {
         lines: fit_sides(rows, &side, &excluded, joint, depth_index, opts)?,
@@ -626,7 +656,9 @@ pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitErr
                 fit_load(&kept, joint, depth_index, opts),
             ) {
                 (Ok(m), Ok(l)) => {
-                    if l.pooled_rms_nm() < m.pooled_rms_nm() {
+                    let m_score = m.median_abs_residual_nm(&kept, |_, i| dirs[i]);
+                    let l_score = l.median_abs_residual_nm(&kept, |r, _| load_side(r));
+                    if l_score * LOAD_PREFERENCE_RATIO < m_score {
                         (Branches::Load, l)
                     } else {
                         (Branches::Motion, m)
@@ -819,7 +851,7 @@ pub fn fit_clamp(rows: &[DataRow], opts: &FitOptions) -> Result<Vec<JointFit>, F
 
 /// tau_0(q) table of one joint from an unloaded sweep.
 #[derive(Clone, Debug, PartialEq)]
-pub struct TorqueOffsetTable {
+pub struct TorqueOffsetFit {
     pub joint: u8,
     /// Strictly increasing angles (rad): the mean measured position of each angle group.
     pub position_rad: Vec<f64>,
@@ -847,7 +879,7 @@ pub fn fit_torque_offset(
     rows: &[DataRow],
     joint: u8,
     opts: &FitOptions,
-) -> Result<TorqueOffsetTable, FitError> {
+) -> Result<TorqueOffsetFit, FitError> {
     check_joint(joint)?;
     let groups = group_by_depth(rows, joint);
     if groups.is_empty() {
@@ -927,7 +959,7 @@ pub fn fit_torque_offset(
             (depth_info[s].0, depth_info[s].1, bias)
         })
         .collect();
-    Ok(TorqueOffsetTable {
+    Ok(TorqueOffsetFit {
         joint,
         depths: ndepth,
         max_depth_spread_nm: spreads.iter().copied().fold(0.0, f64::max),

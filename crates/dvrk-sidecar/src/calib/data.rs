@@ -1,0 +1,414 @@
+//! Calibration data files: the project's CSV layout and import of the dVRK 2017 layouts.
+//!
+//! Project layout (one averaged step per row, units in the header):
+//! `joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction`
+//! with `joint` 1 (yaw) or 2 (pitch) and `direction` +1, -1 or 0.
+//!
+//! dVRK 2017 layouts, recognised by their header line (they do not say which joint they hold, so
+//! the caller must):
+//! - clamp: `pos index,depth index,depth,current joint position,current joint effort,current torque offset`
+//! - torque-offset sweep: `position index,depth index,current depth,current joint position,current torque offset`
+//!   (the last column is the unloaded effort; it becomes `effort_nm`, with `torque_offset_nm` 0).
+//!
+//! The 2017 rows carry no direction (0): the fit derives it from the order of the rows.
+
+use std::fs::File;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use dvrk_compliance::fit::DataRow;
+
+/// Header of the project's calibration CSV.
+pub const HEADER: [&str; 7] = [
+    "joint",
+    "depth_index",
+    "insertion_m",
+    "position_rad",
+    "effort_nm",
+    "torque_offset_nm",
+    "direction",
+];
+
+const DVRK2017_CLAMP: [&str; 6] = [
+    "pos index",
+    "depth index",
+    "depth",
+    "current joint position",
+    "current joint effort",
+    "current torque offset",
+];
+
+const DVRK2017_TORQUE_OFFSET: [&str; 5] = [
+    "position index",
+    "depth index",
+    "current depth",
+    "current joint position",
+    "current torque offset",
+];
+
+/// Which layout a file has, from its header line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    Project,
+    Dvrk2017Clamp,
+    Dvrk2017TorqueOffset,
+}
+
+impl Layout {
+    /// Whether rows of this layout need the joint from the command line.
+    pub fn needs_joint(self) -> bool {
+        !matches!(self, Layout::Project)
+    }
+
+    fn detect(header: &csv::StringRecord) -> Option<Self> {
+        let names: Vec<&str> = header.iter().map(str::trim).collect();
+        if names == HEADER {
+            Some(Layout::Project)
+        } else if names == DVRK2017_CLAMP {
+            Some(Layout::Dvrk2017Clamp)
+        } else if names == DVRK2017_TORQUE_OFFSET {
+            Some(Layout::Dvrk2017TorqueOffset)
+        } else {
+            None
+        }
+    }
+}
+
+fn reader(path: &Path) -> anyhow::Result<csv::Reader<File>> {
+    let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    Ok(csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_reader(file))
+}
+
+/// Reads the header line of `path` and says which layout it is.
+pub fn detect_layout(path: &Path) -> anyhow::Result<Layout> {
+    let mut rdr = reader(path)?;
+    let header = rdr
+        .headers()
+        .with_context(|| format!("{}: reading the header line", path.display()))?
+        .clone();
+    Layout::detect(&header).with_context(|| {
+        format!(
+            "{}: unknown header `{}`; expected `{}`, or the dVRK 2017 clamp header `{}`, or the dVRK 2017 torque-offset header `{}`",
+            path.display(),
+            header.iter().collect::<Vec<_>>().join(","),
+            HEADER.join(","),
+            DVRK2017_CLAMP.join(","),
+            DVRK2017_TORQUE_OFFSET.join(",")
+        )
+    })
+}
+
+fn field<'a>(
+    rec: &'a csv::StringRecord,
+    i: usize,
+    name: &str,
+    path: &Path,
+    line: u64,
+) -> anyhow::Result<&'a str> {
+    rec.get(i)
+        .with_context(|| format!("{} line {line}: missing column `{name}`", path.display()))
+}
+
+fn number(
+    rec: &csv::StringRecord,
+    i: usize,
+    name: &str,
+    path: &Path,
+    line: u64,
+) -> anyhow::Result<f64> {
+    let s = field(rec, i, name, path, line)?;
+    let v: f64 = s.parse().with_context(|| {
+        format!(
+            "{} line {line}: column `{name}` = `{s}` is not a number",
+            path.display()
+        )
+    })?;
+    if !v.is_finite() {
+        bail!(
+            "{} line {line}: column `{name}` = `{s}` is not finite",
+            path.display()
+        );
+    }
+    Ok(v)
+}
+
+fn integer<T: std::str::FromStr>(
+    rec: &csv::StringRecord,
+    i: usize,
+    name: &str,
+    path: &Path,
+    line: u64,
+) -> anyhow::Result<T> {
+    let s = field(rec, i, name, path, line)?;
+    s.parse().ok().with_context(|| {
+        format!(
+            "{} line {line}: column `{name}` = `{s}` is not a valid integer here",
+            path.display()
+        )
+    })
+}
+
+/// Reads every row of a calibration file. `joint` (1 or 2) is required for the 2017 layouts and
+/// must be `None` for the project layout, whose rows name their joint.
+pub fn read_rows(path: &Path, joint: Option<u8>) -> anyhow::Result<(Layout, Vec<DataRow>)> {
+    let layout = detect_layout(path)?;
+    if layout.needs_joint() && joint.is_none() {
+        bail!(
+            "{} is in the dVRK 2017 layout, which does not say which joint it holds: pass --joint 1 or --joint 2",
+            path.display()
+        );
+    }
+    if let Some(j) = joint
+        && j != 1
+        && j != 2
+    {
+        bail!("--joint {j}: the joint must be 1 (yaw) or 2 (pitch)");
+    }
+    let mut rdr = reader(path)?;
+    let mut rows = Vec::new();
+    for rec in rdr.records() {
+        let rec = rec.with_context(|| format!("reading {}", path.display()))?;
+        let line = rec.position().map_or(0, |p| p.line());
+        let row = match layout {
+            Layout::Project => {
+                let j: u8 = integer(&rec, 0, "joint", path, line)?;
+                if j != 1 && j != 2 {
+                    bail!(
+                        "{} line {line}: joint = {j}; must be 1 (yaw) or 2 (pitch)",
+                        path.display()
+                    );
+                }
+                let direction: i8 = integer(&rec, 6, "direction", path, line)?;
+                if !(-1..=1).contains(&direction) {
+                    bail!(
+                        "{} line {line}: direction = {direction}; must be -1, 0 or 1",
+                        path.display()
+                    );
+                }
+                DataRow {
+                    joint: j,
+                    depth_index: integer(&rec, 1, "depth_index", path, line)?,
+                    insertion_m: number(&rec, 2, "insertion_m", path, line)?,
+                    position_rad: number(&rec, 3, "position_rad", path, line)?,
+                    effort_nm: number(&rec, 4, "effort_nm", path, line)?,
+                    torque_offset_nm: number(&rec, 5, "torque_offset_nm", path, line)?,
+                    direction,
+                }
+            }
+            Layout::Dvrk2017Clamp => DataRow {
+                joint: joint.unwrap_or(0),
+                depth_index: integer(&rec, 1, "depth index", path, line)?,
+                insertion_m: number(&rec, 2, "depth", path, line)?,
+                position_rad: number(&rec, 3, "current joint position", path, line)?,
+                effort_nm: number(&rec, 4, "current joint effort", path, line)?,
+                torque_offset_nm: number(&rec, 5, "current torque offset", path, line)?,
+                direction: 0,
+            },
+            Layout::Dvrk2017TorqueOffset => DataRow {
+                joint: joint.unwrap_or(0),
+                depth_index: integer(&rec, 1, "depth index", path, line)?,
+                insertion_m: number(&rec, 2, "current depth", path, line)?,
+                position_rad: number(&rec, 3, "current joint position", path, line)?,
+                effort_nm: number(&rec, 4, "current torque offset", path, line)?,
+                torque_offset_nm: 0.0,
+                direction: 0,
+            },
+        };
+        rows.push(row);
+    }
+    if rows.is_empty() {
+        bail!("{}: no data rows after the header", path.display());
+    }
+    Ok((layout, rows))
+}
+
+/// Writes rows in the project layout to `out`.
+pub fn write_rows<W: Write>(out: W, rows: &[DataRow]) -> anyhow::Result<()> {
+    let mut w = csv::Writer::from_writer(out);
+    w.write_record(HEADER)?;
+    for r in rows {
+        w.write_record([
+            r.joint.to_string(),
+            r.depth_index.to_string(),
+            format!("{:?}", r.insertion_m),
+            format!("{:?}", r.position_rad),
+            format!("{:?}", r.effort_nm),
+            format!("{:?}", r.torque_offset_nm),
+            r.direction.to_string(),
+        ])?;
+    }
+    w.flush()?;
+    Ok(())
+}
+
+/// Writes `text` to `path` through a temporary file in the same directory and a rename, so a
+/// reader never sees a half-written file and a failure leaves no valid-looking output.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let mut tmp: PathBuf = path.to_path_buf();
+    let name = path
+        .file_name()
+        .with_context(|| format!("{}: not a file path", path.display()))?;
+    tmp.set_file_name(format!(".{}.partial", name.to_string_lossy()));
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+}
+
+/// Reads several files; `joints` gives the joint of each 2017-layout file: either one value for
+/// all of them, or one per 2017 file in command-line order. Depth indices of later files that
+/// repeat a joint are shifted past the earlier ones, so that two recordings of one depth index
+/// are never merged into one (the fit reads each depth's rows in recorded order).
+pub fn read_files(
+    paths: &[PathBuf],
+    joints: &[u8],
+    legacy_seen: &mut usize,
+) -> anyhow::Result<Vec<DataRow>> {
+    let mut all: Vec<DataRow> = Vec::new();
+    for path in paths {
+        let layout = detect_layout(path)?;
+        let joint = if layout.needs_joint() {
+            let j = match joints {
+                [] => None,
+                [one] => Some(*one),
+                many => Some(*many.get(*legacy_seen).with_context(|| {
+                    format!(
+                        "{}: {} --joint values given, but this is dVRK 2017 file number {}; give one --joint for all or one per 2017 file",
+                        path.display(),
+                        many.len(),
+                        *legacy_seen + 1
+                    )
+                })?),
+            };
+            *legacy_seen += 1;
+            j
+        } else {
+            None
+        };
+        let (_, mut rows) = read_rows(path, joint)?;
+        for j in [1u8, 2] {
+            let shift = all
+                .iter()
+                .filter(|r| r.joint == j)
+                .map(|r| r.depth_index + 1)
+                .max()
+                .unwrap_or(0);
+            rows.iter_mut()
+                .filter(|r| r.joint == j)
+                .for_each(|r| r.depth_index += shift);
+        }
+        all.extend(rows);
+    }
+    Ok(all)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(name: &str, text: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("dvrk-calib-data-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn project_layout_round_trip() {
+        let rows = vec![
+            DataRow {
+                joint: 2,
+                depth_index: 3,
+                insertion_m: 0.12,
+                position_rad: -0.001,
+                effort_nm: 0.3,
+                torque_offset_nm: 0.1,
+                direction: -1,
+            };
+            2
+        ];
+        let mut buf = Vec::new();
+        write_rows(&mut buf, &rows).unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        assert!(text.starts_with(
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n"
+        ));
+        let p = tmp("round.csv", &text);
+        let (layout, back) = read_rows(&p, None).unwrap();
+        assert_eq!(layout, Layout::Project);
+        assert_eq!(back, rows);
+    }
+
+    #[test]
+    fn dvrk2017_needs_joint() {
+        let p = tmp(
+            "legacy.csv",
+            "pos index,depth index,depth,current joint position,current joint effort,current torque offset\n0,0,0.1,0.0,0.2,0.1\n",
+        );
+        let err = read_rows(&p, None).unwrap_err().to_string();
+        assert!(err.contains("--joint"), "{err}");
+        let (layout, rows) = read_rows(&p, Some(2)).unwrap();
+        assert_eq!(layout, Layout::Dvrk2017Clamp);
+        assert_eq!(rows[0].joint, 2);
+        assert!((rows[0].tau_ext_nm() - 0.1).abs() < 1e-12);
+        assert!(read_rows(&p, Some(3)).is_err());
+    }
+
+    #[test]
+    fn dvrk2017_sweep_effort_is_the_offset_column() {
+        let p = tmp(
+            "sweep.csv",
+            "position index,depth index,current depth,current joint position,current torque offset\n1,0,0.09,-0.002,0.092\n",
+        );
+        let (layout, rows) = read_rows(&p, Some(1)).unwrap();
+        assert_eq!(layout, Layout::Dvrk2017TorqueOffset);
+        assert_eq!(rows[0].effort_nm, 0.092);
+        assert_eq!(rows[0].torque_offset_nm, 0.0);
+    }
+
+    #[test]
+    fn bad_files_name_line_and_column() {
+        let p = tmp("bad-header.csv", "a,b,c\n1,2,3\n");
+        let err = format!("{:#}", read_rows(&p, None).unwrap_err());
+        assert!(err.contains("unknown header `a,b,c`"), "{err}");
+        let p = tmp(
+            "bad-number.csv",
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n1,0,0.1,abc,0,0,1\n",
+        );
+        let err = format!("{:#}", read_rows(&p, None).unwrap_err());
+        assert!(
+            err.contains("line 2") && err.contains("position_rad") && err.contains("abc"),
+            "{err}"
+        );
+        let p = tmp(
+            "bad-joint.csv",
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n3,0,0.1,0,0,0,1\n",
+        );
+        assert!(format!("{:#}", read_rows(&p, None).unwrap_err()).contains("joint = 3"));
+        let p = tmp(
+            "nan.csv",
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n1,0,0.1,NaN,0,0,1\n",
+        );
+        assert!(format!("{:#}", read_rows(&p, None).unwrap_err()).contains("not finite"));
+        let p = tmp(
+            "short.csv",
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n1,0,0.1\n",
+        );
+        assert!(read_rows(&p, None).is_err());
+    }
+
+    #[test]
+    fn repeated_depths_of_a_joint_are_kept_apart() {
+        let text = "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n1,0,0.1,0,0,0,1\n1,1,0.11,0,0,0,1\n";
+        let a = tmp("a.csv", text);
+        let b = tmp("b.csv", text);
+        let mut seen = 0;
+        let rows = read_files(&[a, b], &[], &mut seen).unwrap();
+        let idx: Vec<u32> = rows.iter().map(|r| r.depth_index).collect();
+        assert_eq!(idx, vec![0, 1, 2, 3]);
+    }
+}

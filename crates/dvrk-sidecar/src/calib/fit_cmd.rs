@@ -1,0 +1,486 @@
+//! `dvrk-sidecar fit`: calibration data in, compliance parameter file out.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use dvrk_compliance::fit::{self, DataRow, FitOptions, JointFit, TorqueOffsetFit};
+use dvrk_compliance::{
+    ComplianceConfig, ComplianceParams, JointParams, ModelKind, TorqueOffsetParams, params_to_toml,
+};
+use serde::Serialize;
+
+use super::data;
+
+/// Which model the written parameter file selects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ModelArg {
+    Paper,
+    Continuous,
+}
+
+/// `fit --clamp FILE... [--torque-offset FILE...] [--joint N] --out params.toml [--plots DIR] [--json]`
+#[derive(Clone, Debug, clap::Args)]
+pub struct FitArgs {
+    /// Clamp-beam data files (project CSV layout or dVRK 2017 clamp layout).
+    #[arg(long, num_args = 1.., required = true)]
+    pub clamp: Vec<PathBuf>,
+    /// Unloaded torque-offset sweep files (project layout or dVRK 2017 torque-offset layout).
+    #[arg(long = "torque-offset", num_args = 1..)]
+    pub torque_offset: Vec<PathBuf>,
+    /// Joint (1 = yaw, 2 = pitch) held by dVRK 2017 files, which do not say: once for all of
+    /// them, or once per 2017 file in command-line order (clamp files first).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub joint: Vec<u8>,
+    /// Parameter file to write (TOML, the compensation's schema).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Directory for the figures (SVG and PNG).
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
+    /// Print the fit as JSON on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Model written to the file.
+    #[arg(long, value_enum, default_value = "paper")]
+    pub model: ModelArg,
+    /// Dead band tau_min (N·m) for joints 1 and 2; the paper's empirical values by default.
+    #[arg(long = "tau-min-nm", value_delimiter = ',', num_args = 2, default_values_t = [0.1, 0.2])]
+    pub tau_min_nm: Vec<f64>,
+    /// TTF font for the figure text.
+    #[arg(long, default_value = super::plots::DEFAULT_FONT)]
+    pub font: PathBuf,
+}
+
+/// Everything one `fit` run computed (nothing is written unless all of it succeeded).
+pub struct FitOutcome {
+    pub clamp_rows: Vec<DataRow>,
+    pub sweep_rows: Vec<DataRow>,
+    pub joints: Vec<JointFit>,
+    pub offsets: Vec<TorqueOffsetFit>,
+    pub params: ComplianceParams,
+}
+
+/// Reads the files and fits everything; writes nothing.
+pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
+    let mut legacy_seen = 0;
+    let clamp_rows = data::read_files(&args.clamp, &args.joint, &mut legacy_seen)?;
+    let sweep_rows = data::read_files(&args.torque_offset, &args.joint, &mut legacy_seen)?;
+    if args.joint.len() > 1 && args.joint.len() != legacy_seen {
+        bail!(
+            "{} --joint values for {legacy_seen} dVRK 2017 files; give one for all or one per file",
+            args.joint.len()
+        );
+    }
+    let opts = FitOptions::default();
+    let joints = fit::fit_clamp(&clamp_rows, &opts).context("fitting the clamp data")?;
+    let mut sweep_joints: Vec<u8> = sweep_rows.iter().map(|r| r.joint).collect();
+    sweep_joints.sort_unstable();
+    sweep_joints.dedup();
+    let offsets = sweep_joints
+        .iter()
+        .map(|&j| fit::fit_torque_offset(&sweep_rows, j, &opts))
+        .collect::<Result<Vec<_>, _>>()
+        .context("fitting the torque-offset sweep")?;
+    for o in &offsets {
+        if !joints.iter().any(|j| j.joint == o.joint) {
+            tracing::warn!(
+                joint = o.joint,
+                "torque-offset sweep of joint {} has no clamp data; it is not written",
+                o.joint
+            );
+        }
+    }
+    let mut joint_params = Vec::new();
+    for j in &joints {
+        let torque_offset = match offsets.iter().find(|o| o.joint == j.joint) {
+            Some(o) => TorqueOffsetParams {
+                position_rad: o.position_rad.clone(),
+                effort_nm: o.effort_nm.clone(),
+            },
+            None => {
+                tracing::warn!(
+                    joint = j.joint,
+                    "no torque-offset sweep for joint {}: writing a flat zero tau_0 table; run a sweep and pass --torque-offset",
+                    j.joint
+                );
+                TorqueOffsetParams {
+                    position_rad: vec![0.0],
+                    effort_nm: vec![0.0],
+                }
+            }
+        };
+        let tau_min = args
+            .tau_min_nm
+            .get(usize::from(j.joint) - 1)
+            .copied()
+            .unwrap_or(0.1);
+        joint_params.push(JointParams {
+            index: i64::from(j.joint),
+            backlash_rad: j.backlash_rad,
+            tau_min_nm: tau_min,
+            inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
+            insertion_range_m: j.insertion_range_m,
+            torque_offset,
+        });
+    }
+    let params = ComplianceParams {
+        model: match args.model {
+            ModelArg::Paper => ModelKind::Paper,
+            ModelArg::Continuous => ModelKind::Continuous,
+        },
+        joint: joint_params,
+    };
+    ComplianceConfig::from_params(params.clone())
+        .context("the fitted parameters do not validate; nothing written")?;
+    Ok(FitOutcome {
+        clamp_rows,
+        sweep_rows,
+        joints,
+        offsets,
+        params,
+    })
+}
+
+#[derive(Serialize)]
+struct JsonDepth {
+    insertion_m: f64,
+    stiffness_nm_per_rad: f64,
+    backlash_rad: f64,
+    slopes: [f64; 2],
+    points: usize,
+}
+
+#[derive(Serialize)]
+struct JsonJoint {
+    index: u8,
+    depths: Vec<JsonDepth>,
+    inverse_compliance_nm_per_rad: [f64; 4],
+    backlash_rad: f64,
+    r_squared: f64,
+}
+
+#[derive(Serialize)]
+struct JsonFit {
+    joints: Vec<JsonJoint>,
+}
+
+/// The `--json` document: `{"joints":[{"index":..,"depths":[{"insertion_m":..,
+/// "stiffness_nm_per_rad":..,"backlash_rad":..,"slopes":[+,-],"points":..}],
+/// "inverse_compliance_nm_per_rad":[c3,c2,c1,c0],"backlash_rad":..,"r_squared":..}]}`.
+pub fn to_json(joints: &[JointFit]) -> anyhow::Result<String> {
+    let doc = JsonFit {
+        joints: joints
+            .iter()
+            .map(|j| JsonJoint {
+                index: j.joint,
+                depths: j
+                    .depths
+                    .iter()
+                    .map(|d| JsonDepth {
+                        insertion_m: d.insertion_m,
+                        stiffness_nm_per_rad: d.stiffness_nm_per_rad,
+                        backlash_rad: d.backlash_rad,
+                        slopes: [d.lines[0].slope, d.lines[1].slope],
+                        points: d.points,
+                    })
+                    .collect(),
+                inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
+                backlash_rad: j.backlash_rad,
+                r_squared: j.r_squared,
+            })
+            .collect(),
+    };
+    Ok(serde_json::to_string(&doc)?)
+}
+
+/// Human-readable report of the fit.
+pub fn report(outcome: &FitOutcome) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    for j in &outcome.joints {
+        let _ = writeln!(s, "joint {}", j.joint);
+        let _ = writeln!(
+            s,
+            "  {:>5} {:>9} {:>12} {:>12} {:>9} {:>9} {:>7} {:>6} {:>8}",
+            "depth",
+            "L_m",
+            "K^-1_Nm/rad",
+            "backlash_mrad",
+            "slope+",
+            "slope-",
+            "split",
+            "points",
+            "left_out"
+        );
+        for d in &j.depths {
+            let _ = writeln!(
+                s,
+                "  {:>5} {:>9.4} {:>12.2} {:>12.2} {:>9.2} {:>9.2} {:>7} {:>6} {:>8}",
+                d.depth_index,
+                d.insertion_m,
+                d.stiffness_nm_per_rad,
+                d.backlash_rad * 1e3,
+                d.lines[0].slope,
+                d.lines[1].slope,
+                match d.branches {
+                    fit::Branches::Motion => "motion",
+                    fit::Branches::Load => "load",
+                },
+                d.points,
+                d.excluded + d.dropped_settling
+            );
+        }
+        let c = j.inverse_compliance_nm_per_rad;
+        let _ = writeln!(
+            s,
+            "  1/K(L) = {:.2} L^3 + {:.2} L^2 + {:.2} L + {:.2}   (r^2 {:.4}, L in [{:.4}, {:.4}] m)",
+            c[0], c[1], c[2], c[3], j.r_squared, j.insertion_range_m[0], j.insertion_range_m[1]
+        );
+        let _ = writeln!(
+            s,
+            "  backlash (mean over depths) = {:.3} mrad",
+            j.backlash_rad * 1e3
+        );
+    }
+    for o in &outcome.offsets {
+        let _ = writeln!(
+            s,
+            "torque offset joint {}: {} angles from {} depths; per-angle spread over depths max {:.4} N·m, mean {:.4} N·m",
+            o.joint,
+            o.position_rad.len(),
+            o.depths,
+            o.max_depth_spread_nm,
+            o.mean_depth_spread_nm
+        );
+        for (idx, l, bias) in &o.depth_bias_nm {
+            let _ = writeln!(
+                s,
+                "    depth {idx:>3} (L {l:.4} m): mean deviation from the table {bias:+.4} N·m"
+            );
+        }
+    }
+    s
+}
+
+/// Runs `fit`: computes everything first, then writes the parameter file atomically, then the
+/// figures, then prints.
+pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
+    let outcome = compute(args)?;
+    let mut text = String::new();
+    text.push_str("# Fitted by `dvrk-sidecar fit` from:\n");
+    for p in args.clamp.iter().chain(args.torque_offset.iter()) {
+        text.push_str(&format!("#   {}\n", p.display()));
+    }
+    for j in &outcome.joints {
+        text.push_str(&format!(
+            "# joint {}: {} depths, r^2 of 1/K(L) {:.5}, backlash mean {:.3} mrad\n",
+            j.joint,
+            j.depths.len(),
+            j.r_squared,
+            j.backlash_rad * 1e3
+        ));
+    }
+    text.push_str(&params_to_toml(&outcome.params));
+    data::write_atomically(&args.out, text.as_bytes())?;
+    if let Some(dir) = &args.plots {
+        super::plots::fit_figures(dir, &args.font, &outcome)?;
+    }
+    if args.json {
+        println!("{}", to_json(&outcome.joints)?);
+    } else {
+        print!("{}", report(&outcome));
+        println!("wrote {}", args.out.display());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// The real 2017 recordings in `shared/data` beside the repository. Missing data fails the
+    /// test: it is the acceptance data of the fit.
+    pub(crate) fn shared_data(name: &str) -> PathBuf {
+        let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+        for dir in manifest.ancestors() {
+            let p = dir.join("shared").join("data").join(name);
+            if p.is_file() {
+                return p;
+            }
+        }
+        panic!(
+            "real calibration data {name} not found in shared/data above {}; CI must check out shared/ beside the repository",
+            manifest.display()
+        );
+    }
+
+    fn args(clamp: Vec<PathBuf>, sweep: Vec<PathBuf>, joint: Vec<u8>, out: PathBuf) -> FitArgs {
+        FitArgs {
+            clamp,
+            torque_offset: sweep,
+            joint,
+            out,
+            plots: None,
+            json: true,
+            model: ModelArg::Paper,
+            tau_min_nm: vec![0.1, 0.2],
+            font: PathBuf::from(super::super::plots::DEFAULT_FONT),
+        }
+    }
+
+    fn tmpdir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("dvrk-calib-fit-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn real_2017_clamp_file_gives_the_published_stiffness_range() {
+        let clamp = shared_data("dvrk2017-clamp-joint1.csv");
+        let sweep = shared_data("dvrk2017-torque-offset-joint1.csv");
+        let out = tmpdir("real").join("params.toml");
+        let o = compute(&args(vec![clamp], vec![sweep], vec![1], out)).unwrap();
+        assert_eq!(o.joints.len(), 1);
+        let j = &o.joints[0];
+        assert_eq!(j.joint, 1);
+        assert_eq!(j.depths.len(), 14);
+        let first = j.depths[0].stiffness_nm_per_rad;
+        let last = j.depths[13].stiffness_nm_per_rad;
+        // README of the data: about 13 N·m/rad at the first depth, about 29 at the last (10 %).
+        assert!((first / 13.0 - 1.0).abs() <= 0.10, "first depth {first}");
+        assert!((last / 29.0 - 1.0).abs() <= 0.10, "last depth {last}");
+        // rising with depth, and the cubic follows it
+        assert!(j.r_squared > 0.95, "{}", j.r_squared);
+        for l in [0.1, 0.15, 0.2] {
+            assert!(fit::eval_cubic(&j.inverse_compliance_nm_per_rad, l) > 0.0);
+        }
+        // backlash of the size the README reports (1.3 - 4.5 mrad per depth, order of magnitude)
+        assert!(
+            j.backlash_rad > 1e-3 && j.backlash_rad < 5e-3,
+            "{}",
+            j.backlash_rad
+        );
+        // the sweep: 14 depths, tau_0 hardly depends on depth (paper Fig. 4)
+        let t = &o.offsets[0];
+        assert_eq!(t.depths, 14);
+        assert!(t.mean_depth_spread_nm < 0.02, "{}", t.mean_depth_spread_nm);
+        // and the parameter file validates with the fitted torque-offset table
+        assert_eq!(
+            o.params.joint[0].torque_offset.position_rad.len(),
+            t.position_rad.len()
+        );
+    }
+
+    #[test]
+    fn missing_joint_for_2017_file_is_an_error() {
+        let clamp = shared_data("dvrk2017-clamp-joint1.csv");
+        let out = tmpdir("nojoint").join("params.toml");
+        let err = format!(
+            "{:#}",
+            compute(&args(vec![clamp], vec![], vec![], out))
+                .err()
+                .unwrap()
+        );
+        assert!(err.contains("--joint"), "{err}");
+    }
+
+    #[test]
+    fn json_has_exactly_the_documented_shape() {
+        let clamp = shared_data("dvrk2017-clamp-joint1.csv");
+        let out = tmpdir("json").join("params.toml");
+        let o = compute(&args(vec![clamp], vec![], vec![1], out)).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&to_json(&o.joints).unwrap()).unwrap();
+        let keys = |v: &serde_json::Value| -> Vec<String> {
+            let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
+            k.sort();
+            k
+        };
+        assert_eq!(keys(&v), ["joints"]);
+        let j = &v["joints"][0];
+        assert_eq!(
+            keys(j),
+            [
+                "backlash_rad",
+                "depths",
+                "index",
+                "inverse_compliance_nm_per_rad",
+                "r_squared"
+            ]
+        );
+        assert_eq!(j["index"], 1);
+        assert_eq!(
+            j["inverse_compliance_nm_per_rad"].as_array().unwrap().len(),
+            4
+        );
+        let d = &j["depths"][0];
+        assert_eq!(
+            keys(d),
+            [
+                "backlash_rad",
+                "insertion_m",
+                "points",
+                "slopes",
+                "stiffness_nm_per_rad"
+            ]
+        );
+        assert_eq!(d["slopes"].as_array().unwrap().len(), 2);
+        assert!(d["points"].as_u64().unwrap() > 100);
+    }
+
+    #[test]
+    fn a_failed_fit_writes_nothing() {
+        let dir = tmpdir("fail");
+        // one depth only: every line fits but no cubic can be drawn through one stiffness
+        let clamp = dir.join("one-depth.csv");
+        let text = std::fs::read_to_string(shared_data("dvrk2017-clamp-joint1.csv")).unwrap();
+        let one: Vec<&str> = text
+            .lines()
+            .enumerate()
+            .filter(|(i, l)| *i == 0 || l.split(',').nth(1) == Some("0"))
+            .map(|(_, l)| l)
+            .collect();
+        std::fs::write(&clamp, one.join("\n")).unwrap();
+        let out = dir.join("params.toml");
+        let _ = std::fs::remove_file(&out);
+        let err = format!(
+            "{:#}",
+            run_fit(&args(vec![clamp], vec![], vec![1], out.clone())).unwrap_err()
+        );
+        assert!(err.contains("distinct insertion depths"), "{err}");
+        assert!(!out.exists());
+    }
+
+    #[test]
+    fn written_file_loads_as_a_compliance_config() {
+        let dir = tmpdir("write");
+        let out = dir.join("params.toml");
+        let mut a = args(
+            vec![shared_data("dvrk2017-clamp-joint1.csv")],
+            vec![shared_data("dvrk2017-torque-offset-joint1.csv")],
+            vec![1],
+            out.clone(),
+        );
+        a.json = false;
+        a.plots = Some(dir.join("plots"));
+        run_fit(&a).unwrap();
+        let cfg = ComplianceConfig::from_toml_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        let range = cfg.insertion_range_m(0).unwrap();
+        assert!(range[0] > 0.09 && range[1] < 0.23);
+        assert!(cfg.insertion_range_m(1).is_none());
+        for stem in [
+            "fig4-torque-offset-joint1",
+            "fig5-clamp-joint1",
+            "fig6-inverse-compliance-joint1",
+        ] {
+            for ext in ["svg", "png"] {
+                let p = dir.join("plots").join(format!("{stem}.{ext}"));
+                assert!(
+                    std::fs::metadata(&p).unwrap().len() > 1000,
+                    "{}",
+                    p.display()
+                );
+            }
+        }
+    }
+}
