@@ -1,1 +1,76 @@
-fn main() {}
+//! dvrk-sidecar: reads a dVRK PSM, corrects joints 1-2 for instrument-shaft compliance and
+//! backlash (Chrysilla et al.), and publishes raw and compensated joint and tip states over
+//! iceoryx2 shared memory. Also carries the offline tools of the paper's workflow.
+
+use dvrk_sidecar::{echo, offline, serve, simcmd};
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "dvrk-sidecar", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the service: read, compensate, publish every cycle until SIGTERM/SIGINT.
+    Serve {
+        /// Service configuration file.
+        #[arg(long, default_value = "config/sidecar.toml")]
+        config: PathBuf,
+    },
+    /// Load and validate a configuration and every file it names; exit 0 when all is well.
+    CheckConfig {
+        #[arg(long, default_value = "config/sidecar.toml")]
+        config: PathBuf,
+    },
+    /// Print samples of one of the service's topics, like `ros2 topic echo`.
+    Echo(echo::EchoArgs),
+    /// Forward kinematics: print the tip pose (RCM frame, CRTK local/measured_cp) for q1..q6.
+    Fk(offline::FkArgs),
+    /// Apply the compliance model to one measured position and effort.
+    Correct(offline::CorrectArgs),
+    /// Run the board emulator of the simulated PSM on a UDP socket until SIGTERM/SIGINT.
+    Sim(simcmd::SimArgs),
+}
+
+/// Logging is set up once, here: fmt to stderr (systemd passes it to the journal), filtered by
+/// RUST_LOG (default `info`).
+fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .init();
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    init_tracing();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Serve { config } => serve::run(&config),
+        Command::CheckConfig { config } => serve::check_config(&config),
+        Command::Echo(args) => echo::run(&args),
+        Command::Fk(args) => offline::fk(&args),
+        Command::Correct(args) => offline::correct(&args),
+        Command::Sim(args) => simcmd::run(&args),
+    }
+}

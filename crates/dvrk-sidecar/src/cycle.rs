@@ -1,0 +1,184 @@
+//! The pure glue of one cycle: an [`ArmSample`] from dvrk-io in, the compliance model and the
+//! kinematics applied, the five messages of dvrk-ipc out. No clock, no I/O, no allocation.
+
+use dvrk_compliance::{ComplianceConfig, Correction, PsmKinematics};
+use dvrk_io::ArmSample;
+use dvrk_ipc::{CompensationStatusV1, Header, JointStateV1, PoseV1, flags};
+use nalgebra::Isometry3;
+
+/// Why a read failed, as far as the published flags are concerned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadOutcome {
+    Ok,
+    /// No reply within the timeout.
+    Timeout,
+    /// A reply that failed validation, or any other port error.
+    Error,
+}
+
+/// Everything computed in one cycle, before it is written into messages.
+#[derive(Debug, Clone, Copy)]
+pub struct CycleResult {
+    pub raw_pose: Isometry3<f64>,
+    pub correction: Correction,
+    /// Joint positions with q1, q2 replaced by the corrected ones.
+    pub compensated_position: [f64; 7],
+    pub compensated_pose: Isometry3<f64>,
+    pub valid: bool,
+    pub flags: u32,
+}
+
+impl CycleResult {
+    /// Distance between the raw and the compensated tip positions (m).
+    pub fn tip_displacement_m(&self) -> f64 {
+        (self.raw_pose.translation.vector - self.compensated_pose.translation.vector).norm()
+    }
+}
+
+/// Health flags of a sample, as dvrk-ipc publishes them.
+pub fn health_flags(s: &ArmSample, outcome: ReadOutcome) -> u32 {
+    let mut f = 0;
+    match outcome {
+        ReadOutcome::Ok => {}
+        ReadOutcome::Timeout => f |= flags::BOARD_TIMEOUT,
+        ReadOutcome::Error => f |= flags::BOARD_ERROR,
+    }
+    for b in s.boards.iter().filter(|b| b.board_id != 0 || b.read_ok) {
+        if b.watchdog_timeout {
+            f |= flags::WATCHDOG_TIMEOUT;
+        }
+        if !b.power_enabled || !b.motor_supply_good || b.motor_supply_fault {
+            f |= flags::POWER_OFF;
+        }
+    }
+    for a in &s.axes {
+        if a.encoder_error || a.encoder_overflow {
+            f |= flags::ENCODER_ERROR;
+        }
+        if a.amp_fault || a.current_check_trip {
+            f |= flags::AMP_FAULT;
+        }
+    }
+    f
+}
+
+/// Applies the model and the kinematics to one sample.
+pub fn compute(
+    model: &ComplianceConfig,
+    kin: &PsmKinematics,
+    s: &ArmSample,
+    outcome: ReadOutcome,
+) -> CycleResult {
+    let q3 = [s.position[0], s.position[1], s.position[2]];
+    let tau3 = [s.effort[0], s.effort[1], s.effort[2]];
+    let correction = model.correct(&q3, &tau3);
+    let mut compensated_position = s.position;
+    compensated_position[..3].copy_from_slice(&correction.position);
+    let raw_q6 = first6(&s.position);
+    let comp_q6 = first6(&compensated_position);
+    let mut f = health_flags(s, outcome);
+    if correction.insertion_clamped {
+        f |= flags::INSERTION_CLAMPED;
+    }
+    if correction.active[0] {
+        f |= flags::CORRECTION_ACTIVE_J1;
+    }
+    if correction.active[1] {
+        f |= flags::CORRECTION_ACTIVE_J2;
+    }
+    CycleResult {
+        raw_pose: kin.forward(&raw_q6),
+        correction,
+        compensated_position,
+        compensated_pose: kin.forward(&comp_q6),
+        valid: outcome == ReadOutcome::Ok && s.valid,
+        flags: f,
+    }
+}
+
+fn first6(q: &[f64; 7]) -> [f64; 6] {
+    [q[0], q[1], q[2], q[3], q[4], q[5]]
+}
+
+/// Timing of one cycle, from the loop.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CycleTiming {
+    pub seq: u64,
+    pub sample_t_ns: u64,
+    pub publish_t_ns: u64,
+    pub cycle_period_ns: u64,
+    pub cycle_duration_ns: u64,
+    pub missed_reads: u64,
+}
+
+/// The five messages of one cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct Messages {
+    pub measured_js: JointStateV1,
+    pub measured_cp: PoseV1,
+    pub compensated_js: JointStateV1,
+    pub compensated_cp: PoseV1,
+    pub status: CompensationStatusV1,
+}
+
+fn pose_msg(header: Header, p: &Isometry3<f64>) -> PoseV1 {
+    let t = p.translation.vector;
+    let q = p.rotation.coords; // x, y, z, w
+    let r = p.rotation.to_rotation_matrix();
+    let m = r.matrix();
+    PoseV1 {
+        header,
+        position_m: [t.x, t.y, t.z],
+        orientation_xyzw: [q.x, q.y, q.z, q.w],
+        rotation: [
+            m[(0, 0)],
+            m[(0, 1)],
+            m[(0, 2)],
+            m[(1, 0)],
+            m[(1, 1)],
+            m[(1, 2)],
+            m[(2, 0)],
+            m[(2, 1)],
+            m[(2, 2)],
+        ],
+    }
+}
+
+/// Writes a cycle into its messages; every message carries the same header.
+pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
+    let header = Header {
+        seq: t.seq,
+        sample_t_ns: t.sample_t_ns,
+        board_timestamp: Header::pack_board_timestamps(s.board_timestamp),
+        publish_t_ns: t.publish_t_ns,
+        valid: u32::from(r.valid),
+        flags: r.flags,
+    };
+    let measured_js = JointStateV1 {
+        header,
+        position: s.position,
+        velocity: s.velocity,
+        effort: s.effort,
+    };
+    let compensated_js = JointStateV1 {
+        position: r.compensated_position,
+        ..measured_js
+    };
+    let status = CompensationStatusV1 {
+        header,
+        tau_ext_nm: r.correction.tau_ext_nm,
+        delta_rad: r.correction.delta_rad,
+        insertion_m: r.correction.insertion_m,
+        cycle_period_ns: t.cycle_period_ns,
+        cycle_duration_ns: t.cycle_duration_ns,
+        read_failures_total: t.missed_reads,
+        ..Default::default()
+    };
+    Messages {
+        measured_js,
+        measured_cp: pose_msg(header, &r.raw_pose),
+        compensated_js,
+        compensated_cp: pose_msg(header, &r.compensated_pose),
+        status,
+    }
+}

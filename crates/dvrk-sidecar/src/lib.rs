@@ -1,0 +1,15 @@
+//! The dvrk-sidecar service as a library: the binary's commands, and the per-cycle pipeline
+//! that the benchmarks and end-to-end tests drive directly.
+//!
+//! `anyhow` is used here because this is the application layer (setup and commands); the
+//! library crates below it have their own error enums.
+
+pub mod config;
+pub mod cycle;
+pub mod echo;
+pub mod offline;
+pub mod rt;
+pub mod serve;
+pub mod signals;
+pub mod simcmd;
+pub mod stats;

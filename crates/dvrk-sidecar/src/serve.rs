@@ -1,0 +1,388 @@
+//! `serve` and `check-config`: the I/O shell around the pure cycle.
+//!
+//! Setup allocates everything (ports, buffers, publishers, the histogram). The loop then does,
+//! each cycle: wait for the deadline, read the clock once for the sample, read the boards,
+//! convert, compensate, compute both tip poses, read the clock once for the publish stamp,
+//! publish the five messages and notify. Nothing in the loop allocates, locks, logs or
+//! formats; a summary is logged once per second, after a cycle.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use dvrk_io::ArmSample;
+use dvrk_io::port::{Port, UdpLink, UdpPort};
+use dvrk_io::reader::ArmReader;
+use dvrk_ipc::iceoryx2;
+use dvrk_ipc::{ArmPublisher, ServiceNames, flags};
+use tracing::{info, warn};
+
+use crate::config::{Rate, SidecarConfig, Source};
+use crate::cycle::{self, CycleTiming, ReadOutcome};
+use crate::rt;
+use crate::signals::StopFlag;
+use crate::stats::DurationHistogram;
+
+/// Board ids of the arm, as the I/O configuration assigns them.
+fn board_ids(cfg: &SidecarConfig) -> Vec<u8> {
+    cfg.io.board_ids().to_vec()
+}
+
+/// `check-config`: load and validate everything, print what was found.
+pub fn check_config(path: &Path) -> Result<()> {
+    let cfg = SidecarConfig::load(path)?;
+    println!("{}: OK", path.display());
+    println!("  source      {} (access {:?})", cfg.source, cfg.access);
+    println!(
+        "  io          {} (boards {:?})",
+        cfg.io_path.display(),
+        board_ids(&cfg)
+    );
+    println!(
+        "  arm         {:?}, instrument {}",
+        cfg.arm, cfg.instrument.name
+    );
+    println!("  compliance  {}", cfg.compliance_path.display());
+    println!("  rate        {}", cfg.rate);
+    println!("  prefix      {}", cfg.prefix);
+    if let Some(p) = &cfg.scenario_path {
+        println!("  scenario    {}", p.display());
+    }
+    Ok(())
+}
+
+/// One source of samples, read once per cycle.
+pub trait SampleSource {
+    /// Reads the arm at host time `t_ns` into `out`.
+    fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome;
+    /// Whether the samples come from the simulator.
+    fn simulated(&self) -> bool {
+        false
+    }
+}
+
+fn outcome(r: Result<(), dvrk_io::reader::ReadError>) -> ReadOutcome {
+    match r {
+        Ok(()) => ReadOutcome::Ok,
+        Err(dvrk_io::reader::ReadError::Port(dvrk_io::port::PortError::Timeout { .. })) => {
+            ReadOutcome::Timeout
+        }
+        Err(_) => ReadOutcome::Error,
+    }
+}
+
+impl<P: Port> SampleSource for ArmReader<P> {
+    fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
+        outcome(ArmReader::read(self, t_ns, out))
+    }
+}
+
+/// The simulated PSM in-process: its physics is advanced to the cycle's time, then read
+/// through the real board protocol.
+pub struct SimSource {
+    reader: ArmReader<dvrk_sim::SimPort>,
+    start_ns: Option<u64>,
+}
+
+impl SimSource {
+    pub fn new(cfg: &SidecarConfig) -> Result<Self> {
+        let scenario = cfg
+            .scenario
+            .as_ref()
+            .context("source = \"sim\" needs a scenario")?;
+        let emulator =
+            dvrk_sim::Emulator::new(scenario, &cfg.io).context("starting the simulated PSM")?;
+        let port = dvrk_sim::SimPort::new(dvrk_sim::SimLink::new(emulator));
+        Ok(Self {
+            reader: ArmReader::new(port, cfg.io.clone(), cfg.access),
+            start_ns: None,
+        })
+    }
+
+    pub fn emulator(&mut self) -> &mut dvrk_sim::Emulator {
+        self.reader.port_mut().link_mut().emulator_mut()
+    }
+}
+
+impl SampleSource for SimSource {
+    fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
+        // The simulator's clock starts at 0 on the first cycle.
+        let start = *self.start_ns.get_or_insert(t_ns);
+        self.emulator().advance_to(t_ns - start);
+        outcome(self.reader.read(t_ns, out))
+    }
+    fn simulated(&self) -> bool {
+        true
+    }
+}
+
+/// `serve`: load, set up, run until SIGTERM/SIGINT.
+pub fn run(path: &Path) -> Result<()> {
+    let cfg = SidecarConfig::load(path)?;
+    let stop = StopFlag::install()?;
+    match cfg.source.clone() {
+        Source::Sim => {
+            let source = SimSource::new(&cfg)?;
+            run_loop(&cfg, source, &stop)
+        }
+        Source::Udp(addr) => {
+            let link =
+                UdpLink::connect(addr).with_context(|| format!("opening UDP socket to {addr}"))?;
+            let mut port = UdpPort::new(link);
+            let ids = board_ids(&cfg);
+            let found = port
+                .discover(&ids)
+                .with_context(|| format!("discovering boards {ids:?} at {addr}"))?;
+            found
+                .check(&ids)
+                .with_context(|| format!("boards at {addr}"))?;
+            info!(%addr, boards = ?ids, "boards found");
+            let reader = ArmReader::new(port, cfg.io.clone(), cfg.access);
+            run_loop(&cfg, reader, &stop)
+        }
+        Source::Firewire(n) => firewire(&cfg, n, &stop),
+    }
+}
+
+#[cfg(feature = "firewire")]
+fn firewire(cfg: &SidecarConfig, n: u32, stop: &StopFlag) -> Result<()> {
+    let port = dvrk_io::port::FirewirePort::open(n)
+        .with_context(|| format!("opening FireWire port {n}"))?;
+    let reader = ArmReader::new(port, cfg.io.clone(), cfg.access);
+    run_loop(cfg, reader, stop)
+}
+
+#[cfg(not(feature = "firewire"))]
+fn firewire(_cfg: &SidecarConfig, n: u32, _stop: &StopFlag) -> Result<()> {
+    bail!(
+        "source fw:{n}: this binary was built without FireWire support; rebuild with \
+         `cargo build --release -p dvrk-sidecar --features firewire` (needs libraw1394-dev)"
+    )
+}
+
+/// Counters of the loop, kept for the 1 Hz summary and the status message.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Counters {
+    pub cycles: u64,
+    pub read_failures: u64,
+    pub consecutive_read_failures: u64,
+    pub overruns: u64,
+    pub publish_failures: u64,
+    pub window_cycles: u64,
+    pub window_read_failures: u64,
+    pub window_max_displacement_m: f64,
+    pub last_displacement_m: f64,
+}
+
+/// One cycle's work, from the read to the notify: what the loop runs every period and what
+/// benches/cycle.rs measures. Owns the source, the sample buffer and the publishers.
+pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
+    pub source: Src,
+    pub sample: ArmSample,
+    pub model: &'a dvrk_compliance::ComplianceConfig,
+    pub kinematics: &'a dvrk_compliance::PsmKinematics,
+    pub publisher: ArmPublisher<Svc>,
+    pub counters: Counters,
+    pub period_ns: u64,
+    last_duration_ns: u64,
+    last_sample_t_ns: Option<u64>,
+}
+
+impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, Svc> {
+    pub fn new(
+        source: Src,
+        model: &'a dvrk_compliance::ComplianceConfig,
+        kinematics: &'a dvrk_compliance::PsmKinematics,
+        publisher: ArmPublisher<Svc>,
+        period_ns: u64,
+    ) -> Self {
+        Self {
+            source,
+            sample: ArmSample::default(),
+            model,
+            kinematics,
+            publisher,
+            counters: Counters::default(),
+            period_ns,
+            last_duration_ns: 0,
+            last_sample_t_ns: None,
+        }
+    }
+
+    /// Runs one cycle. `t_sample` is the cycle's one clock reading, taken just before the read;
+    /// `clock` is read once more for the publish stamp. Returns the publish time (ns).
+    /// No allocation, no lock, no logging.
+    #[inline]
+    pub fn cycle(&mut self, t_sample: u64, clock: impl Fn() -> u64) -> u64 {
+        let c = &mut self.counters;
+        let read = self.source.read(t_sample, &mut self.sample);
+        if read == ReadOutcome::Ok {
+            c.consecutive_read_failures = 0;
+        } else {
+            c.consecutive_read_failures += 1;
+            c.read_failures += 1;
+            c.window_read_failures += 1;
+        }
+        let mut result = cycle::compute(self.model, self.kinematics, &self.sample, read);
+        if self.source.simulated() {
+            result.flags |= flags::SIMULATED;
+        }
+        if self.period_ns > 0 && self.last_duration_ns > self.period_ns {
+            result.flags |= flags::OVERRUN;
+        }
+        let publish_t_ns = clock();
+        let timing = CycleTiming {
+            seq: c.cycles,
+            sample_t_ns: t_sample,
+            publish_t_ns,
+            cycle_period_ns: self
+                .last_sample_t_ns
+                .map_or(0, |t| t_sample.saturating_sub(t)),
+            cycle_duration_ns: self.last_duration_ns,
+            missed_reads: c.read_failures,
+        };
+        let mut msgs = cycle::messages(&self.sample, &result, &timing);
+        msgs.status.cycles_total = c.cycles + 1;
+        msgs.status.read_failures_total = c.read_failures;
+        msgs.status.overruns_total = c.overruns;
+        msgs.status.consecutive_read_failures =
+            c.consecutive_read_failures.min(u64::from(u32::MAX)) as u32;
+        let sent = self.publisher.publish_cycle(
+            &msgs.measured_js,
+            &msgs.measured_cp,
+            &msgs.compensated_js,
+            &msgs.compensated_cp,
+            &msgs.status,
+        );
+        if sent.is_err() {
+            c.publish_failures += 1;
+        }
+        c.cycles += 1;
+        c.window_cycles += 1;
+        if result.valid {
+            c.last_displacement_m = result.tip_displacement_m();
+            c.window_max_displacement_m = c.window_max_displacement_m.max(c.last_displacement_m);
+        }
+        self.last_sample_t_ns = Some(t_sample);
+        publish_t_ns
+    }
+
+    /// Records how long the cycle that started at `t_sample` took, ending at `t_end`.
+    #[inline]
+    pub fn finish(&mut self, t_sample: u64, t_end: u64) -> u64 {
+        self.last_duration_ns = t_end.saturating_sub(t_sample);
+        if self.period_ns > 0 && self.last_duration_ns > self.period_ns {
+            self.counters.overruns += 1;
+        }
+        self.last_duration_ns
+    }
+}
+
+fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag) -> Result<()> {
+    let names = ServiceNames::new(&cfg.prefix).map_err(|e| anyhow::anyhow!("prefix: {e}"))?;
+    let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar", None)
+        .context("creating the iceoryx2 node")?;
+    let publisher = ArmPublisher::create(&node, &names)
+        .with_context(|| format!("creating the publishers under {}", cfg.prefix))?;
+    rt::apply(&cfg.realtime)?;
+
+    let period_ns = match cfg.rate {
+        Rate::Hz(hz) => (1e9 / hz).round() as u64,
+        Rate::Follow => 0,
+    };
+    let mut pipe = Pipeline::new(
+        source,
+        &cfg.compliance,
+        &cfg.kinematics,
+        publisher,
+        period_ns,
+    );
+    let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
+    let mut hist = DurationHistogram::new();
+
+    info!(
+        source = %cfg.source, access = ?cfg.access, rate = %cfg.rate, prefix = %cfg.prefix,
+        instrument = cfg.instrument.name, "serving"
+    );
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+
+    let t_start = rt::monotonic_ns();
+    let mut deadline = t_start;
+    let mut next_summary = t_start + 1_000_000_000;
+    let mut next_watchdog = t_start;
+
+    while !stop.raised() {
+        if period_ns > 0 {
+            rt::sleep_until_ns(deadline);
+        }
+        // The cycle's clock reading for the sample; everything below is a function of it.
+        let t_sample = rt::monotonic_ns();
+        pipe.cycle(t_sample, rt::monotonic_ns);
+        let t_end = rt::monotonic_ns();
+        hist.record(pipe.finish(t_sample, t_end));
+
+        if period_ns > 0 {
+            deadline += period_ns;
+            if t_end > deadline + period_ns {
+                // Fell more than a whole period behind (a stall): restart the schedule from now
+                // instead of bursting to catch up.
+                deadline = t_end + period_ns;
+            }
+        }
+        if let Some(w) = watchdog_ns
+            && t_end >= next_watchdog
+        {
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            next_watchdog = t_end + w;
+        }
+        if t_end >= next_summary {
+            summary(&pipe.counters, &hist, &pipe.publisher);
+            hist.reset();
+            let c = &mut pipe.counters;
+            c.window_cycles = 0;
+            c.window_read_failures = 0;
+            c.window_max_displacement_m = 0.0;
+            next_summary += 1_000_000_000;
+            if next_summary < t_end {
+                next_summary = t_end + 1_000_000_000;
+            }
+        }
+    }
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    let c = pipe.counters;
+    info!(
+        cycles = c.cycles,
+        read_failures = c.read_failures,
+        overruns = c.overruns,
+        publish_failures = c.publish_failures,
+        "stopped"
+    );
+    Ok(())
+}
+
+fn summary<Svc: iceoryx2::service::Service>(
+    c: &Counters,
+    hist: &DurationHistogram,
+    publisher: &ArmPublisher<Svc>,
+) {
+    let p99_us = hist.quantile_ns(0.99).unwrap_or(0) as f64 / 1e3;
+    let max_us = hist.max_ns() as f64 / 1e3;
+    let subscribers = publisher.number_of_subscribers(dvrk_ipc::Topic::CompensatedMeasuredCp);
+    if c.window_read_failures > 0 {
+        warn!(
+            rate_hz = c.window_cycles,
+            missed_reads = c.window_read_failures,
+            missed_reads_total = c.read_failures,
+            "board reads failed in the last second"
+        );
+    }
+    info!(
+        rate_hz = c.window_cycles,
+        cycle_p99_us = format_args!("{p99_us:.1}"),
+        cycle_max_us = format_args!("{max_us:.1}"),
+        missed_reads = c.window_read_failures,
+        tip_displacement_mm = format_args!("{:.3}", c.last_displacement_m * 1e3),
+        tip_displacement_max_mm = format_args!("{:.3}", c.window_max_displacement_m * 1e3),
+        subscribers,
+        "summary"
+    );
+}
