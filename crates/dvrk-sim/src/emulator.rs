@@ -715,8 +715,15 @@ impl Emulator {
         }
     }
 
-    /// Current raw values of one actuator, computed from the physics now (no sampling latch).
-    fn actuator_raw(&mut self, board: usize, axis: usize) -> (u32, u32, u32, u32, u32, u32) {
+    /// Current raw values of one actuator, computed from the physics now (no sampling latch):
+    /// ADC, encoder position, period, QTR1, QTR5, running counter. The ADC (and its noise draw)
+    /// only when `want_adc`.
+    fn actuator_raw(
+        &mut self,
+        board: usize,
+        axis: usize,
+        want_adc: bool,
+    ) -> (u32, u32, u32, u32, u32, u32) {
         let b = &self.boards[board];
         let Some(act) = b.axis_actuator.get(axis).copied().flatten() else {
             // Unused axis: encoder at mid-range, zero current, pot at 0 V, no motion.
@@ -767,7 +774,11 @@ impl Emulator {
             0x8000_0000 | 0x7FFF_FFFF
         };
         let effort = if b.amp_on(axis) { eff[act] } else { 0.0 };
-        let adc = self.sensors.adc_quadlet(&s, pos[act], effort);
+        let adc = if want_adc {
+            self.sensors.adc_quadlet(&s, pos[act], effort)
+        } else {
+            0
+        };
         (adc, enc.0, period.0, quarter, quarter, running)
     }
 
@@ -814,7 +825,7 @@ impl Emulator {
             return 0;
         }
         match reg {
-            0 => self.actuator_raw(board, axis).0,
+            0 => self.actuator_raw(board, axis, true).0,
             1 => {
                 let b = &self.boards[board];
                 (u32::from(b.amp_enable[axis]) << 29) | u32::from(b.dac[axis])
@@ -823,11 +834,11 @@ impl Emulator {
                 let b = &self.boards[board];
                 (b.preload_offset[axis].wrapping_add(ENCODER_MIDRANGE) as u32) & 0x00FF_FFFF
             }
-            5 => self.actuator_raw(board, axis).1,
-            6 => self.actuator_raw(board, axis).2,
-            7 => self.actuator_raw(board, axis).3,
-            9 => self.actuator_raw(board, axis).4,
-            10 => self.actuator_raw(board, axis).5,
+            5 => self.actuator_raw(board, axis, false).1,
+            6 => self.actuator_raw(board, axis, false).2,
+            7 => self.actuator_raw(board, axis, false).3,
+            9 => self.actuator_raw(board, axis, false).4,
+            10 => self.actuator_raw(board, axis, false).5,
             11 => 0,
             12 => self.boards[board].motor_status(axis),
             _ => 0,
@@ -921,7 +932,7 @@ impl Emulator {
         self.counters.samples += 1;
         let mut raw = [(0u32, 0u32, 0u32, 0u32, 0u32, 0u32); QLA_AXES];
         for (axis, r) in raw.iter_mut().enumerate() {
-            *r = self.actuator_raw(board, axis);
+            *r = self.actuator_raw(board, axis, true);
         }
         let status = self.boards[board].status();
         let motor: [u32; QLA_AXES] = core::array::from_fn(|a| self.boards[board].motor_status(a));
