@@ -39,8 +39,10 @@
 //! [`BranchRule::Auto`] (the default) fits both and keeps the split whose lines explain the data
 //! better: the smaller median, over every row, of the distance from the row's torque to its own
 //! branch line (the same rows count for both splits, and the median ignores the minority of
-//! turnaround or play rows). The load split must win by a factor of 2; in a near tie (small
-//! hysteresis, where the choice hardly matters) the paper's motion split is kept. On the 2017 recordings the
+//! turnaround or play rows). The kind of hysteresis belongs to the mechanism, not to one depth,
+//! so [`fit_joint`] makes the choice once per joint from the scores summed over its depths (one
+//! depth of the 2017 file alone is a near tie; over 14 depths the motion split wins by 2.6x).
+//! A depth where the chosen split cannot be fitted but the other can uses the other. On the 2017 recordings the
 //! motion split wins by a factor of 3 or more; on dead-zone data the load split fits exactly.
 //! The result says which one was used ([`DepthFit::branches`]).
 //!
@@ -574,11 +576,6 @@ fn fit_motion(
     })
 }
 
-/// [`BranchRule::Auto`] keeps the paper's motion split unless the load split's median residual
-/// is smaller by at least this factor: where the hysteresis is too small to tell the two models
-/// apart (one depth of the 2017 file is a near tie), the documented procedure wins.
-const LOAD_PREFERENCE_RATIO: f64 = 2.0;
-
 /// Rows whose |tau_ext| is within this many pooled residual RMS of zero have no reliable side in
 /// the load split.
 const LOAD_BAND_SIGMAS: f64 = 3.0;
@@ -622,18 +619,26 @@ fn fit_load(
     Ok(fit)
 }
 
-/// Fits the two lines at one depth of one joint (see the module docs for the rules). `rows` are
-/// that depth's rows in recorded order (all with the same joint).
-pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitError> {
+/// Both candidate fits of one depth, before the choice between them.
+struct Candidates {
+    joint: u8,
+    depth_index: u32,
+    insertion_m: f64,
+    dropped_settling: usize,
+    stationary: usize,
+    directions_derived: bool,
+    motion: Result<(BranchFit, f64), FitError>,
+    load: Result<(BranchFit, f64), FitError>,
+}
+
+fn candidates(rows: &[DataRow], opts: &FitOptions) -> Result<Candidates, FitError> {
     let Some(first) = rows.first() else {
         return Err(FitError::NoData { joint: 0 });
     };
     let (joint, depth_index) = (first.joint, first.depth_index);
     check_finite(rows)?;
     let kept = drop_settling(rows, opts.insertion_tolerance_m);
-    let dropped_settling = rows.len() - kept.len();
     let (dirs, directions_derived) = label_directions(&kept, opts.direction_step_fraction);
-    let stationary = dirs.iter().filter(|&&d| d == 0).count();
     for dir in [1i8, -1] {
         if !dirs.contains(&dir) {
             return Err(FitError::SingleDirection {
@@ -643,41 +648,52 @@ pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitErr
             });
         }
     }
-
-    let (branches, fit) = match opts.branches {
-        BranchRule::Motion => (
-            Branches::Motion,
-            fit_motion(&kept, &dirs, joint, depth_index, opts)?,
-        ),
-        BranchRule::Load => (Branches::Load, fit_load(&kept, joint, depth_index, opts)?),
-        BranchRule::Auto => {
-            match (
-                fit_motion(&kept, &dirs, joint, depth_index, opts),
-                fit_load(&kept, joint, depth_index, opts),
-            ) {
-                (Ok(m), Ok(l)) => {
-                    let m_score = m.median_abs_residual_nm(&kept, |_, i| dirs[i]);
-                    let l_score = l.median_abs_residual_nm(&kept, |r, _| load_side(r));
-                    if l_score * LOAD_PREFERENCE_RATIO < m_score {
-                        (Branches::Load, l)
-                    } else {
-                        (Branches::Motion, m)
-                    }
-                }
-                (Ok(m), Err(_)) => (Branches::Motion, m),
-                (Err(_), Ok(l)) => (Branches::Load, l),
-                (Err(e), Err(_)) => return Err(e),
-            }
-        }
+    let skip = Err(FitError::NoData { joint });
+    let motion = if opts.branches == BranchRule::Load {
+        skip
+    } else {
+        fit_motion(&kept, &dirs, joint, depth_index, opts).map(|m| {
+            let score = m.median_abs_residual_nm(&kept, |_, i| dirs[i]);
+            (m, score)
+        })
     };
-
-    let lines = fit.lines;
-    let gap = lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad();
-    let insertion_m = kept.iter().map(|r| r.insertion_m).sum::<f64>() / kept.len() as f64;
-    Ok(DepthFit {
+    let skip = Err(FitError::NoData { joint });
+    let load = if opts.branches == BranchRule::Motion {
+        skip
+    } else {
+        fit_load(&kept, joint, depth_index, opts).map(|l| {
+            let score = l.median_abs_residual_nm(&kept, |r, _| load_side(r));
+            (l, score)
+        })
+    };
+    Ok(Candidates {
         joint,
         depth_index,
-        insertion_m,
+        insertion_m: kept.iter().map(|r| r.insertion_m).sum::<f64>() / kept.len() as f64,
+        dropped_settling: rows.len() - kept.len(),
+        stationary: dirs.iter().filter(|&&d| d == 0).count(),
+        directions_derived,
+        motion,
+        load,
+    })
+}
+
+/// The depth result for split `want`, or the other split if `want` could not be fitted there;
+/// with neither, the error of `want`.
+fn finish(c: Candidates, want: Branches) -> Result<DepthFit, FitError> {
+    let (branches, fit) = match (want, c.motion, c.load) {
+        (Branches::Motion, Ok((m, _)), _) => (Branches::Motion, m),
+        (Branches::Load, _, Ok((l, _))) => (Branches::Load, l),
+        (Branches::Motion, Err(_), Ok((l, _))) => (Branches::Load, l),
+        (Branches::Load, Ok((m, _)), Err(_)) => (Branches::Motion, m),
+        (Branches::Motion, Err(e), Err(_)) | (Branches::Load, Err(_), Err(e)) => return Err(e),
+    };
+    let lines = fit.lines;
+    let gap = lines[1].zero_crossing_rad() - lines[0].zero_crossing_rad();
+    Ok(DepthFit {
+        joint: c.joint,
+        depth_index: c.depth_index,
+        insertion_m: c.insertion_m,
         lines,
         stiffness_nm_per_rad: 0.5 * (lines[0].slope + lines[1].slope),
         backlash_rad: 0.5 * gap.abs(),
@@ -685,10 +701,32 @@ pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitErr
         branches,
         points: lines[0].points + lines[1].points,
         excluded: fit.excluded,
-        dropped_settling,
-        stationary,
-        directions_derived,
+        dropped_settling: c.dropped_settling,
+        stationary: c.stationary,
+        directions_derived: c.directions_derived,
     })
+}
+
+fn preferred(opts: &FitOptions, motion_score: f64, load_score: f64) -> Branches {
+    match opts.branches {
+        BranchRule::Motion => Branches::Motion,
+        BranchRule::Load => Branches::Load,
+        BranchRule::Auto if load_score < motion_score => Branches::Load,
+        BranchRule::Auto => Branches::Motion,
+    }
+}
+
+/// Fits the two lines at one depth of one joint (see the module docs for the rules). `rows` are
+/// that depth's rows in recorded order (all with the same joint). With [`BranchRule::Auto`] the
+/// split is chosen from this depth alone; [`fit_joint`] chooses once per joint.
+pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitError> {
+    let c = candidates(rows, opts)?;
+    let want = match (&c.motion, &c.load) {
+        (Ok((_, m)), Ok((_, l))) => preferred(opts, *m, *l),
+        (Ok(_), Err(_)) => Branches::Motion,
+        _ => Branches::Load,
+    };
+    finish(c, want)
 }
 
 /// Least-squares cubic through `(insertion_m[i], stiffness[i])`, solved by QR on an insertion
@@ -805,9 +843,24 @@ pub fn fit_joint(rows: &[DataRow], joint: u8, opts: &FitOptions) -> Result<Joint
     if groups.is_empty() {
         return Err(FitError::NoData { joint });
     }
-    let depths = groups
+    let cands = groups
         .iter()
-        .map(|g| fit_depth(g, opts))
+        .map(|g| candidates(g, opts))
+        .collect::<Result<Vec<_>, _>>()?;
+    // The kind of hysteresis is a property of the mechanism, not of one depth: with
+    // `BranchRule::Auto` the split is chosen once per joint, from the residual scores summed over
+    // the depths where both splits fit.
+    let (mut motion_score, mut load_score) = (0.0, 0.0);
+    for c in &cands {
+        if let (Ok((_, m)), Ok((_, l))) = (&c.motion, &c.load) {
+            motion_score += m;
+            load_score += l;
+        }
+    }
+    let want = preferred(opts, motion_score, load_score);
+    let depths = cands
+        .into_iter()
+        .map(|c| finish(c, want))
         .collect::<Result<Vec<_>, _>>()?;
     let l: Vec<f64> = depths.iter().map(|d| d.insertion_m).collect();
     let k: Vec<f64> = depths.iter().map(|d| d.stiffness_nm_per_rad).collect();
@@ -1136,10 +1189,48 @@ mod tests {
         c.dead_zone = true;
         c.noise_nm = 0.02;
         let (rows, _) = c.rows(11);
-        let fit = fit_depth(&rows, &FitOptions::default()).unwrap();
-        assert_eq!(fit.branches, Branches::Load);
+        let load = FitOptions {
+            branches: BranchRule::Load,
+            ..FitOptions::default()
+        };
+        let fit = fit_depth(&rows, &load).unwrap();
         assert!((fit.stiffness_nm_per_rad - 15.0).abs() < 0.3, "{fit:?}");
         assert!((fit.backlash_rad - 0.0017).abs() < 3e-4, "{fit:?}");
+    }
+
+    #[test]
+    fn joint_level_choice_sees_a_noisy_dead_zone() {
+        // 14 depths of noisy dead-zone data with the simulator's default joint-2 parameters:
+        // one depth alone can be a near tie, the sum over depths is not.
+        let rows: Vec<DataRow> = depths()
+            .into_iter()
+            .enumerate()
+            .flat_map(|(i, l)| {
+                Clamp {
+                    joint: 2,
+                    depth_index: i as u32,
+                    insertion_m: l,
+                    k: eval_cubic(&PAPER_J2, l),
+                    delta: 0.0017,
+                    noise_nm: 0.02,
+                    first_dir: if i % 2 == 0 { -1.0 } else { 1.0 },
+                    dead_zone: true,
+                }
+                .rows(100 + i as u64)
+                .0
+            })
+            .collect();
+        let fit = fit_joint(&rows, 2, &FitOptions::default()).unwrap();
+        assert!(fit.depths.iter().all(|d| d.branches == Branches::Load));
+        assert!(
+            (fit.backlash_rad / 0.0017 - 1.0).abs() < 0.2,
+            "{}",
+            fit.backlash_rad
+        );
+        for l in depths() {
+            let rel = eval_cubic(&fit.inverse_compliance_nm_per_rad, l) / eval_cubic(&PAPER_J2, l);
+            assert!((rel - 1.0).abs() < 0.05, "L {l}: {rel}");
+        }
     }
 
     #[test]
@@ -1341,7 +1432,7 @@ mod tests {
         assert!(cubic_min_on(&PAPER_J2, [0.0, 0.22]).1 < 0.0);
     }
 
-    fn clamp_set(joint: u8, c: &[f64; 4], delta: f64) -> Vec<DataRow> {
+    fn clamp_set(joint: u8, c: &[f64; 4], delta: f64, dead_zone: bool) -> Vec<DataRow> {
         depths()
             .into_iter()
             .enumerate()
@@ -1354,7 +1445,7 @@ mod tests {
                     delta,
                     noise_nm: 0.0,
                     first_dir: if i % 2 == 0 { -1.0 } else { 1.0 },
-                    dead_zone: i % 3 == 0,
+                    dead_zone,
                 }
                 .rows(i as u64)
                 .0
@@ -1364,12 +1455,17 @@ mod tests {
 
     #[test]
     fn full_two_joint_fit_recovers_parameters() {
-        let mut rows = clamp_set(1, &PAPER_J1, 0.003);
-        rows.extend(clamp_set(2, &PAPER_J2, 0.0017));
+        // joint 1 with a play operator (hysteresis by direction), joint 2 with a dead zone
+        let mut rows = clamp_set(1, &PAPER_J1, 0.003, false);
+        rows.extend(clamp_set(2, &PAPER_J2, 0.0017, true));
         let fits = fit_clamp(&rows, &FitOptions::default()).unwrap();
         assert_eq!(fits.len(), 2);
-        for (fit, c, d) in [(&fits[0], PAPER_J1, 0.003), (&fits[1], PAPER_J2, 0.0017)] {
+        for (fit, c, d, split) in [
+            (&fits[0], PAPER_J1, 0.003, Branches::Motion),
+            (&fits[1], PAPER_J2, 0.0017, Branches::Load),
+        ] {
             assert_eq!(fit.depths.len(), 14);
+            assert!(fit.depths.iter().all(|d| d.branches == split));
             for l in depths() {
                 let rel = eval_cubic(&fit.inverse_compliance_nm_per_rad, l) / eval_cubic(&c, l);
                 assert!((rel - 1.0).abs() < 1e-6, "joint {} L {l}: {rel}", fit.joint);
