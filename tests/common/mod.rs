@@ -1,0 +1,229 @@
+//! Helpers shared by the end-to-end tests: the built binary, per-test configurations and
+//! service prefixes, child processes that are always reaped.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader, Read};
+use std::net::UdpSocket;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+/// The repository root.
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The `dvrk-sidecar` binary built by `cargo test --workspace` (the dvrk-sidecar crate has
+/// integration tests of its own, so cargo builds its binary before any test runs).
+pub fn sidecar_bin() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test>-<hash> -> target/<profile>/dvrk-sidecar
+    let profile_dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("target/<profile>");
+    let bin = profile_dir.join("dvrk-sidecar");
+    assert!(
+        bin.exists(),
+        "{} does not exist: run the tests with `cargo test --workspace` (or build it first with \
+         `cargo build -p dvrk-sidecar`)",
+        bin.display()
+    );
+    bin
+}
+
+/// A service prefix no other test (or other run) uses.
+pub fn unique_prefix(test: &str) -> String {
+    format!("test/p{}/{test}", std::process::id())
+}
+
+/// A scratch directory for one test.
+pub fn scratch(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("dvrk-sidecar-e2e-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Writes a service configuration for one test: the repository's config files, the given
+/// source, access mode and prefix.
+pub fn write_config(
+    test: &str,
+    source: &str,
+    access: &str,
+    prefix: &str,
+    scenario: &str,
+) -> PathBuf {
+    let c = repo().join("config");
+    let text = format!(
+        r#"source = "{source}"
+access = "{access}"
+io = "{io}"
+arm = "classic"
+instrument = "LARGE_NEEDLE_DRIVER_400006"
+compliance = "{comp}"
+rate = 1500
+prefix = "{prefix}"
+
+[sim]
+scenario = "{scen}"
+"#,
+        io = c.join("io/psm-classic.toml").display(),
+        comp = c.join("compliance/paper-psm.toml").display(),
+        scen = c.join("sim").join(scenario).display(),
+    );
+    let path = scratch(test).join("sidecar.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// A child process that is killed and reaped when dropped.
+pub struct Proc {
+    pub child: Option<Child>,
+    pub name: String,
+}
+
+impl Proc {
+    pub fn spawn(name: &str, cmd: &mut Command) -> Proc {
+        let child = cmd
+            .spawn()
+            .unwrap_or_else(|e| panic!("spawning {name}: {e}"));
+        Proc {
+            child: Some(child),
+            name: name.to_owned(),
+        }
+    }
+
+    pub fn pid(&self) -> i32 {
+        self.child.as_ref().unwrap().id() as i32
+    }
+
+    pub fn signal(&self, sig: i32) {
+        // SAFETY: plain kill(2) on our own child.
+        unsafe { libc::kill(self.pid(), sig) };
+    }
+
+    /// Waits up to `limit` for the process to exit.
+    pub fn wait_timeout(&mut self, limit: Duration) -> Option<ExitStatus> {
+        let start = Instant::now();
+        let child = self.child.as_mut().unwrap();
+        loop {
+            if let Some(st) = child.try_wait().unwrap() {
+                return Some(st);
+            }
+            if start.elapsed() > limit {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// Everything the process wrote to stderr (after it exited).
+    pub fn stderr_text(&mut self) -> String {
+        let mut s = String::new();
+        if let Some(mut e) = self.child.as_mut().unwrap().stderr.take() {
+            let _ = e.read_to_string(&mut s);
+        }
+        s
+    }
+
+    /// Stops with SIGTERM and returns (status, stderr).
+    pub fn terminate(&mut self) -> (ExitStatus, String) {
+        self.signal(libc::SIGTERM);
+        let st = self
+            .wait_timeout(Duration::from_secs(20))
+            .unwrap_or_else(|| panic!("{} did not stop within 20 s of SIGTERM", self.name));
+        (st, self.stderr_text())
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take()
+            && c.try_wait().ok().flatten().is_none()
+        {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// Starts `dvrk-sidecar serve --config cfg` with stderr captured.
+pub fn serve(cfg: &Path) -> Proc {
+    Proc::spawn(
+        "serve",
+        Command::new(sidecar_bin())
+            .args(["serve", "--config"])
+            .arg(cfg)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    )
+}
+
+/// A free UDP port on loopback.
+pub fn free_udp_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Starts the board emulator (`dvrk-sidecar sim`) on `port`.
+pub fn emulator(port: u16, scenario: &str) -> Proc {
+    let c = repo().join("config");
+    Proc::spawn(
+        "sim",
+        Command::new(sidecar_bin())
+            .args([
+                "sim",
+                "--listen",
+                &format!("127.0.0.1:{port}"),
+                "--scenario",
+            ])
+            .arg(c.join("sim").join(scenario))
+            .arg("--io")
+            .arg(c.join("io/psm-classic.toml"))
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    )
+}
+
+/// Runs `dvrk-sidecar echo SERVICE --json --count N` and returns one JSON value per sample.
+/// Fails the test when it does not finish within `limit` (a liveness bound, not a speed claim).
+pub fn echo_json(service: &str, count: u64, limit: Duration) -> Vec<serde_json::Value> {
+    let mut p = Proc::spawn(
+        "echo",
+        Command::new(sidecar_bin())
+            .args(["echo", service, "--json", "--count", &count.to_string()])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let stdout = p.child.as_mut().unwrap().stdout.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        BufReader::new(stdout)
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(&l.unwrap()).unwrap())
+            .collect::<Vec<_>>()
+    });
+    let st = p.wait_timeout(limit);
+    assert!(
+        st.is_some(),
+        "echo {service} did not receive {count} samples within {limit:?}"
+    );
+    assert!(st.unwrap().success(), "echo failed: {}", p.stderr_text());
+    reader.join().unwrap()
+}
+
+/// Polls `f` every 20 ms until it returns `Some`, for at most `limit`.
+pub fn eventually<T>(limit: Duration, mut f: impl FnMut() -> Option<T>) -> Option<T> {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if let Some(v) = f() {
+            return Some(v);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}

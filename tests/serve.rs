@@ -1,0 +1,291 @@
+//! End-to-end tests of `dvrk-sidecar serve`: a real service process, real shared memory,
+//! subscribers in other processes, the board emulator over real UDP on loopback.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use common::*;
+use dvrk_ipc::iceoryx2::service::ipc::Service;
+use dvrk_ipc::{
+    JointStateV1, NOMINAL_PERIOD, PoseV1, ServiceNames, Subscription, Topic, Update, flags,
+};
+use serde_json::Value;
+
+const LIVENESS: Duration = Duration::from_secs(60);
+
+/// Seqs of echo's JSON lines.
+fn seqs(samples: &[Value]) -> Vec<u64> {
+    samples
+        .iter()
+        .map(|s| s["header"]["seq"].as_u64().unwrap())
+        .collect()
+}
+
+fn assert_consecutive(seqs: &[u64]) {
+    for w in seqs.windows(2) {
+        assert_eq!(w[1], w[0] + 1, "seq jumped from {} to {}", w[0], w[1]);
+    }
+}
+
+/// 2 s at 1500 Hz = 3000 cycles; the subscriber (another process) must see each, in order.
+fn every_seq_in_order(test: &str, cfg: &std::path::Path, prefix: &str) {
+    let mut serve = serve(cfg);
+    let samples = echo_json(&format!("{prefix}/compensated/measured_js"), 3000, LIVENESS);
+    assert_eq!(samples.len(), 3000);
+    assert_consecutive(&seqs(&samples));
+    assert!(
+        samples
+            .iter()
+            .all(|s| s["header"]["valid"] == Value::Bool(true)),
+        "{test}: every sample valid"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{test}: serve exited with {st}: {log}");
+}
+
+#[test]
+fn in_process_simulator_every_seq_in_order() {
+    let prefix = unique_prefix("sim_seq");
+    let cfg = write_config("sim_seq", "sim", "shared", &prefix, "divot-push.toml");
+    every_seq_in_order("sim_seq", &cfg, &prefix);
+}
+
+#[test]
+fn udp_emulator_every_seq_in_order_exclusive() {
+    let port = free_udp_port();
+    let _emu = emulator(port, "divot-push.toml");
+    let prefix = unique_prefix("udp_seq");
+    let cfg = write_config(
+        "udp_seq",
+        &format!("udp:127.0.0.1:{port}"),
+        "exclusive",
+        &prefix,
+        "idle.toml",
+    );
+    every_seq_in_order("udp_seq", &cfg, &prefix);
+}
+
+/// Collects `n` cycles of two topics by seq, in this process.
+fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV1, JointStateV1, PoseV1, PoseV1)> {
+    let node = dvrk_ipc::create_node::<Service>("e2e-check", None).unwrap();
+    let names = ServiceNames::new(prefix).unwrap();
+    let mut raw = Subscription::<JointStateV1, Service>::new(
+        &node,
+        &names,
+        Topic::MeasuredJs,
+        NOMINAL_PERIOD,
+    )
+    .unwrap();
+    let mut comp = Subscription::<JointStateV1, Service>::new(
+        &node,
+        &names,
+        Topic::CompensatedMeasuredJs,
+        NOMINAL_PERIOD,
+    )
+    .unwrap();
+    let mut raw_cp =
+        Subscription::<PoseV1, Service>::new(&node, &names, Topic::MeasuredCp, NOMINAL_PERIOD)
+            .unwrap();
+    let mut comp_cp = Subscription::<PoseV1, Service>::new(
+        &node,
+        &names,
+        Topic::CompensatedMeasuredCp,
+        NOMINAL_PERIOD,
+    )
+    .unwrap();
+    let mut a = BTreeMap::new();
+    let mut b = BTreeMap::new();
+    let mut c = BTreeMap::new();
+    let mut d = BTreeMap::new();
+    let start = std::time::Instant::now();
+    while start.elapsed() < LIVENESS {
+        if let Update::Fresh(_) = raw
+            .next_with(|m| {
+                a.insert(m.header.seq, *m);
+            })
+            .unwrap()
+        {}
+        while let Some(m) = comp.try_latest().unwrap() {
+            b.insert(m.header.seq, m);
+        }
+        while let Some(m) = raw_cp.try_latest().unwrap() {
+            c.insert(m.header.seq, m);
+        }
+        while let Some(m) = comp_cp.try_latest().unwrap() {
+            d.insert(m.header.seq, m);
+        }
+        let both: Vec<u64> = a
+            .keys()
+            .filter(|k| b.contains_key(k) && c.contains_key(k) && d.contains_key(k))
+            .copied()
+            .collect();
+        if both.len() >= n {
+            return both
+                .iter()
+                .take(n)
+                .map(|k| (a[k], b[k], c[k], d[k]))
+                .collect();
+        }
+    }
+    panic!("did not collect {n} complete cycles within {LIVENESS:?}");
+}
+
+#[test]
+fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
+    let prefix = unique_prefix("model_eq");
+    let cfg = write_config("model_eq", "sim", "shared", &prefix, "divot-push.toml");
+    let mut serve = serve(&cfg);
+    let model = dvrk_compliance::ComplianceConfig::from_toml_str(
+        &std::fs::read_to_string(repo().join("config/compliance/paper-psm.toml")).unwrap(),
+    )
+    .unwrap();
+    let tool = dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap();
+    let kin = dvrk_compliance::PsmKinematics::new(dvrk_compliance::ArmKind::Classic, tool);
+    let cycles = collect_pairs(&prefix, 300);
+    let mut active = 0;
+    for (raw, comp, raw_cp, comp_cp) in &cycles {
+        assert_eq!(raw.header.valid, 1);
+        let q = [raw.position[0], raw.position[1], raw.position[2]];
+        let t = [raw.effort[0], raw.effort[1], raw.effort[2]];
+        let c = model.correct(&q, &t);
+        assert_eq!(
+            &comp.position[..3],
+            &c.position[..],
+            "seq {}",
+            raw.header.seq
+        );
+        assert_eq!(&comp.position[3..], &raw.position[3..]);
+        assert_eq!(comp.effort, raw.effort);
+        assert_eq!(
+            comp.header.flags & flags::CORRECTION_ACTIVE_J1 != 0,
+            c.active[0]
+        );
+        assert_eq!(
+            comp.header.flags & flags::CORRECTION_ACTIVE_J2 != 0,
+            c.active[1]
+        );
+        active += usize::from(c.active[0] || c.active[1]);
+        let fk = |p: &[f64; 7]| {
+            kin.forward(&[p[0], p[1], p[2], p[3], p[4], p[5]])
+                .translation
+                .vector
+        };
+        let raw_p = fk(&raw.position);
+        let comp_p = fk(&comp.position);
+        for i in 0..3 {
+            assert_eq!(raw_cp.position_m[i], raw_p[i]);
+            assert_eq!(comp_cp.position_m[i], comp_p[i]);
+        }
+    }
+    assert!(
+        active > 0,
+        "the divot push should activate the correction in some of 300 cycles"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+}
+
+#[test]
+fn board_timeouts_publish_invalid_samples_and_the_loop_goes_on() {
+    let port = free_udp_port();
+    let emu = emulator(port, "idle.toml");
+    let prefix = unique_prefix("timeouts");
+    let cfg = write_config(
+        "timeouts",
+        &format!("udp:127.0.0.1:{port}"),
+        "shared",
+        &prefix,
+        "idle.toml",
+    );
+    let mut serve = serve(&cfg);
+    let service = format!("{prefix}/compensated/status");
+    let first = echo_json(&service, 5, LIVENESS);
+    assert!(
+        first
+            .iter()
+            .all(|s| s["header"]["valid"] == Value::Bool(true))
+    );
+    // Freeze the boards: every read now times out.
+    emu.signal(libc::SIGSTOP);
+    let during = echo_json(&service, 5, LIVENESS);
+    emu.signal(libc::SIGCONT);
+    for s in &during {
+        assert_eq!(s["header"]["valid"], Value::Bool(false), "{s}");
+        let f: Vec<&str> = s["header"]["flags"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_str().unwrap())
+            .collect();
+        assert!(f.contains(&"BOARD_TIMEOUT"), "{s}");
+        assert!(s["read_failures_total"].as_u64().unwrap() > 0);
+    }
+    // The boards answer again and the loop recovers.
+    let after = eventually(LIVENESS, || {
+        let s = echo_json(&service, 1, LIVENESS);
+        (s[0]["header"]["valid"] == Value::Bool(true)).then_some(s)
+    });
+    assert!(
+        after.is_some(),
+        "valid samples again after the boards came back"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+}
+
+#[test]
+fn sigterm_stops_the_service_cleanly() {
+    let prefix = unique_prefix("sigterm");
+    let cfg = write_config("sigterm", "sim", "shared", &prefix, "idle.toml");
+    let mut serve = serve(&cfg);
+    echo_json(&format!("{prefix}/measured_js"), 10, LIVENESS);
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "exit status {st}; log: {log}");
+    assert!(
+        log.contains("stopped"),
+        "the final counters are logged: {log}"
+    );
+}
+
+#[test]
+fn a_late_subscriber_gets_the_latest_sample() {
+    let prefix = unique_prefix("late");
+    let cfg = write_config("late", "sim", "shared", &prefix, "idle.toml");
+    let mut serve = serve(&cfg);
+    // Let the service run alone for a while, then join.
+    let before = echo_json(&format!("{prefix}/measured_cp"), 1, LIVENESS);
+    std::thread::sleep(Duration::from_millis(300));
+    let late = echo_json(&format!("{prefix}/measured_cp"), 1, LIVENESS);
+    let s0 = before[0]["header"]["seq"].as_u64().unwrap();
+    let s1 = late[0]["header"]["seq"].as_u64().unwrap();
+    assert!(
+        s1 > s0 + 100,
+        "the late subscriber starts near the newest cycle ({s1}), not from {s0}"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+}
+
+#[test]
+fn a_second_serve_on_the_same_prefix_fails_clearly() {
+    let prefix = unique_prefix("twice");
+    let cfg = write_config("twice", "sim", "shared", &prefix, "idle.toml");
+    let mut first = serve(&cfg);
+    echo_json(&format!("{prefix}/measured_js"), 1, LIVENESS);
+    let mut second = serve(&cfg);
+    let st = second
+        .wait_timeout(LIVENESS)
+        .expect("the second serve exits on its own");
+    let log = second.stderr_text();
+    assert!(!st.success());
+    assert!(
+        log.contains("already publishing") && log.contains(&prefix),
+        "{log}"
+    );
+    // The first one is unaffected.
+    echo_json(&format!("{prefix}/measured_js"), 10, LIVENESS);
+    let (st, log) = first.terminate();
+    assert!(st.success(), "{log}");
+}
