@@ -215,7 +215,7 @@ fn invert4(m: &[[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
                 piv = r;
             }
         }
-        if !(a[piv][col].abs() > 1e-12) || !a[piv][col].is_finite() {
+        if a[piv][col].abs() <= 1e-12 || !a[piv][col].is_finite() {
             return None;
         }
         a.swap(col, piv);

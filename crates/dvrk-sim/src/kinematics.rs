@@ -7,6 +7,10 @@
 //! uses the full chain of `dvrk_compliance::PsmKinematics` (Classic PSM, Large Needle Driver
 //! 400006) so it equals what the sidecar computes from perfectly corrected joints.
 
+use std::sync::OnceLock;
+
+use dvrk_compliance::{ArmKind, PsmKinematics};
+
 /// Distance from the RCM back to the control point at `q3 = 0`: 0.4318 - 0.4162 - 0.0091 m.
 pub const TIP_OFFSET_M: f64 = 0.0065;
 
@@ -38,10 +42,30 @@ pub fn tip_lateral_jacobian(q1: f64, q2: f64, q3: f64) -> ([f64; 3], [f64; 3]) {
     )
 }
 
-/// Tool-tip position (`local/measured_cp` translation) at joint positions `q`.
-/// Interim: closed form with the wrist at zero, until the full chain is wired in.
+/// The Classic PSM with a Large Needle Driver 400006, built once.
+fn classic_lnd() -> Option<&'static PsmKinematics> {
+    static KIN: OnceLock<Option<PsmKinematics>> = OnceLock::new();
+    KIN.get_or_init(|| {
+        dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006")
+            .map(|tool| PsmKinematics::new(ArmKind::Classic, tool))
+    })
+    .as_ref()
+}
+
+/// Tool-tip position (`local/measured_cp` translation) at joint positions `q` (first six joints),
+/// from dvrk-compliance's full PSM chain; the closed form if the instrument were missing from the
+/// catalog.
 pub fn tool_tip_position(q: &[f64; 7]) -> [f64; 3] {
-    tip_position(q[0], q[1], q[2])
+    match classic_lnd() {
+        Some(kin) => {
+            let t = kin
+                .forward(&[q[0], q[1], q[2], q[3], q[4], q[5]])
+                .translation
+                .vector;
+            [t.x, t.y, t.z]
+        }
+        None => tip_position(q[0], q[1], q[2]),
+    }
 }
 
 #[cfg(test)]
@@ -69,6 +93,19 @@ mod tests {
             tip_position(0.3, -0.2, 0.15),
             [0.041562, 0.028510, -0.134358],
             1e-6
+        ));
+    }
+
+    #[test]
+    fn full_chain_matches_reference_vectors_and_the_closed_form() {
+        let q = [0.2, -0.3, 0.15, 0.4, 0.3, -0.2, 0.0];
+        let p = tool_tip_position(&q);
+        assert!(close(p, [0.026278, 0.039921, -0.134903], 2e-6), "{p:?}");
+        let q = [0.3, -0.2, 0.15, 0.0, 0.0, 0.0, 0.0];
+        assert!(close(
+            tool_tip_position(&q),
+            tip_position(0.3, -0.2, 0.15),
+            2e-6
         ));
     }
 

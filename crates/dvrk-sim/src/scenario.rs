@@ -221,14 +221,14 @@ impl Scenario {
                 insertion_range_m: s.insertion_range_m,
             };
             let kmin = shaft.min_stiffness_nm_per_rad();
-            if !(kmin[0] >= 0.5) {
+            if kmin[0].is_nan() || kmin[0] < 0.5 {
                 return Err(invalid(
                     "shaft.inverse_compliance_j1",
                     format!("{:?} (min {:.3} N·m/rad)", s.inverse_compliance_j1, kmin[0]),
                     "1/K(L) must stay >= 0.5 N·m/rad over insertion_range_m",
                 ));
             }
-            if !(kmin[1] >= 0.5) {
+            if kmin[1].is_nan() || kmin[1] < 0.5 {
                 return Err(invalid(
                     "shaft.inverse_compliance_j2",
                     format!("{:?} (min {:.3} N·m/rad)", s.inverse_compliance_j2, kmin[1]),
