@@ -209,9 +209,19 @@ fn board_timeouts_publish_invalid_samples_and_the_loop_goes_on() {
     );
     // Freeze the boards: every read now times out.
     emu.signal(libc::SIGSTOP);
-    let during = echo_json(&service, 5, LIVENESS);
+    let during = echo_json(&service, 8, LIVENESS);
     emu.signal(libc::SIGCONT);
-    for s in &during {
+    // The first samples may be the history sample and the cycle in flight when the boards
+    // froze; every cycle after the first invalid one must be invalid with the reason.
+    let first_invalid = during
+        .iter()
+        .position(|s| s["header"]["valid"] == Value::Bool(false))
+        .expect("the service published invalid samples while the boards were frozen");
+    assert!(
+        first_invalid <= 2,
+        "only the samples from before the freeze are valid: {during:?}"
+    );
+    for s in &during[first_invalid..] {
         assert_eq!(s["header"]["valid"], Value::Bool(false), "{s}");
         let f: Vec<&str> = s["header"]["flags"]
             .as_array()
@@ -221,6 +231,7 @@ fn board_timeouts_publish_invalid_samples_and_the_loop_goes_on() {
             .collect();
         assert!(f.contains(&"BOARD_TIMEOUT"), "{s}");
         assert!(s["read_failures_total"].as_u64().unwrap() > 0);
+        assert!(s["consecutive_read_failures"].as_u64().unwrap() > 0);
     }
     // The boards answer again and the loop recovers.
     let after = eventually(LIVENESS, || {
@@ -288,4 +299,58 @@ fn a_second_serve_on_the_same_prefix_fails_clearly() {
     echo_json(&format!("{prefix}/measured_js"), 10, LIVENESS);
     let (st, log) = first.terminate();
     assert!(st.success(), "{log}");
+}
+
+#[test]
+fn shared_mode_never_writes_and_never_triggers_a_board_sample() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    // The emulator runs in this process on a real UDP socket, so its counters can be read
+    // after the service (another process) has been reading it.
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = socket.local_addr().unwrap().port();
+    let io = dvrk_io::IoConfig::from_toml_str(
+        &std::fs::read_to_string(repo().join("config/io/psm-classic.toml")).unwrap(),
+    )
+    .unwrap();
+    let scenario = dvrk_sim::Scenario::from_toml_str(
+        &std::fs::read_to_string(repo().join("config/sim/divot-push.toml")).unwrap(),
+    )
+    .unwrap();
+    let emu = dvrk_sim::Emulator::new(&scenario, &io).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = Arc::clone(&stop);
+    let server =
+        std::thread::spawn(move || dvrk_sim::server::serve_udp(socket, emu, &stop2).unwrap());
+
+    let prefix = unique_prefix("shared_ro");
+    let cfg = write_config(
+        "shared_ro",
+        &format!("udp:127.0.0.1:{port}"),
+        "shared",
+        &prefix,
+        "idle.toml",
+    );
+    let mut serve = serve(&cfg);
+    let samples = echo_json(&format!("{prefix}/measured_js"), 300, LIVENESS);
+    assert!(
+        samples
+            .iter()
+            .all(|s| s["header"]["valid"] == Value::Bool(true))
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+    stop.store(true, Ordering::Relaxed);
+    let (_, summary) = server.join().unwrap();
+    let c = summary.counters;
+    assert!(c.quadlet_reads >= 300, "the service read registers: {c:?}");
+    assert_eq!(c.writes, 0, "shared mode wrote to the boards: {c:?}");
+    assert_eq!(
+        c.block_reads_address0, 0,
+        "shared mode triggered board samples: {c:?}"
+    );
+    assert_eq!(
+        c.broadcast_queries, 0,
+        "shared mode sent broadcast queries: {c:?}"
+    );
 }

@@ -32,8 +32,16 @@ pub fn run(args: &SimArgs) -> Result<()> {
         UdpSocket::bind(args.listen).with_context(|| format!("binding {}", args.listen))?;
     let stop = StopFlag::install()?;
     info!(listen = %args.listen, scenario = %args.scenario.display(), "emulating boards 6 and 7 of a Classic PSM1");
-    dvrk_sim::server::serve_udp(socket, emulator, stop.as_atomic())
+    let (_, summary) = dvrk_sim::server::serve_udp(socket, emulator, stop.as_atomic())
         .with_context(|| format!("serving on {}", args.listen))?;
-    info!("emulator stopped");
+    let c = summary.counters;
+    info!(
+        datagrams_in = summary.datagrams_in,
+        datagrams_out = summary.datagrams_out,
+        writes = c.writes,
+        block_reads_address0 = c.block_reads_address0,
+        quadlet_reads = c.quadlet_reads,
+        "emulator stopped"
+    );
     Ok(())
 }
