@@ -1041,6 +1041,24 @@ mod tests {
         assert!((psm.joint_state().position[4] - 0.5).abs() < 1e-12);
     }
 
+    #[test]
+    fn same_inputs_give_bit_identical_trajectories() {
+        let run = || {
+            let mut psm = SimPsm::new(PhysicsParams::CLASSIC, start());
+            psm.set_environment(Environment::Surface {
+                stiffness_n_per_m: 800.0,
+                gap_m: -0.001,
+                tilt_rad: 0.2,
+            });
+            for i in 0..20_000 {
+                psm.set_setpoint(0, start()[0] + 0.01 * (f64::from(i) * 1e-3).sin());
+                psm.step(DT);
+            }
+            psm.truth()
+        };
+        assert_eq!(run(), run());
+    }
+
     /// Simulated minute at 10 kHz with a moving setpoint and a clamp: bounded, no NaN.
     #[test]
     fn sixty_seconds_at_10_khz_stay_bounded() {

@@ -456,6 +456,35 @@ fn writes_are_counted_and_command_the_boards() {
 }
 
 #[test]
+fn broadcast_command_block_reaches_both_boards() {
+    let io = io_config();
+    let mut port = sim_port(&hold(), &io).unwrap();
+    port.link_mut().advance_to(0);
+    let mut data = Vec::new();
+    for board in [6u32, 7] {
+        for q in [
+            (board << 8) | 6,
+            0x8000_0100 | board,
+            0x8000_0200 | board,
+            0x8000_0300 | board,
+            0x8000_0400 | board,
+            0,
+        ] {
+            data.extend_from_slice(&u32::to_be_bytes(q));
+        }
+    }
+    port.allow_writes().broadcast_write_block(0, &data).unwrap();
+    for board in [6u8, 7] {
+        for axis in 0..4u16 {
+            let dac = port.read_quadlet(board, ((axis + 1) << 4) | 12).unwrap() & 0xFFFF;
+            assert_eq!(dac, u32::from(axis + 1) << 8 | u32::from(board));
+        }
+    }
+    let c = port.link().emulator().counters();
+    assert_eq!((c.writes, c.block_writes), (1, 1));
+}
+
+#[test]
 fn watchdog_times_out_without_writes() {
     let io = io_config();
     let mut port = sim_port(&hold(), &io).unwrap();
