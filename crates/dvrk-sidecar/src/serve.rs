@@ -208,13 +208,15 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         }
     }
 
-    /// Runs one cycle. `t_sample` is the cycle's one clock reading, taken just before the read;
-    /// `clock` is read once more for the publish stamp. Returns the publish time (ns).
-    /// No allocation, no lock, no logging.
+    /// Runs one cycle that starts at `t_start` (the loop's clock reading, passed to the reader
+    /// for velocities and to the simulator). `clock` is read twice more: when the board read has
+    /// completed (the header's `sample_t_ns`) and just before sending (`publish_t_ns`).
+    /// Returns the sample time (ns). No allocation, no lock, no logging.
     #[inline]
-    pub fn cycle(&mut self, t_sample: u64, clock: impl Fn() -> u64) -> u64 {
+    pub fn cycle(&mut self, t_start: u64, clock: impl Fn() -> u64) -> u64 {
         let c = &mut self.counters;
-        let read = self.source.read(t_sample, &mut self.sample);
+        let read = self.source.read(t_start, &mut self.sample);
+        let t_sample = clock();
         if read == ReadOutcome::Ok {
             c.consecutive_read_failures = 0;
         } else {
@@ -263,13 +265,13 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             c.window_max_displacement_m = c.window_max_displacement_m.max(c.last_displacement_m);
         }
         self.last_sample_t_ns = Some(t_sample);
-        publish_t_ns
+        t_sample
     }
 
-    /// Records how long the cycle that started at `t_sample` took, ending at `t_end`.
+    /// Records how long the cycle that started at `t_start` took, ending at `t_end`.
     #[inline]
-    pub fn finish(&mut self, t_sample: u64, t_end: u64) -> u64 {
-        self.last_duration_ns = t_end.saturating_sub(t_sample);
+    pub fn finish(&mut self, t_start: u64, t_end: u64) -> u64 {
+        self.last_duration_ns = t_end.saturating_sub(t_start);
         if self.period_ns > 0 && self.last_duration_ns > self.period_ns {
             self.counters.overruns += 1;
         }
@@ -305,20 +307,19 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     );
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
 
-    let t_start = rt::monotonic_ns();
-    let mut deadline = t_start;
-    let mut next_summary = t_start + 1_000_000_000;
-    let mut next_watchdog = t_start;
+    let t0 = rt::monotonic_ns();
+    let mut deadline = t0;
+    let mut next_summary = t0 + 1_000_000_000;
+    let mut next_watchdog = t0;
 
     while !stop.raised() {
         if period_ns > 0 {
             rt::sleep_until_ns(deadline);
         }
-        // The cycle's clock reading for the sample; everything below is a function of it.
-        let t_sample = rt::monotonic_ns();
-        pipe.cycle(t_sample, rt::monotonic_ns);
+        let t_start = rt::monotonic_ns();
+        pipe.cycle(t_start, rt::monotonic_ns);
         let t_end = rt::monotonic_ns();
-        hist.record(pipe.finish(t_sample, t_end));
+        hist.record(pipe.finish(t_start, t_end));
 
         if period_ns > 0 {
             deadline += period_ns;
