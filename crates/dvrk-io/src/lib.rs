@@ -11,6 +11,22 @@
 //!
 //! Facts and constants come from `shared/reference/dvrk-board-protocol.md`; doc comments cite
 //! its sections as "reference §N".
+//!
+//! ```no_run
+//! use dvrk_io::{AccessMode, ArmReader, ArmSample, IoConfig, UdpPort};
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let cfg = IoConfig::from_toml_str(&std::fs::read_to_string("config/io/psm-classic.toml")?)?;
+//! let mut port = UdpPort::open_udp("169.254.0.100:1394".parse()?)?;
+//! port.discover(cfg.board_ids())?; // read-only: hardware, firmware, status of boards 6 and 7
+//! let mut reader = ArmReader::new(port, cfg, AccessMode::Shared);
+//! let mut sample = ArmSample::default();
+//! let t_ns = 0; // the caller's CLOCK_MONOTONIC, once per cycle
+//! if reader.read(t_ns, &mut sample).is_ok() {
+//!     println!("yaw {} rad, insertion {} m", sample.position[0], sample.position[2]);
+//! }
+//! # Ok(())
+//! # }
+//! ```
 
 // Index loops over the fixed 7-joint / 4x4 arrays read more clearly than zipped iterators.
 #![allow(clippy::needless_range_loop)]

@@ -414,3 +414,35 @@ fn udp_fault_replies_in_shared_mode_are_errors_not_data() {
     reader.read(2, &mut s).unwrap();
     check_posed(&s);
 }
+
+#[test]
+fn exclusive_software_velocity_uses_the_board_sample_interval() {
+    // Actuator 1 with velocity_source = software: velocity = change of position over the board
+    // timestamp interval ((49151 + 1) ticks at 49.152 MHz = 1 ms), reference 5.1.
+    let text = PSM_CLASSIC_TOML.replacen(
+        "velocity_source = \"firmware\"",
+        "velocity_source = \"software\"",
+        1,
+    );
+    let cfg = IoConfig::from_toml_str(&text).unwrap();
+    let mut reader = ArmReader::new(
+        EthPort::new(InProcLink::new(posed(8))),
+        cfg,
+        AccessMode::Exclusive,
+    );
+    let mut s = ArmSample::default();
+    reader.read(0, &mut s).unwrap();
+    reader
+        .port_mut()
+        .link_mut()
+        .boards
+        .board(6)
+        .set_axis(0, 1010, 40_000);
+    reader.read(123, &mut s).unwrap();
+    assert_relative_eq!(s.velocity[0], -10.0 * K_YAW / 1e-3, max_relative = 1e-9);
+    assert_relative_eq!(
+        reader.last_actuators().velocity[0],
+        10.0 * -K_YAW / 1e-3,
+        max_relative = 1e-9
+    );
+}

@@ -230,6 +230,8 @@ pub struct Actuator {
     pub effort_to_current: Conversion,
     pub maximum_current_amps: f64,
     pub potentiometer: Option<PotentiometerParams>,
+    /// 1 / `effort_to_current.scale`, precomputed (N·m or N per A).
+    pub effort_per_amp: f64,
 }
 
 impl Actuator {
@@ -255,7 +257,7 @@ impl Actuator {
     }
     #[inline(always)]
     pub fn amps_to_effort(&self, amps: f64) -> f64 {
-        self.effort_to_current.invert(amps)
+        (amps - self.effort_to_current.offset) * self.effort_per_amp
     }
     pub fn effort_to_amps(&self, effort: f64) -> f64 {
         self.effort_to_current.apply(effort)
@@ -475,6 +477,7 @@ impl IoConfig {
                 effort_to_current: a.drive.effort_to_current,
                 maximum_current_amps: imax,
                 potentiometer: a.potentiometer,
+                effort_per_amp: 1.0 / a.drive.effort_to_current.scale,
             });
         }
         let actuators: [Actuator; NUM_JOINTS] = match out.try_into() {
