@@ -1,0 +1,144 @@
+//! Errors. [`IpcError`] covers setup (names, nodes, services, ports) and may allocate; the
+//! per-cycle errors [`PublishError`] and [`SubscriptionError`] are `Copy` and carry no strings.
+
+use iceoryx2::node::NodeCreationFailure;
+use iceoryx2::port::listener::{ListenerCreateError, ListenerWaitError};
+use iceoryx2::port::notifier::{NotifierCreateError, NotifierNotifyError};
+use iceoryx2::port::publisher::PublisherCreateError;
+use iceoryx2::port::subscriber::SubscriberCreateError;
+use iceoryx2::port::{LoanError, ReceiveError, SendError};
+use iceoryx2::service::builder::event::EventOpenOrCreateError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
+use iceoryx2::waitset::{WaitSetAttachmentError, WaitSetCreateError, WaitSetRunError};
+
+use crate::names::Topic;
+
+/// Setup errors of this crate.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum IpcError {
+    /// The service prefix is not usable.
+    #[error("invalid service prefix {prefix:?}: {reason}")]
+    InvalidPrefix {
+        prefix: String,
+        reason: &'static str,
+    },
+
+    /// A field of the iceoryx2 domain settings ([`crate::domain_config`]) is not usable.
+    #[error("invalid iceoryx2 {field} {value:?}: {reason}")]
+    InvalidDomain {
+        field: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+
+    /// The node name is not a valid iceoryx2 node name.
+    #[error("invalid iceoryx2 node name {name:?}")]
+    InvalidNodeName { name: String },
+
+    /// The iceoryx2 node could not be created (permissions on /dev/shm or the root path, ...).
+    #[error("creating the iceoryx2 node {name:?} failed: {source}")]
+    Node {
+        name: String,
+        #[source]
+        source: NodeCreationFailure,
+    },
+
+    /// A publish-subscribe service could not be opened or created, e.g. because another process
+    /// created it with a different payload type (`IncompatibleTypes`) or smaller QoS limits.
+    #[error("opening or creating service {service:?} failed: {source}")]
+    OpenService {
+        service: String,
+        #[source]
+        source: PublishSubscribeOpenOrCreateError,
+    },
+
+    /// The cycle event service could not be opened or created.
+    #[error("opening or creating event service {service:?} failed: {source}")]
+    OpenEvent {
+        service: String,
+        #[source]
+        source: EventOpenOrCreateError,
+    },
+
+    /// The type parameter does not match the payload type of the topic.
+    #[error("topic {topic} carries {expected}, not {requested}")]
+    TopicTypeMismatch {
+        topic: Topic,
+        expected: &'static str,
+        requested: &'static str,
+    },
+
+    /// Another publisher (normally another dvrk-sidecar) is alive on this prefix.
+    #[error("another dvrk-sidecar is already publishing under {prefix}")]
+    AlreadyPublishing { prefix: String },
+
+    /// The publisher port could not be created.
+    #[error("creating the publisher of {service:?} failed: {source}")]
+    CreatePublisher {
+        service: String,
+        #[source]
+        source: PublisherCreateError,
+    },
+
+    /// The notifier of the cycle event could not be created.
+    #[error("creating the notifier of {service:?} failed: {source}")]
+    CreateNotifier {
+        service: String,
+        #[source]
+        source: NotifierCreateError,
+    },
+
+    /// The subscriber port could not be created (e.g. `ExceedsMaxSupportedSubscribers`).
+    #[error("creating a subscriber of {service:?} failed: {source}")]
+    CreateSubscriber {
+        service: String,
+        #[source]
+        source: SubscriberCreateError,
+    },
+
+    /// The listener of the cycle event could not be created (a root path that is too long makes
+    /// the unix socket path exceed 108 bytes).
+    #[error("creating a listener of {service:?} failed: {source}")]
+    CreateListener {
+        service: String,
+        #[source]
+        source: ListenerCreateError,
+    },
+
+    /// The WaitSet could not be created.
+    #[error("creating the WaitSet failed: {source}")]
+    CreateWaitSet {
+        #[source]
+        source: WaitSetCreateError,
+    },
+}
+
+/// Per-cycle publishing errors (`Copy`, no allocation).
+///
+/// Messages of the cycle sent before the failing one are already delivered; the cycle event is
+/// not notified after a failure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PublishError {
+    #[error("loaning a sample of {topic} failed: {error}")]
+    Loan { topic: Topic, error: LoanError },
+    #[error("sending {topic} failed: {error}")]
+    Send { topic: Topic, error: SendError },
+    #[error("notifying the cycle event failed: {error}")]
+    Notify { error: NotifierNotifyError },
+}
+
+/// Errors of [`crate::Subscription::wait`] (`Copy`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SubscriptionError {
+    #[error("receiving a sample failed: {0}")]
+    Receive(ReceiveError),
+    #[error("draining the cycle event failed: {0}")]
+    ListenerWait(ListenerWaitError),
+    #[error("attaching to the WaitSet failed: {0}")]
+    Attach(WaitSetAttachmentError),
+    #[error("waiting in the WaitSet failed: {0}")]
+    Wait(WaitSetRunError),
+}

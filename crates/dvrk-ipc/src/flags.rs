@@ -1,0 +1,96 @@
+//! Bits of [`Header::flags`](crate::Header::flags): why a sample is invalid and which state the
+//! compensation was in. The same values are `DVRK_IPC_FLAG_*` in `dvrk_ipc.h`.
+//!
+//! | bit | name | set when | `valid` |
+//! |---|---|---|---|
+//! | 0 | `BOARD_TIMEOUT` | a board did not answer the read in time | 0 |
+//! | 1 | `BOARD_ERROR` | a board answered with a bad reply (CRC, label, length, source) | 0 |
+//! | 2 | `WATCHDOG_TIMEOUT` | a board reports its watchdog expired (the console stopped talking to it) | as read |
+//! | 3 | `POWER_OFF` | motor power is not enabled or the motor supply is not good | as read |
+//! | 4 | `ENCODER_ERROR` | an encoder reports an error or an overflow | as read |
+//! | 5 | `AMP_FAULT` | an amplifier reports a fault or a current-check trip | as read |
+//! | 6 | `INSERTION_CLAMPED` | the insertion used by the model was clamped to its calibrated range | — |
+//! | 7 | `CORRECTION_ACTIVE_J1` | the compliance correction of joint 1 (yaw) is active | — |
+//! | 8 | `CORRECTION_ACTIVE_J2` | the compliance correction of joint 2 (pitch) is active | — |
+//! | 9 | `SIMULATED` | the source is the simulated PSM, not real boards | — |
+//! | 10 | `OVERRUN` | the previous cycle took longer than the nominal period | — |
+//!
+//! Bits 11..31 are reserved and 0. "as read" means the bit describes the hardware state and does
+//! not by itself invalidate the sample; the publisher decides `valid` (0 when no usable
+//! position could be read). A consumer that needs a safe robot should still check
+//! [`FAULT_MASK`].
+
+/// A board did not answer the read in time.
+pub const BOARD_TIMEOUT: u32 = 1 << 0;
+/// A board answered with a bad reply (CRC, label, length or source mismatch).
+pub const BOARD_ERROR: u32 = 1 << 1;
+/// A board's watchdog expired.
+pub const WATCHDOG_TIMEOUT: u32 = 1 << 2;
+/// Motor power is not enabled, or the motor supply is not good.
+pub const POWER_OFF: u32 = 1 << 3;
+/// An encoder reports an error or an overflow.
+pub const ENCODER_ERROR: u32 = 1 << 4;
+/// An amplifier reports a fault or a current-check trip.
+pub const AMP_FAULT: u32 = 1 << 5;
+/// The insertion used by the compliance model was clamped to its calibrated range.
+pub const INSERTION_CLAMPED: u32 = 1 << 6;
+/// The compliance correction of joint 1 (index 0, yaw) is active.
+pub const CORRECTION_ACTIVE_J1: u32 = 1 << 7;
+/// The compliance correction of joint 2 (index 1, pitch) is active.
+pub const CORRECTION_ACTIVE_J2: u32 = 1 << 8;
+/// The data comes from the simulated PSM.
+pub const SIMULATED: u32 = 1 << 9;
+/// The previous cycle took longer than the nominal period.
+pub const OVERRUN: u32 = 1 << 10;
+
+/// Every defined bit.
+pub const ALL: u32 = (1 << 11) - 1;
+
+/// Bits that report a hardware or communication fault.
+pub const FAULT_MASK: u32 =
+    BOARD_TIMEOUT | BOARD_ERROR | WATCHDOG_TIMEOUT | POWER_OFF | ENCODER_ERROR | AMP_FAULT;
+
+/// `(bit, name)` of every defined flag, in bit order (for printing; no allocation).
+pub const TABLE: [(u32, &str); 11] = [
+    (BOARD_TIMEOUT, "BOARD_TIMEOUT"),
+    (BOARD_ERROR, "BOARD_ERROR"),
+    (WATCHDOG_TIMEOUT, "WATCHDOG_TIMEOUT"),
+    (POWER_OFF, "POWER_OFF"),
+    (ENCODER_ERROR, "ENCODER_ERROR"),
+    (AMP_FAULT, "AMP_FAULT"),
+    (INSERTION_CLAMPED, "INSERTION_CLAMPED"),
+    (CORRECTION_ACTIVE_J1, "CORRECTION_ACTIVE_J1"),
+    (CORRECTION_ACTIVE_J2, "CORRECTION_ACTIVE_J2"),
+    (SIMULATED, "SIMULATED"),
+    (OVERRUN, "OVERRUN"),
+];
+
+/// Names of the bits set in `flags`, in bit order; reserved bits are skipped.
+pub fn names(flags: u32) -> impl Iterator<Item = &'static str> {
+    TABLE
+        .iter()
+        .filter(move |(bit, _)| flags & bit != 0)
+        .map(|(_, name)| *name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_covers_all_bits_once_in_order() {
+        let mut acc = 0u32;
+        for (i, (bit, _)) in TABLE.iter().enumerate() {
+            assert_eq!(*bit, 1 << i);
+            acc |= bit;
+        }
+        assert_eq!(acc, ALL);
+    }
+
+    #[test]
+    fn names_lists_set_bits() {
+        let v: Vec<_> = names(BOARD_TIMEOUT | CORRECTION_ACTIVE_J2 | (1 << 30)).collect();
+        assert_eq!(v, ["BOARD_TIMEOUT", "CORRECTION_ACTIVE_J2"]);
+        assert_eq!(names(0).count(), 0);
+    }
+}

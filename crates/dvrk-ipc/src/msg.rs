@@ -1,0 +1,291 @@
+//! The message types published by dvrk-sidecar.
+//!
+//! Every type is `#[repr(C)]`, contains only `u64`, `u32`, `f64` and fixed arrays of them, and has
+//! no implicit padding (every hole is a named `_reserved*` field that the publisher sets to 0).
+//! The byte layouts are fixed by the `const` assertions at the bottom of this file and mirrored in
+//! `include/dvrk_ipc.h` for C and C++ consumers and in `examples/python/subscriber.py`.
+//!
+//! iceoryx2 identifies a payload across processes by its type name, size and alignment only: a
+//! layout change that keeps the size would not be detected, so any change of a field bumps the
+//! `V<n>` suffix of the type name.
+//!
+//! Units are SI (m, rad, N·m, N); times are host `CLOCK_MONOTONIC` nanoseconds unless the field
+//! name says otherwise.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Number of joints in a joint-state message (6 kinematic joints plus the jaw).
+pub const NUM_JOINTS: usize = 7;
+
+/// Joint names in message order (dVRK names, without the pre-2024 `outer_` prefix).
+///
+/// Index 0 and 1 are joints "1" and "2" of the compliance paper; index 2 is the insertion
+/// (prismatic, metres; its effort is in newtons).
+pub const JOINT_NAMES: [&str; NUM_JOINTS] = [
+    "yaw",
+    "pitch",
+    "insertion",
+    "roll",
+    "wrist_pitch",
+    "wrist_yaw",
+    "jaw",
+];
+
+/// Common header of every message. All five messages of one publisher cycle carry the same
+/// header except for anything the publisher chooses to vary per message (normally nothing).
+///
+/// | offset | field | meaning |
+/// |---|---|---|
+/// | 0 | `seq` | cycle counter, starts at 1, +1 per cycle, equal in all messages of a cycle |
+/// | 8 | `sample_t_ns` | host `CLOCK_MONOTONIC` ns when the board read completed |
+/// | 16 | `board_timestamp` | raw board timestamp counters: first board low 32 bits, second board high 32 bits |
+/// | 24 | `publish_t_ns` | host `CLOCK_MONOTONIC` ns when the publisher wrote the cycle |
+/// | 32 | `valid` | 1 = the values come from a successful read; 0 = do not use them |
+/// | 36 | `flags` | reason and state bits, see [`crate::flags`] |
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("dvrk::HeaderV1")]
+pub struct Header {
+    pub seq: u64,
+    pub sample_t_ns: u64,
+    pub board_timestamp: u64,
+    pub publish_t_ns: u64,
+    pub valid: u32,
+    pub flags: u32,
+}
+
+impl Header {
+    /// Packs the timestamp counters of up to two boards into [`Header::board_timestamp`]
+    /// (first board in the low 32 bits).
+    pub const fn pack_board_timestamps(ts: [u32; 2]) -> u64 {
+        (ts[0] as u64) | ((ts[1] as u64) << 32)
+    }
+
+    /// The two board timestamp counters packed by [`Header::pack_board_timestamps`].
+    pub const fn board_timestamps(&self) -> [u32; 2] {
+        [
+            (self.board_timestamp & 0xffff_ffff) as u32,
+            (self.board_timestamp >> 32) as u32,
+        ]
+    }
+
+    /// `valid != 0`.
+    pub const fn is_valid(&self) -> bool {
+        self.valid != 0
+    }
+
+    /// Whether every bit of `mask` is set in `flags`.
+    pub const fn has(&self, mask: u32) -> bool {
+        self.flags & mask == mask
+    }
+}
+
+/// Joint state (CRTK `measured_js`): position (rad, m for insertion), velocity (rad/s, m/s) and
+/// effort (N·m, N for insertion) of the seven joints in [`JOINT_NAMES`] order.
+///
+/// Published on `<prefix>/measured_js` (as read from the boards) and on
+/// `<prefix>/compensated/measured_js` (joints 1 and 2 corrected by the compliance model; the
+/// other joints, velocity and effort are passed through).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("dvrk::JointStateV1")]
+pub struct JointStateV1 {
+    pub header: Header,
+    pub position: [f64; NUM_JOINTS],
+    pub velocity: [f64; NUM_JOINTS],
+    pub effort: [f64; NUM_JOINTS],
+}
+
+/// Tool-tip pose (CRTK `local/measured_cp`): the instrument tip in the RCM frame of the PSM, as
+/// the dVRK console computes it from the joints.
+///
+/// The orientation is given twice, as a unit quaternion (x, y, z, w) and as a row-major 3×3
+/// rotation matrix (`rotation[3 * row + col]`), so consumers need no conversion code.
+///
+/// Published on `<prefix>/measured_cp` (from the raw joints) and on
+/// `<prefix>/compensated/measured_cp` (from the compensated joints).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("dvrk::PoseV1")]
+pub struct PoseV1 {
+    pub header: Header,
+    pub position_m: [f64; 3],
+    pub orientation_xyzw: [f64; 4],
+    pub rotation: [f64; 9],
+}
+
+impl Default for PoseV1 {
+    /// The identity pose with a zero header.
+    fn default() -> Self {
+        Self {
+            header: Header::default(),
+            position_m: [0.0; 3],
+            orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+            rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        }
+    }
+}
+
+/// State of the compliance compensation and of the publishing loop (`<prefix>/compensated/status`).
+///
+/// | field | meaning |
+/// |---|---|
+/// | `tau_ext_nm` | estimated external torque on joints 1, 2 (N·m) |
+/// | `delta_rad` | correction `q - q_hat` of joints 1, 2 (rad); the compensated joint is `q - delta` |
+/// | `insertion_m` | insertion L used by the model, after clamping to the calibrated range |
+/// | `cycle_period_ns` | time between this cycle's sample and the previous cycle's sample |
+/// | `cycle_duration_ns` | work time of the most recent completed cycle (read start to notify); the current cycle is not finished when this message is written |
+/// | `cycles_total` | cycles published since the publisher started (= `seq` when none was skipped) |
+/// | `read_failures_total` | cycles whose read failed (published with `valid = 0`) since start |
+/// | `overruns_total` | cycles that took longer than the nominal period since start |
+/// | `consecutive_read_failures` | failed reads in a row up to and including this cycle (0 when this read succeeded) |
+/// | `_reserved` | 0 |
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("dvrk::CompensationStatusV1")]
+pub struct CompensationStatusV1 {
+    pub header: Header,
+    pub tau_ext_nm: [f64; 2],
+    pub delta_rad: [f64; 2],
+    pub insertion_m: f64,
+    pub cycle_period_ns: u64,
+    pub cycle_duration_ns: u64,
+    pub cycles_total: u64,
+    pub read_failures_total: u64,
+    pub overruns_total: u64,
+    pub consecutive_read_failures: u32,
+    pub _reserved: u32,
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for super::JointStateV1 {}
+    impl Sealed for super::PoseV1 {}
+    impl Sealed for super::CompensationStatusV1 {}
+}
+
+/// The message types of this crate (sealed): what [`crate::Subscription`] and
+/// [`crate::open_topic`] accept.
+pub trait Message: sealed::Sealed + Copy + core::fmt::Debug + ZeroCopySend + 'static {
+    /// The iceoryx2 type name (same string as the `#[type_name]` attribute).
+    const TYPE_NAME: &'static str;
+    /// Size in bytes (also in `dvrk_ipc.h`).
+    const SIZE: usize = core::mem::size_of::<Self>();
+    /// The common header.
+    fn header(&self) -> &Header;
+    /// The common header, mutable.
+    fn header_mut(&mut self) -> &mut Header;
+}
+
+impl Message for JointStateV1 {
+    const TYPE_NAME: &'static str = "dvrk::JointStateV1";
+    fn header(&self) -> &Header {
+        &self.header
+    }
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Message for PoseV1 {
+    const TYPE_NAME: &'static str = "dvrk::PoseV1";
+    fn header(&self) -> &Header {
+        &self.header
+    }
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+impl Message for CompensationStatusV1 {
+    const TYPE_NAME: &'static str = "dvrk::CompensationStatusV1";
+    fn header(&self) -> &Header {
+        &self.header
+    }
+    fn header_mut(&mut self) -> &mut Header {
+        &mut self.header
+    }
+}
+
+/// Sizes in bytes, identical in `dvrk_ipc.h`.
+pub const HEADER_SIZE: usize = 40;
+pub const JOINT_STATE_V1_SIZE: usize = 208;
+pub const POSE_V1_SIZE: usize = 168;
+pub const COMPENSATION_STATUS_V1_SIZE: usize = 128;
+
+// Compile-time layout checks: size, alignment and every field offset. Each offset equals the end of
+// the previous field, so there is no implicit padding anywhere (the checks fail to compile if a
+// field is added, removed, reordered or resized without updating them).
+macro_rules! assert_layout {
+    ($ty:ty, size = $size:expr, $( $field:ident : $fty:ty ),+ $(,)?) => {
+        const _: () = {
+            use core::mem::{align_of, offset_of, size_of};
+            let mut end = 0usize;
+            $(
+                assert!(offset_of!($ty, $field) == end, "implicit padding before a field");
+                end += size_of::<$fty>();
+            )+
+            assert!(end == size_of::<$ty>(), "implicit trailing padding");
+            assert!(size_of::<$ty>() == $size, "size changed: bump the V<n> type name");
+            assert!(align_of::<$ty>() == 8);
+        };
+    };
+}
+
+assert_layout!(Header, size = HEADER_SIZE,
+    seq: u64, sample_t_ns: u64, board_timestamp: u64, publish_t_ns: u64, valid: u32, flags: u32);
+assert_layout!(JointStateV1, size = JOINT_STATE_V1_SIZE,
+    header: Header, position: [f64; NUM_JOINTS], velocity: [f64; NUM_JOINTS],
+    effort: [f64; NUM_JOINTS]);
+assert_layout!(PoseV1, size = POSE_V1_SIZE,
+    header: Header, position_m: [f64; 3], orientation_xyzw: [f64; 4], rotation: [f64; 9]);
+assert_layout!(CompensationStatusV1, size = COMPENSATION_STATUS_V1_SIZE,
+    header: Header, tau_ext_nm: [f64; 2], delta_rad: [f64; 2], insertion_m: f64,
+    cycle_period_ns: u64, cycle_duration_ns: u64, cycles_total: u64, read_failures_total: u64,
+    overruns_total: u64, consecutive_read_failures: u32, _reserved: u32);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn type_names_match_the_derive_attribute() {
+        // SAFETY: `type_name` is only `unsafe` because implementors promise uniqueness.
+        unsafe {
+            assert_eq!(
+                <JointStateV1 as ZeroCopySend>::type_name(),
+                JointStateV1::TYPE_NAME
+            );
+            assert_eq!(<PoseV1 as ZeroCopySend>::type_name(), PoseV1::TYPE_NAME);
+            assert_eq!(
+                <CompensationStatusV1 as ZeroCopySend>::type_name(),
+                CompensationStatusV1::TYPE_NAME
+            );
+            assert_eq!(<Header as ZeroCopySend>::type_name(), "dvrk::HeaderV1");
+        }
+    }
+
+    #[test]
+    fn board_timestamps_round_trip() {
+        let h = Header {
+            board_timestamp: Header::pack_board_timestamps([0xdead_beef, 0x0123_4567]),
+            ..Header::default()
+        };
+        assert_eq!(h.board_timestamp, 0x0123_4567_dead_beef);
+        assert_eq!(h.board_timestamps(), [0xdead_beef, 0x0123_4567]);
+    }
+
+    #[test]
+    fn default_pose_is_identity() {
+        let p = PoseV1::default();
+        assert_eq!(p.orientation_xyzw, [0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(p.rotation[0] + p.rotation[4] + p.rotation[8], 3.0);
+    }
+
+    #[test]
+    fn joint_names_follow_the_project_order() {
+        assert_eq!(JOINT_NAMES[0], "yaw");
+        assert_eq!(JOINT_NAMES[2], "insertion");
+        assert_eq!(JOINT_NAMES[NUM_JOINTS - 1], "jaw");
+    }
+}
