@@ -1,0 +1,508 @@
+//! Real shared memory: publisher, subscriptions in this and in other processes, staleness.
+//!
+//! Every test runs in its own iceoryx2 domain (file prefix `t<pid>_<n>_`, root `/tmp/iox2t/`)
+//! under its own service prefix, so tests run in parallel without cross-talk.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use common::Domain;
+use dvrk_ipc::iceoryx2::node::Node;
+use dvrk_ipc::iceoryx2::service::ipc;
+use dvrk_ipc::{
+    ArmPublisher, CompensationStatusV1, Header, IpcError, JointStateV1, Message, PoseV1,
+    Subscription, Topic, Update, create_node, flags,
+};
+
+/// Generous period for tests: the deadline is 3 periods. Nothing asserts on elapsed time.
+const PERIOD: Duration = Duration::from_millis(20);
+
+fn node(d: &Domain, name: &str) -> Node<ipc::Service> {
+    create_node::<ipc::Service>(name, Some(&d.config)).expect("node")
+}
+
+/// One cycle's messages with values derived from `seq`, so every field is checked.
+fn cycle(
+    seq: u64,
+) -> (
+    JointStateV1,
+    PoseV1,
+    JointStateV1,
+    PoseV1,
+    CompensationStatusV1,
+) {
+    let s = seq as f64;
+    let header = Header {
+        seq,
+        sample_t_ns: 1_000_000 * seq,
+        board_timestamp: Header::pack_board_timestamps([seq as u32, 7]),
+        publish_t_ns: 1_000_000 * seq + 500,
+        valid: 1,
+        flags: flags::SIMULATED | flags::CORRECTION_ACTIVE_J1,
+    };
+    let js = JointStateV1 {
+        header,
+        position: core::array::from_fn(|i| s + i as f64 * 0.1),
+        velocity: core::array::from_fn(|i| -s - i as f64),
+        effort: core::array::from_fn(|i| 100.0 * s + i as f64),
+    };
+    let cjs = JointStateV1 {
+        position: core::array::from_fn(|i| s + i as f64 * 0.1 - 0.01),
+        ..js
+    };
+    let cp = PoseV1 {
+        header,
+        position_m: [s, 2.0 * s, 3.0 * s],
+        orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+        rotation: core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 }),
+    };
+    let ccp = PoseV1 {
+        position_m: [s + 0.5, 2.0 * s, 3.0 * s],
+        ..cp
+    };
+    let status = CompensationStatusV1 {
+        header,
+        tau_ext_nm: [0.1 * s, -0.2 * s],
+        delta_rad: [0.01, -0.02],
+        insertion_m: 0.12,
+        cycle_period_ns: 666_667,
+        cycle_duration_ns: 1_500,
+        cycles_total: seq,
+        read_failures_total: 3,
+        overruns_total: 1,
+        consecutive_read_failures: 0,
+        _reserved: 0,
+    };
+    (js, cp, cjs, ccp, status)
+}
+
+fn publish(p: &ArmPublisher, seq: u64) {
+    let (js, cp, cjs, ccp, st) = cycle(seq);
+    p.publish_cycle(&js, &cp, &cjs, &ccp, &st).expect("publish");
+}
+
+fn expect_fresh<T: Message>(u: Update<T>) -> T {
+    match u {
+        Update::Fresh(v) => v,
+        other => panic!("expected a fresh sample, got {other:?}"),
+    }
+}
+
+#[test]
+fn round_trip_of_all_five_topics() {
+    let d = Domain::new("round_trip");
+    let node = node(&d, "rt");
+    let mut js = Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
+        .expect("sub js");
+    let mut cp =
+        Subscription::<PoseV1>::new(&node, &d.names, Topic::MeasuredCp, PERIOD).expect("sub cp");
+    let mut cjs =
+        Subscription::<JointStateV1>::new(&node, &d.names, Topic::CompensatedMeasuredJs, PERIOD)
+            .expect("sub cjs");
+    let mut ccp =
+        Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD)
+            .expect("sub ccp");
+    let mut st = Subscription::<CompensationStatusV1>::new(
+        &node,
+        &d.names,
+        Topic::CompensatedStatus,
+        PERIOD,
+    )
+    .expect("sub status");
+    let publisher = ArmPublisher::create(&node, &d.names).expect("publisher");
+    assert_eq!(publisher.number_of_subscribers(Topic::MeasuredJs), 1);
+
+    for seq in 1..=3 {
+        publish(&publisher, seq);
+        let want = cycle(seq);
+        assert_eq!(expect_fresh(js.wait().unwrap()), want.0);
+        assert_eq!(expect_fresh(cp.wait().unwrap()), want.1);
+        assert_eq!(expect_fresh(cjs.wait().unwrap()), want.2);
+        assert_eq!(expect_fresh(ccp.wait().unwrap()), want.3);
+        assert_eq!(expect_fresh(st.wait().unwrap()), want.4);
+    }
+    assert_eq!(js.stats().received_total, 3);
+    assert_eq!(js.stats().seq_gaps_total, 0);
+    assert_eq!(js.latest().map(|v| v.header.seq), Some(3));
+}
+
+#[test]
+fn subscriber_that_fell_behind_gets_the_newest_and_counts_the_rest() {
+    let d = Domain::new("behind");
+    let node = node(&d, "behind");
+    let mut sub =
+        Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD).unwrap();
+    let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+    for seq in 1..=5 {
+        publish(&publisher, seq);
+    }
+    let mut seen = Vec::new();
+    let newest = expect_fresh(sub.wait_with(|v| seen.push(v.header.seq)).unwrap());
+    assert_eq!(newest.header.seq, 5);
+    assert_eq!(seen, [1, 2, 3, 4, 5]);
+    assert_eq!(sub.stats().superseded_total, 4);
+    // The five notifications were coalesced and drained with the samples: the next call sees
+    // no sample and reports staleness instead of returning an old value.
+    assert!(matches!(sub.wait().unwrap(), Update::Stale { .. }));
+}
+
+#[test]
+fn buffer_overflow_shows_up_as_seq_gaps() {
+    let d = Domain::new("overflow");
+    let node = node(&d, "overflow");
+    let mut sub =
+        Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
+    let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+    let n = dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE as u64 + 10;
+    publish(&publisher, 1);
+    assert_eq!(expect_fresh(sub.wait().unwrap()).header.seq, 1);
+    for seq in 2..=n {
+        publish(&publisher, seq);
+    }
+    let mut seen = Vec::new();
+    let newest = expect_fresh(sub.wait_with(|v| seen.push(v.header.seq)).unwrap());
+    assert_eq!(newest.header.seq, n);
+    // Safe overflow kept the newest SUBSCRIBER_MAX_BUFFER_SIZE samples, in order.
+    assert_eq!(seen.len(), dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE);
+    assert!(seen.windows(2).all(|w| w[1] == w[0] + 1));
+    assert_eq!(sub.stats().seq_gaps_total, seen[0] - 2);
+}
+
+#[test]
+fn invalid_cycles_carry_valid_zero_and_the_reason() {
+    let d = Domain::new("invalid");
+    let node = node(&d, "invalid");
+    let mut sub = Subscription::<CompensationStatusV1>::new(
+        &node,
+        &d.names,
+        Topic::CompensatedStatus,
+        PERIOD,
+    )
+    .unwrap();
+    let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+    let (mut js, mut cp, mut cjs, mut ccp, mut st) = cycle(9);
+    for h in [
+        js.header_mut(),
+        cp.header_mut(),
+        cjs.header_mut(),
+        ccp.header_mut(),
+        st.header_mut(),
+    ] {
+        h.valid = 0;
+        h.flags = flags::BOARD_TIMEOUT;
+    }
+    st.consecutive_read_failures = 4;
+    publisher.publish_cycle(&js, &cp, &cjs, &ccp, &st).unwrap();
+    let got = expect_fresh(sub.wait().unwrap());
+    assert!(!got.header.is_valid());
+    assert!(got.header.has(flags::BOARD_TIMEOUT));
+    assert_eq!(got.consecutive_read_failures, 4);
+}
+
+#[test]
+fn late_subscriber_gets_the_latest_sample_at_the_next_send() {
+    let d = Domain::new("late");
+    let node = node(&d, "late");
+    let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+    for seq in 1..=5 {
+        publish(&publisher, seq);
+    }
+    let mut sub = Subscription::<PoseV1>::new(&node, &d.names, Topic::MeasuredCp, PERIOD).unwrap();
+    // iceoryx2 0.10 connects a new subscriber, and delivers its history, inside the publisher's
+    // next send: nothing is there before it.
+    assert_eq!(sub.try_latest().unwrap(), None);
+    publish(&publisher, 6);
+    let mut seen = Vec::new();
+    let newest = expect_fresh(sub.wait_with(|v| seen.push(v.header.seq)).unwrap());
+    assert_eq!(seen, [5, 6], "history of 1 (seq 5) then the new sample");
+    assert_eq!(newest.header.seq, 6);
+}
+
+#[test]
+fn second_publisher_on_the_same_prefix_is_refused_with_a_clear_error() {
+    let d = Domain::new("second");
+    let node_a = node(&d, "first");
+    let node_b = node(&d, "second");
+    let _first = ArmPublisher::create(&node_a, &d.names).expect("first publisher");
+    let err = ArmPublisher::create(&node_b, &d.names).expect_err("second publisher must fail");
+    assert!(
+        matches!(&err, IpcError::AlreadyPublishing { prefix } if prefix == "test/second"),
+        "{err:?}"
+    );
+    assert_eq!(
+        err.to_string(),
+        "another dvrk-sidecar is already publishing under test/second"
+    );
+    // Another prefix in the same domain is independent.
+    let other = dvrk_ipc::ServiceNames::new("test/second_other").unwrap();
+    ArmPublisher::create(&node_b, &other).expect("other prefix");
+}
+
+#[test]
+fn after_a_clean_stop_a_new_publisher_can_take_over() {
+    let d = Domain::new("takeover");
+    let node = node(&d, "takeover");
+    let mut sub =
+        Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
+    let first = ArmPublisher::create(&node, &d.names).unwrap();
+    publish(&first, 1);
+    assert_eq!(expect_fresh(sub.wait().unwrap()).header.seq, 1);
+    drop(first);
+    assert_eq!(sub.wait().unwrap(), Update::Terminated);
+    let second = ArmPublisher::create(&node, &d.names).expect("restart");
+    publish(&second, 1);
+    assert_eq!(expect_fresh(sub.wait().unwrap()).header.seq, 1);
+}
+
+#[test]
+fn silent_publisher_is_stale_and_a_dropped_one_is_terminated() {
+    let d = Domain::new("stale");
+    let node = node(&d, "stale");
+    let mut sub =
+        Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD).unwrap();
+    // No publisher yet: waiting for one is staleness, not termination.
+    assert!(matches!(sub.wait().unwrap(), Update::Stale { .. }));
+    let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+    publish(&publisher, 1);
+    expect_fresh(sub.wait().unwrap());
+    let first = match sub.wait().unwrap() {
+        Update::Stale { since_ns } => since_ns,
+        other => panic!("expected Stale, got {other:?}"),
+    };
+    let second = match sub.wait().unwrap() {
+        Update::Stale { since_ns } => since_ns,
+        other => panic!("expected Stale, got {other:?}"),
+    };
+    assert!(
+        second > first,
+        "since_ns grows while silent: {first} then {second}"
+    );
+    assert!(
+        first >= sub.deadline().as_nanos() as u64,
+        "staleness is reported after the deadline, not before"
+    );
+    assert_eq!(sub.stats().stale_total, 3);
+    drop(publisher);
+    assert_eq!(sub.wait().unwrap(), Update::Terminated);
+}
+
+#[test]
+fn topic_and_type_must_match() {
+    let d = Domain::new("mismatch");
+    let node = node(&d, "mismatch");
+    let err = Subscription::<PoseV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
+        .expect_err("PoseV1 on measured_js");
+    assert_eq!(
+        err.to_string(),
+        "topic measured_js carries dvrk::JointStateV1, not dvrk::PoseV1"
+    );
+}
+
+#[test]
+fn domain_files_are_removed_on_drop() {
+    let d = Domain::new("cleanup");
+    {
+        let node = node(&d, "cleanup");
+        let p = ArmPublisher::create(&node, &d.names).unwrap();
+        publish(&p, 1);
+        assert!(!d.leftovers().is_empty(), "the domain created files");
+    }
+    let prefix = d.domain_prefix.clone();
+    drop(d);
+    let mut left = Vec::new();
+    for dir in ["/dev/shm", common::ROOT] {
+        if let Ok(entries) = std::fs::read_dir(dir) {
+            left.extend(
+                entries
+                    .flatten()
+                    .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+                    .map(|e| e.path()),
+            );
+        }
+    }
+    assert!(left.is_empty(), "left behind: {left:?}");
+}
+
+// ---- other processes -------------------------------------------------------------------------
+
+const ENV_ROLE: &str = "DVRK_IPC_TEST_ROLE";
+const ENV_COUNT: &str = "DVRK_IPC_TEST_COUNT";
+
+/// Runs this test binary again as a child that executes only `child_process_role`.
+fn spawn_child(d: &Domain, role: &str, count: u64) -> Child {
+    Command::new(std::env::current_exe().expect("test binary"))
+        .args([
+            "child_process_role",
+            "--exact",
+            "--ignored",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .envs(d.env())
+        .env(ENV_ROLE, role)
+        .env(ENV_COUNT, count.to_string())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("spawn child")
+}
+
+/// The child's stdout, line by line (the test harness prints its own lines too).
+fn child_lines(child: &mut Child) -> impl Iterator<Item = String> + use<> {
+    let out = child.stdout.take().expect("piped stdout");
+    BufReader::new(out).lines().map_while(Result::ok)
+}
+
+/// Reads lines until one contains `tag `; returns the rest of that line. (The harness writes
+/// `test child_process_role ... ` without a newline before the child's first line.)
+fn wait_for_tag(lines: &mut impl Iterator<Item = String>, tag: &str) -> Option<String> {
+    let tag = format!("{tag} ");
+    lines.find_map(|l| l.split_once(&tag).map(|(_, rest)| rest.to_owned()))
+}
+
+/// Upper bound on a child's life, so a broken test fails instead of hanging: the parent's reads
+/// see end-of-file when the child exits.
+const CHILD_LIFETIME: Duration = Duration::from_secs(60);
+
+/// Not a test on its own: the body of the child processes spawned by the tests below.
+#[test]
+#[ignore = "child process role; run by the cross-process tests"]
+fn child_process_role() {
+    let Ok(role) = std::env::var(ENV_ROLE) else {
+        return;
+    };
+    std::thread::spawn(|| {
+        std::thread::sleep(CHILD_LIFETIME);
+        std::process::exit(3);
+    });
+    let d = Domain::from_env();
+    let count: u64 = std::env::var(ENV_COUNT).unwrap().parse().unwrap();
+    let node = node(&d, &format!("child_{role}"));
+    match role.as_str() {
+        "subscriber" => {
+            let mut sub =
+                Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
+                    .unwrap();
+            println!("READY 1");
+            let mut seqs = Vec::new();
+            loop {
+                match sub.wait_with(|v| seqs.push(v.header.seq)).unwrap() {
+                    Update::Fresh(v) if v.header.seq >= count => break,
+                    Update::Terminated => break,
+                    _ => {}
+                }
+            }
+            let s = sub.stats();
+            println!(
+                "SEQS {}",
+                seqs.iter()
+                    .map(u64::to_string)
+                    .collect::<Vec<_>>()
+                    .join(",")
+            );
+            println!("GAPS {}", s.seq_gaps_total);
+        }
+        "publisher" => {
+            let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+            println!("READY 1");
+            // Publishes until killed by the parent.
+            for seq in 1.. {
+                publish(&publisher, seq);
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
+        other => panic!("unknown role {other}"),
+    }
+}
+
+#[test]
+fn subscriber_in_another_process_receives_every_seq_in_order() {
+    let d = Domain::new("xproc_sub");
+    let node = node(&d, "xproc_pub");
+    let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+    const N: u64 = 100;
+    let mut child = spawn_child(&d, "subscriber", N);
+    let mut lines = child_lines(&mut child);
+    assert!(
+        wait_for_tag(&mut lines, "READY").is_some(),
+        "child did not start"
+    );
+    // READY is printed after the subscription exists; the publisher sees it in shared memory.
+    for _ in 0..1000 {
+        if publisher.number_of_subscribers(Topic::MeasuredJs) == 1 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(publisher.number_of_subscribers(Topic::MeasuredJs), 1);
+    for seq in 1..=N {
+        publish(&publisher, seq);
+        // ~200 Hz: the 16-sample buffer absorbs child stalls of up to 80 ms.
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let seqs: Vec<u64> = wait_for_tag(&mut lines, "SEQS")
+        .expect("child printed SEQS")
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    let gaps: u64 = wait_for_tag(&mut lines, "GAPS")
+        .expect("child printed GAPS")
+        .parse()
+        .unwrap();
+    // Read to the end: closing the pipe early would fail the child's last writes (EPIPE).
+    lines.for_each(drop);
+    let status = child.wait().expect("child exit");
+    assert!(status.success(), "child failed: {status:?}");
+    assert_eq!(seqs, (1..=N).collect::<Vec<_>>(), "every seq, in order");
+    assert_eq!(gaps, 0);
+}
+
+#[test]
+fn killed_publisher_process_is_reported_terminated_and_can_be_replaced() {
+    let d = Domain::new("xproc_kill");
+    let node = node(&d, "xproc_kill_sub");
+    let mut sub =
+        Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
+    let mut child = spawn_child(&d, "publisher", 0);
+    let mut lines = child_lines(&mut child);
+    assert!(
+        wait_for_tag(&mut lines, "READY").is_some(),
+        "child did not start"
+    );
+    // Samples arrive from the other process.
+    let mut fresh = 0;
+    for _ in 0..1000 {
+        if let Update::Fresh(v) = sub.wait().unwrap() {
+            assert!(v.header.seq >= 1);
+            fresh += 1;
+            if fresh == 5 {
+                break;
+            }
+        }
+    }
+    assert_eq!(fresh, 5, "samples from the child publisher");
+    assert_eq!(sub.number_of_publishers(), 1);
+    child.kill().expect("SIGKILL");
+    child.wait().expect("reap child");
+    drop(lines);
+    // Drain what the child sent before dying, then the dead node is cleaned up.
+    let mut outcome = None;
+    for _ in 0..1000 {
+        match sub.wait().unwrap() {
+            Update::Fresh(_) => continue,
+            u => {
+                outcome = Some(u);
+                if u == Update::Terminated {
+                    break;
+                }
+            }
+        }
+    }
+    assert_eq!(outcome, Some(Update::Terminated));
+    // The dead publisher's slot is free again: a restarted sidecar can publish.
+    let publisher = ArmPublisher::create(&node, &d.names).expect("replacement publisher");
+    publish(&publisher, 1);
+    assert_eq!(expect_fresh(sub.wait().unwrap()).header.seq, 1);
+}
