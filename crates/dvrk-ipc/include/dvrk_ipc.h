@@ -1,0 +1,167 @@
+/*
+ * dvrk_ipc.h: message layouts of dvrk-sidecar for C and C++ consumers of iceoryx2 0.10.
+ *
+ * Mirrors crates/dvrk-ipc/src/msg.rs and flags.rs; the test crates/dvrk-ipc/tests/c_layout.rs
+ * compiles a program against this header and compares every size and field offset with the
+ * Rust types. Change both together, and bump the V<n> of the type name on any layout change:
+ * iceoryx2 compares only the type name, size and alignment.
+ *
+ * Services (prefix default "dvrk/PSM1", user header: none, i.e. Rust "()" of size 0, align 1):
+ *   <prefix>/measured_js              dvrk_JointStateV1   "dvrk::JointStateV1"
+ *   <prefix>/measured_cp              dvrk_PoseV1         "dvrk::PoseV1"
+ *   <prefix>/compensated/measured_js  dvrk_JointStateV1
+ *   <prefix>/compensated/measured_cp  dvrk_PoseV1
+ *   <prefix>/compensated/status       dvrk_CompensationStatusV1 "dvrk::CompensationStatusV1"
+ *   <prefix>/cycle                    event, notified once per cycle after the five messages
+ *
+ * Open or create every service with the DVRK_IPC_QOS_* values below: whichever process creates
+ * a service first fixes its QoS, and an opener that asks for more fails.
+ *
+ * Units are SI (m, rad, N.m, N); *_t_ns are host CLOCK_MONOTONIC nanoseconds.
+ */
+#ifndef DVRK_IPC_H
+#define DVRK_IPC_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+#define DVRK_IPC_STATIC_ASSERT(cond, msg) static_assert(cond, msg)
+extern "C" {
+#else
+#define DVRK_IPC_STATIC_ASSERT(cond, msg) _Static_assert(cond, msg)
+#endif
+
+/* ---- services and QoS --------------------------------------------------------------------- */
+
+#define DVRK_IPC_DEFAULT_PREFIX "dvrk/PSM1"
+#define DVRK_IPC_SUFFIX_MEASURED_JS "measured_js"
+#define DVRK_IPC_SUFFIX_MEASURED_CP "measured_cp"
+#define DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_JS "compensated/measured_js"
+#define DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_CP "compensated/measured_cp"
+#define DVRK_IPC_SUFFIX_COMPENSATED_STATUS "compensated/status"
+#define DVRK_IPC_SUFFIX_CYCLE "cycle"
+
+#define DVRK_IPC_QOS_MAX_PUBLISHERS 1
+#define DVRK_IPC_QOS_MAX_SUBSCRIBERS 32
+#define DVRK_IPC_QOS_SUBSCRIBER_MAX_BUFFER_SIZE 16
+#define DVRK_IPC_QOS_SUBSCRIBER_MAX_BORROWED_SAMPLES 2
+#define DVRK_IPC_QOS_HISTORY_SIZE 1
+#define DVRK_IPC_QOS_ENABLE_SAFE_OVERFLOW 1
+#define DVRK_IPC_QOS_MAX_NODES 36
+#define DVRK_IPC_QOS_EVENT_MAX_NOTIFIERS 1
+#define DVRK_IPC_QOS_EVENT_MAX_LISTENERS 32
+
+/* Staleness: no cycle event for this many nominal periods (1500 Hz -> 666667 ns). */
+#define DVRK_IPC_DEADLINE_PERIODS 3
+#define DVRK_IPC_NOMINAL_PERIOD_NS 666667
+
+/* ---- type names (iceoryx2 payload type details) -------------------------------------------- */
+
+#define DVRK_IPC_TYPE_NAME_JOINT_STATE_V1 "dvrk::JointStateV1"
+#define DVRK_IPC_TYPE_NAME_POSE_V1 "dvrk::PoseV1"
+#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V1 "dvrk::CompensationStatusV1"
+
+/* ---- joints ---------------------------------------------------------------------------------- */
+
+#define DVRK_IPC_NUM_JOINTS 7
+/* Joint order: 0 yaw, 1 pitch, 2 insertion (m), 3 roll, 4 wrist_pitch, 5 wrist_yaw, 6 jaw. */
+#define DVRK_IPC_JOINT_NAMES {"yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw", "jaw"}
+
+/* ---- flags (dvrk_Header.flags) -------------------------------------------------------------- */
+
+#define DVRK_IPC_FLAG_BOARD_TIMEOUT (1u << 0)        /* a board did not answer in time; valid = 0 */
+#define DVRK_IPC_FLAG_BOARD_ERROR (1u << 1)          /* bad reply (CRC, label, length); valid = 0 */
+#define DVRK_IPC_FLAG_WATCHDOG_TIMEOUT (1u << 2)     /* a board's watchdog expired */
+#define DVRK_IPC_FLAG_POWER_OFF (1u << 3)            /* motor power off or supply not good */
+#define DVRK_IPC_FLAG_ENCODER_ERROR (1u << 4)        /* encoder error or overflow */
+#define DVRK_IPC_FLAG_AMP_FAULT (1u << 5)            /* amplifier fault or current-check trip */
+#define DVRK_IPC_FLAG_INSERTION_CLAMPED (1u << 6)    /* model insertion clamped to its range */
+#define DVRK_IPC_FLAG_CORRECTION_ACTIVE_J1 (1u << 7) /* compliance correction of joint 1 active */
+#define DVRK_IPC_FLAG_CORRECTION_ACTIVE_J2 (1u << 8) /* compliance correction of joint 2 active */
+#define DVRK_IPC_FLAG_SIMULATED (1u << 9)            /* source is the simulated PSM */
+#define DVRK_IPC_FLAG_OVERRUN (1u << 10)             /* previous cycle exceeded the period */
+#define DVRK_IPC_FLAG_FAULT_MASK (0x3fu)             /* bits 0..5 */
+
+/* ---- messages -------------------------------------------------------------------------------- */
+
+/* Common header. seq is equal in all five messages of a cycle. board_timestamp: first board's
+ * counter in the low 32 bits, second board's in the high 32 bits. valid: 1 or 0. */
+typedef struct dvrk_Header {
+    uint64_t seq;
+    uint64_t sample_t_ns;
+    uint64_t board_timestamp;
+    uint64_t publish_t_ns;
+    uint32_t valid;
+    uint32_t flags;
+} dvrk_Header;
+
+/* Joint state: position (rad; m for insertion), velocity, effort (N.m; N for insertion). */
+typedef struct dvrk_JointStateV1 {
+#ifdef __cplusplus
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_JOINT_STATE_V1;
+#endif
+    dvrk_Header header;
+    double position[DVRK_IPC_NUM_JOINTS];
+    double velocity[DVRK_IPC_NUM_JOINTS];
+    double effort[DVRK_IPC_NUM_JOINTS];
+} dvrk_JointStateV1;
+
+/* Tool-tip pose in the RCM frame (CRTK local/measured_cp). rotation is row-major 3x3:
+ * rotation[3 * row + col]; orientation_xyzw is the same rotation as a unit quaternion. */
+typedef struct dvrk_PoseV1 {
+#ifdef __cplusplus
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_POSE_V1;
+#endif
+    dvrk_Header header;
+    double position_m[3];
+    double orientation_xyzw[4];
+    double rotation[9];
+} dvrk_PoseV1;
+
+/* Compensation and loop status. delta_rad = q - q_hat of joints 1, 2; *_total are counters since
+ * the publisher started; cycle_duration_ns is the most recent completed cycle's work time. */
+typedef struct dvrk_CompensationStatusV1 {
+#ifdef __cplusplus
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V1;
+#endif
+    dvrk_Header header;
+    double tau_ext_nm[2];
+    double delta_rad[2];
+    double insertion_m;
+    uint64_t cycle_period_ns;
+    uint64_t cycle_duration_ns;
+    uint64_t cycles_total;
+    uint64_t read_failures_total;
+    uint64_t overruns_total;
+    uint32_t consecutive_read_failures;
+    uint32_t _reserved;
+} dvrk_CompensationStatusV1;
+
+/* ---- layout checks (the same numbers as the Rust const assertions) --------------------------- */
+
+DVRK_IPC_STATIC_ASSERT(sizeof(double) == 8, "double must be IEEE 754 binary64");
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_Header) == 40, "dvrk_Header size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, valid) == 32, "dvrk_Header.valid offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, flags) == 36, "dvrk_Header.flags offset");
+
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_JointStateV1) == 208, "dvrk_JointStateV1 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV1, position) == 40, "position offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV1, velocity) == 96, "velocity offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV1, effort) == 152, "effort offset");
+
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_PoseV1) == 168, "dvrk_PoseV1 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, position_m) == 40, "position_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, orientation_xyzw) == 64, "orientation offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, rotation) == 96, "rotation offset");
+
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV1) == 128, "dvrk_CompensationStatusV1 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV1, insertion_m) == 72, "insertion_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV1, consecutive_read_failures) == 120,
+                       "consecutive_read_failures offset");
+
+#ifdef __cplusplus
+} /* extern "C" */
+#endif
+
+#endif /* DVRK_IPC_H */
