@@ -34,7 +34,7 @@
 
 /// Extra values the caller attaches to each sample (for example simulator ground truth). The
 /// runner averages them with the sample and never reads them.
-pub const AUX: usize = 6;
+pub const AUX: usize = 8;
 
 /// One measured sample of joints 1-3 (index 0..3: yaw, pitch, insertion).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -1014,7 +1014,7 @@ mod tests {
                 valid: true,
                 position: self.q,
                 effort,
-                aux: [self.q[0], 0.0, 0.0, 0.0, 0.0, 7.0],
+                aux: [self.q[0], 0.0, 0.0, 0.0, 0.0, 7.0, 0.0, 0.0],
             }
         }
 

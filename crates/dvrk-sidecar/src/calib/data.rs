@@ -402,6 +402,34 @@ mod tests {
     }
 
     #[test]
+    fn divot_round_trip_with_and_without_truth() {
+        let mut row = DivotRow {
+            push_index: 3,
+            joint: 2,
+            direction: -1,
+            t_s: 1.5,
+            position: [0.1, -0.2, 0.12, 0.0, 0.1, -0.1],
+            effort: [0.2, -0.9, 1.0],
+            truth: None,
+        };
+        for truth in [
+            None,
+            Some(DivotTruth {
+                position_rad: [0.1, -0.19],
+                tip_m: [0.01, 0.02, -0.12],
+            }),
+        ] {
+            row.truth = truth;
+            let mut buf = Vec::new();
+            write_divot(&mut buf, &[row, row]).unwrap();
+            let p = tmp("divot.csv", &String::from_utf8(buf).unwrap());
+            assert_eq!(read_divot(&p).unwrap(), vec![row, row]);
+        }
+        let p = tmp("divot-bad.csv", "push_index,joint\n0,1\n");
+        assert!(format!("{:#}", read_divot(&p).unwrap_err()).contains("a divot file has"));
+    }
+
+    #[test]
     fn repeated_depths_of_a_joint_are_kept_apart() {
         let text = "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n1,0,0.1,0,0,0,1\n1,1,0.11,0,0,0,1\n";
         let a = tmp("a.csv", text);
@@ -411,4 +439,152 @@ mod tests {
         let idx: Vec<u32> = rows.iter().map(|r| r.depth_index).collect();
         assert_eq!(idx, vec![0, 1, 2, 3]);
     }
+}
+
+/// Header of the divot-push data file (one averaged step per row). Positions of joints 1-6 are
+/// recorded so that the tip can be computed with the instrument's kinematics.
+pub const DIVOT_HEADER: [&str; 13] = [
+    "push_index",
+    "joint",
+    "direction",
+    "t_s",
+    "position_1_rad",
+    "position_2_rad",
+    "insertion_m",
+    "position_4_rad",
+    "position_5_rad",
+    "position_6_rad",
+    "effort_1_nm",
+    "effort_2_nm",
+    "effort_3_n",
+];
+
+/// Ground-truth columns a simulator adds after [`DIVOT_HEADER`]: the true (shaft-side) angles of
+/// joints 1 and 2 and the true tip position in the RCM frame.
+pub const DIVOT_TRUTH_HEADER: [&str; 5] = [
+    "true_position_1_rad",
+    "true_position_2_rad",
+    "true_tip_x_m",
+    "true_tip_y_m",
+    "true_tip_z_m",
+];
+
+/// Ground truth of one divot row (simulator data only).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DivotTruth {
+    pub position_rad: [f64; 2],
+    pub tip_m: [f64; 3],
+}
+
+/// One row of a divot-push file.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DivotRow {
+    /// 0 = joint 1 pushed +, 1 = joint 1 -, 2 = joint 2 +, 3 = joint 2 -.
+    pub push_index: u32,
+    /// Joint pushed, 1 or 2.
+    pub joint: u8,
+    /// Direction of the step that led here (+1, -1, 0 at the start).
+    pub direction: i8,
+    pub t_s: f64,
+    /// Joints 1-6 (rad, rad, m, rad, rad, rad).
+    pub position: [f64; 6],
+    /// Joints 1-3 (N·m, N·m, N).
+    pub effort: [f64; 3],
+    pub truth: Option<DivotTruth>,
+}
+
+/// Reads a divot-push file (with or without the truth columns).
+pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
+    let mut rdr = reader(path)?;
+    let header = rdr
+        .headers()
+        .with_context(|| format!("{}: reading the header line", path.display()))?
+        .clone();
+    let names: Vec<&str> = header.iter().map(str::trim).collect();
+    let with_truth: Vec<&str> = DIVOT_HEADER
+        .iter()
+        .chain(DIVOT_TRUTH_HEADER.iter())
+        .copied()
+        .collect();
+    let truth = if names == with_truth {
+        true
+    } else if names == DIVOT_HEADER {
+        false
+    } else {
+        bail!(
+            "{}: unknown header `{}`; a divot file has `{}`, optionally followed by `{}`",
+            path.display(),
+            names.join(","),
+            DIVOT_HEADER.join(","),
+            DIVOT_TRUTH_HEADER.join(",")
+        );
+    };
+    let mut rows = Vec::new();
+    for rec in rdr.records() {
+        let rec = rec.with_context(|| format!("reading {}", path.display()))?;
+        let line = rec.position().map_or(0, |p| p.line());
+        let n = |i: usize| number(&rec, i, with_truth[i], path, line);
+        let joint: u8 = integer(&rec, 1, "joint", path, line)?;
+        if joint != 1 && joint != 2 {
+            bail!(
+                "{} line {line}: joint = {joint}; must be 1 or 2",
+                path.display()
+            );
+        }
+        let direction: i8 = integer(&rec, 2, "direction", path, line)?;
+        if !(-1..=1).contains(&direction) {
+            bail!(
+                "{} line {line}: direction = {direction}; must be -1, 0 or 1",
+                path.display()
+            );
+        }
+        rows.push(DivotRow {
+            push_index: integer(&rec, 0, "push_index", path, line)?,
+            joint,
+            direction,
+            t_s: n(3)?,
+            position: [n(4)?, n(5)?, n(6)?, n(7)?, n(8)?, n(9)?],
+            effort: [n(10)?, n(11)?, n(12)?],
+            truth: if truth {
+                Some(DivotTruth {
+                    position_rad: [n(13)?, n(14)?],
+                    tip_m: [n(15)?, n(16)?, n(17)?],
+                })
+            } else {
+                None
+            },
+        });
+    }
+    if rows.is_empty() {
+        bail!("{}: no data rows after the header", path.display());
+    }
+    Ok(rows)
+}
+
+/// Writes divot rows; the truth columns are written when every row has truth.
+pub fn write_divot<W: Write>(out: W, rows: &[DivotRow]) -> anyhow::Result<()> {
+    let truth = !rows.is_empty() && rows.iter().all(|r| r.truth.is_some());
+    let mut w = csv::Writer::from_writer(out);
+    let mut header: Vec<&str> = DIVOT_HEADER.to_vec();
+    if truth {
+        header.extend(DIVOT_TRUTH_HEADER);
+    }
+    w.write_record(&header)?;
+    for r in rows {
+        let mut rec = vec![
+            r.push_index.to_string(),
+            r.joint.to_string(),
+            r.direction.to_string(),
+            format!("{:?}", r.t_s),
+        ];
+        rec.extend(r.position.iter().map(|v| format!("{v:?}")));
+        rec.extend(r.effort.iter().map(|v| format!("{v:?}")));
+        if let (true, Some(t)) = (truth, r.truth) {
+            rec.extend(t.position_rad.iter().map(|v| format!("{v:?}")));
+            rec.extend(t.tip_m.iter().map(|v| format!("{v:?}")));
+        }
+        w.write_record(&rec)?;
+    }
+    w.flush()?;
+    Ok(())
 }

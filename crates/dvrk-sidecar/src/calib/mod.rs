@@ -1,8 +1,12 @@
 //! Calibration and evaluation commands (paper sections 3-4): data files, the `fit` and
 //! `evaluate` commands, figures, and the `calibrate` procedures.
 
+pub mod calibrate;
 pub mod data;
+pub mod evaluate;
 pub mod fit_cmd;
 pub mod plots;
 
+pub use calibrate::{CalibrateArgs, run_calibrate};
+pub use evaluate::{EvaluateArgs, run_evaluate};
 pub use fit_cmd::{FitArgs, run_fit};

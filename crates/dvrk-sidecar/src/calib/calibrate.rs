@@ -1,0 +1,529 @@
+//! `dvrk-sidecar calibrate torque-offset|clamp|divot`: runs a calibration procedure of
+//! dvrk-compliance on the simulated PSM, in process and as fast as the machine allows (simulated
+//! time, not wall time), through the same path as the service: emulated boards -> dvrk-io
+//! `ArmReader` -> SI samples. The procedure's setpoints go to the simulated controller and its
+//! fixture requests (clamp on/off, tip in the divot) become the simulator's environment.
+//!
+//! A progress bar shows (joint, depth) blocks; Ctrl-C stops cleanly and keeps every row collected
+//! so far. An aborted procedure also writes its rows, then exits non-zero with the reason.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, bail};
+use dvrk_compliance::calibration::{
+    AUX, ClampConfig, ClampPlan, DivotConfig, DivotPlan, Fixture, Plan, Record, Runner,
+    RunnerConfig, Sample, Status, SweepConfig, SweepPlan,
+};
+use dvrk_compliance::fit::{self, DataRow, FitOptions};
+use dvrk_io::reader::{AccessMode, ArmReader};
+use dvrk_io::{ArmSample, IoConfig};
+use dvrk_sim::{Environment, Motion, Scenario, sim_port};
+
+use super::data::{self, DivotRow, DivotTruth};
+
+/// Simulator read period: one sample per millisecond, like the dVRK's 1 kHz PID.
+const PERIOD_NS: u64 = 1_000_000;
+
+/// `calibrate <procedure> ...`
+#[derive(Clone, Debug, clap::Args)]
+pub struct CalibrateArgs {
+    #[command(subcommand)]
+    pub procedure: Procedure,
+}
+
+/// The procedures.
+#[derive(Clone, Debug, clap::Subcommand)]
+pub enum Procedure {
+    /// Unloaded sweep of joints 1 and 2 in 5-degree steps at a few depths (tau_0).
+    TorqueOffset(SimArgs),
+    /// Clamp-beam experiment at 14 depths, joints 1 and 2 (stiffness and backlash).
+    Clamp(SimArgs),
+    /// Tip in a divot, each joint pushed both ways (evaluation data).
+    Divot(SimArgs),
+}
+
+/// Options shared by the simulator procedures.
+#[derive(Clone, Debug, clap::Args)]
+pub struct SimArgs {
+    /// Simulator scenario (config/sim/*.toml): seed, time step, start pose, noise, shaft truth.
+    /// Its environment and motion are replaced by the procedure's.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Data file to write (CSV).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Board conversion config used by the emulator and the reader.
+    #[arg(long, default_value = "config/io/psm-classic.toml")]
+    pub io: PathBuf,
+    /// Joints to run (1 = yaw, 2 = pitch).
+    #[arg(long, value_delimiter = ',', default_values_t = [1u8, 2])]
+    pub joints: Vec<u8>,
+    /// Insertion depths (m); the procedure's default when absent.
+    #[arg(long, value_delimiter = ',')]
+    pub depths: Vec<f64>,
+    /// Clamp only: torque-offset sweep file(s); their fitted tau_0 fills the torque_offset_nm
+    /// column. Without it the column is 0 and tau_ext includes tau_0.
+    #[arg(long = "torque-offset")]
+    pub torque_offset: Vec<PathBuf>,
+    /// Effort limit that aborts (N·m).
+    #[arg(long, default_value_t = 1.5)]
+    pub effort_limit_nm: f64,
+    /// Stillness window before averaging (s).
+    #[arg(long, default_value_t = 0.1)]
+    pub settle_s: f64,
+    /// Hide the progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Result of a simulator run.
+pub struct SimRun {
+    pub records: Vec<Record>,
+    pub status: Status,
+    /// Ctrl-C (or the caller's stop flag) ended the run.
+    pub stopped: bool,
+    pub samples: u64,
+}
+
+fn load_scenario(path: &Path) -> anyhow::Result<Scenario> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    Scenario::from_toml_str(&text).with_context(|| format!("loading {}", path.display()))
+}
+
+fn load_io(path: &Path) -> anyhow::Result<IoConfig> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    IoConfig::from_toml_str(&text).with_context(|| format!("loading {}", path.display()))
+}
+
+/// Runs `plan` on the simulated PSM until it is done, aborts, or `stop` is set. `on_progress`
+/// is called every 1000 samples.
+pub fn run_sim<P: Plan>(
+    plan: P,
+    rc: RunnerConfig,
+    scenario: &Scenario,
+    io: IoConfig,
+    stop: &AtomicBool,
+    mut on_progress: impl FnMut(&Runner<P>),
+) -> anyhow::Result<SimRun> {
+    let mut sc = scenario.clone();
+    sc.motion = Motion::Hold;
+    let divot = match sc.environment {
+        e @ Environment::Divot { .. } => e,
+        _ => Environment::Divot {
+            plate_stiffness_n_per_m: 20_000.0,
+            plate_damping_n_s_per_m: 50.0,
+            capture_depth_m: 0.001,
+        },
+    };
+    sc.environment = Environment::Free;
+    let mut port = sim_port(&sc, &io).context("building the simulated PSM")?;
+    port.link_mut().advance_to(0);
+    let mut reader = ArmReader::new(port, io, AccessMode::Exclusive);
+    let mut runner = Runner::new(plan, rc);
+    let mut arm = ArmSample::default();
+    let mut run = SimRun {
+        records: Vec::new(),
+        status: Status::Running,
+        stopped: false,
+        samples: 0,
+    };
+    let mut t_ns = 0u64;
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            run.stopped = true;
+            break;
+        }
+        t_ns += PERIOD_NS;
+        reader.port_mut().link_mut().advance_to(t_ns);
+        // A failed read leaves `arm.valid` false; the runner skips it and its timeouts run on.
+        let _ = reader.read(t_ns, &mut arm);
+        let truth = reader.port_mut().link_mut().emulator().psm().truth();
+        let mut aux = [0.0; AUX];
+        aux[..3].copy_from_slice(&arm.position[3..6]);
+        aux[3..6].copy_from_slice(&truth.tip_position_m);
+        aux[6..8].copy_from_slice(&truth.q_true[..2]);
+        let sample = Sample {
+            t_ns,
+            valid: arm.valid,
+            position: [arm.position[0], arm.position[1], arm.position[2]],
+            effort: [arm.effort[0], arm.effort[1], arm.effort[2]],
+            aux,
+        };
+        let out = runner.update(&sample);
+        run.samples += 1;
+        let psm = reader.port_mut().link_mut().emulator_mut().psm_mut();
+        for (j, &sp) in out.setpoint.iter().enumerate() {
+            psm.set_setpoint(j, sp);
+        }
+        run.records.extend(out.record);
+        run.status = out.status;
+        match out.status {
+            Status::AwaitFixture(f) => {
+                psm.set_environment(match f {
+                    Fixture::Free => Environment::Free,
+                    Fixture::Clamp { .. } => Environment::Clamp,
+                    Fixture::Divot => divot,
+                });
+                runner.fixture_ready();
+            }
+            Status::Done | Status::Aborted(_) => break,
+            Status::Running => {}
+        }
+        if run.samples.is_multiple_of(1000) {
+            on_progress(&runner);
+        }
+    }
+    Ok(run)
+}
+
+/// Runner settings for the simulator: defaults, the simulator's joint limits, and the options.
+fn runner_config(sc: &Scenario, args: &SimArgs) -> RunnerConfig {
+    let p = &sc.physics;
+    let limits: [[f64; 2]; 3] = std::array::from_fn(|j| [p.position_min[j], p.position_max[j]]);
+    RunnerConfig {
+        effort_limit_nm: args.effort_limit_nm,
+        joint_limits: limits,
+        settle_s: args.settle_s,
+        ..RunnerConfig::default()
+    }
+}
+
+/// tau_0(q) by linear interpolation in a fitted table, constant beyond its ends.
+fn lookup(table: &fit::TorqueOffsetFit, q: f64) -> f64 {
+    let (xs, ys) = (&table.position_rad, &table.effort_nm);
+    let i = xs.partition_point(|&x| x <= q);
+    match (i.checked_sub(1), xs.get(i)) {
+        (Some(lo), Some(&x1)) => ys[lo] + (ys[i] - ys[lo]) * (q - xs[lo]) / (x1 - xs[lo]),
+        (Some(_), None) => ys[ys.len() - 1],
+        (None, _) => ys.first().copied().unwrap_or(0.0),
+    }
+}
+
+/// Clamp or sweep records as calibration rows; `offsets` fill the torque-offset column.
+pub fn to_rows(records: &[Record], offsets: &[fit::TorqueOffsetFit]) -> Vec<DataRow> {
+    records
+        .iter()
+        .map(|r| {
+            let j = usize::from(r.joint.clamp(1, 2)) - 1;
+            let q = r.averaged.position[j];
+            DataRow {
+                joint: r.joint,
+                depth_index: r.depth_index,
+                insertion_m: r.averaged.position[2],
+                position_rad: q,
+                effort_nm: r.averaged.effort[j],
+                torque_offset_nm: offsets
+                    .iter()
+                    .find(|t| t.joint == r.joint)
+                    .map_or(0.0, |t| lookup(t, q)),
+                direction: r.direction,
+            }
+        })
+        .collect()
+}
+
+/// Divot records as divot rows, with the simulator's truth.
+pub fn to_divot_rows(records: &[Record]) -> Vec<DivotRow> {
+    records
+        .iter()
+        .map(|r| {
+            let a = &r.averaged;
+            DivotRow {
+                push_index: r.depth_index,
+                joint: r.joint,
+                direction: r.direction,
+                t_s: a.t_ns as f64 * 1e-9,
+                position: [
+                    a.position[0],
+                    a.position[1],
+                    a.position[2],
+                    a.aux[0],
+                    a.aux[1],
+                    a.aux[2],
+                ],
+                effort: a.effort,
+                truth: Some(DivotTruth {
+                    position_rad: [a.aux[6], a.aux[7]],
+                    tip_m: [a.aux[3], a.aux[4], a.aux[5]],
+                }),
+            }
+        })
+        .collect()
+}
+
+fn progress_bar(quiet: bool, what: &str) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(1);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{prefix} [{bar:30}] {pos}/{len} blocks, {msg} ({elapsed})",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_prefix(what.to_owned());
+    bar
+}
+
+/// Runs `calibrate`.
+pub fn run_calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, Arc::clone(&stop)).context("installing Ctrl-C handler")?;
+    }
+    run_procedure(&args.procedure, &stop)
+}
+
+/// Runs one procedure with an external stop flag (the command passes its Ctrl-C flag).
+pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result<()> {
+    let (a, name) = match procedure {
+        Procedure::TorqueOffset(a) => (a, "torque-offset"),
+        Procedure::Clamp(a) => (a, "clamp"),
+        Procedure::Divot(a) => (a, "divot"),
+    };
+    if let Some(j) = a.joints.iter().find(|&&j| j != 1 && j != 2) {
+        bail!("--joints {j}: joints must be 1 (yaw) or 2 (pitch)");
+    }
+    let sc = load_scenario(&a.config)?;
+    let io = load_io(&a.io)?;
+    let rc = runner_config(&sc, a);
+    let bar = progress_bar(a.quiet, name);
+    let tick = |done: u32, total: u32, steps: u32| {
+        bar.set_length(u64::from(total));
+        bar.set_position(u64::from(done));
+        bar.set_message(format!("{steps} steps"));
+    };
+    let run = match procedure {
+        Procedure::TorqueOffset(_) => {
+            let mut cfg = SweepConfig {
+                joints: a.joints.clone(),
+                ..SweepConfig::default()
+            };
+            if !a.depths.is_empty() {
+                cfg.depths_m = a.depths.clone();
+            }
+            run_sim(SweepPlan::new(cfg), rc, &sc, io, stop, |r| {
+                let p = r.progress();
+                tick(p.units_done, p.units_total, p.steps_done)
+            })?
+        }
+        Procedure::Clamp(_) => {
+            let mut cfg = ClampConfig {
+                joints: a.joints.clone(),
+                ..ClampConfig::default()
+            };
+            if !a.depths.is_empty() {
+                cfg.depths_m = a.depths.clone();
+            }
+            run_sim(ClampPlan::new(cfg), rc, &sc, io, stop, |r| {
+                let p = r.progress();
+                tick(p.units_done, p.units_total, p.steps_done)
+            })?
+        }
+        Procedure::Divot(_) => {
+            let cfg = DivotConfig {
+                joints: a.joints.clone(),
+                ..DivotConfig::default()
+            };
+            run_sim(DivotPlan::new(cfg), rc, &sc, io, stop, |r| {
+                let p = r.progress();
+                tick(p.units_done, p.units_total, p.steps_done)
+            })?
+        }
+    };
+    bar.finish_and_clear();
+
+    let mut buf = Vec::new();
+    match procedure {
+        Procedure::Divot(_) => data::write_divot(&mut buf, &to_divot_rows(&run.records))?,
+        Procedure::Clamp(_) => {
+            let mut seen = 0;
+            let sweep = data::read_files(&a.torque_offset, &[], &mut seen)?;
+            let offsets = a
+                .joints
+                .iter()
+                .filter(|j| sweep.iter().any(|r| r.joint == **j))
+                .map(|&j| fit::fit_torque_offset(&sweep, j, &FitOptions::default()))
+                .collect::<Result<Vec<_>, _>>()
+                .context("fitting the torque-offset sweep for the clamp rows")?;
+            if offsets.is_empty() {
+                tracing::warn!(
+                    "no --torque-offset sweep: the torque_offset_nm column is 0, so tau_ext includes tau_0"
+                );
+            }
+            data::write_rows(&mut buf, &to_rows(&run.records, &offsets))?
+        }
+        Procedure::TorqueOffset(_) => data::write_rows(&mut buf, &to_rows(&run.records, &[]))?,
+    }
+    data::write_atomically(&a.out, &buf)?;
+    let simulated_s = run.samples as f64 * PERIOD_NS as f64 * 1e-9;
+    eprintln!(
+        "{name}: {} rows written to {} ({simulated_s:.1} s simulated)",
+        run.records.len(),
+        a.out.display()
+    );
+    match run.status {
+        Status::Aborted(reason) => bail!(
+            "{name} aborted: {reason}; the {} rows collected before are in {}",
+            run.records.len(),
+            a.out.display()
+        ),
+        _ if run.stopped => {
+            eprintln!("{name}: stopped by signal; the data so far is kept");
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::evaluate::evaluate;
+    use super::*;
+    use dvrk_compliance::{ArmKind, ComplianceConfig, PsmKinematics, instrument};
+
+    fn repo_file(rel: &str) -> PathBuf {
+        let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+        manifest
+            .ancestors()
+            .map(|d| d.join(rel))
+            .find(|p| p.is_file())
+            .unwrap_or_else(|| panic!("{rel} not found above {}", manifest.display()))
+    }
+
+    fn args(out: PathBuf, depths: Vec<f64>, sweep: Vec<PathBuf>) -> SimArgs {
+        SimArgs {
+            config: repo_file("config/sim/clamp.toml"),
+            out,
+            io: repo_file("config/io/psm-classic.toml"),
+            joints: vec![2],
+            depths,
+            torque_offset: sweep,
+            effort_limit_nm: 1.5,
+            settle_s: 0.1,
+            quiet: true,
+        }
+    }
+
+    /// Collect -> fit -> evaluate on the simulator, joint 2 at 4 depths (the full 14-depth,
+    /// two-joint run is the `calibrate` command; this keeps the test to seconds).
+    #[test]
+    fn simulator_end_to_end_recovers_the_truth_and_improves_the_tip() {
+        let dir = std::env::temp_dir().join(format!("dvrk-calib-e2e-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let stop = AtomicBool::new(false);
+        let sweep = dir.join("sweep.csv");
+        run_procedure(
+            &Procedure::TorqueOffset(args(sweep.clone(), vec![0.13], vec![])),
+            &stop,
+        )
+        .unwrap();
+        let clamp = dir.join("clamp.csv");
+        let depths = vec![0.09, 0.13, 0.17, 0.22];
+        run_procedure(
+            &Procedure::Clamp(args(clamp.clone(), depths, vec![sweep.clone()])),
+            &stop,
+        )
+        .unwrap();
+
+        let mut seen = 0;
+        let rows = data::read_files(&[clamp], &[], &mut seen).unwrap();
+        let sweep_rows = data::read_files(&[sweep], &[], &mut seen).unwrap();
+        let opts = FitOptions::default();
+        let j = fit::fit_joint(&rows, 2, &opts).unwrap();
+        let sc = load_scenario(&repo_file("config/sim/clamp.toml")).unwrap();
+        let truth = sc.physics.shaft;
+        for i in 0..=26 {
+            let l = 0.09 + 0.005 * f64::from(i);
+            let rel = fit::eval_cubic(&j.inverse_compliance_nm_per_rad, l)
+                / truth.stiffness_nm_per_rad(1, l);
+            assert!((rel - 1.0).abs() < 0.05, "1/K at {l}: {rel}");
+        }
+        let delta = truth.backlash_rad[1];
+        assert!(
+            (j.backlash_rad / delta - 1.0).abs() < 0.2,
+            "backlash {} vs {delta}",
+            j.backlash_rad
+        );
+
+        let t0 = fit::fit_torque_offset(&sweep_rows, 2, &opts).unwrap();
+        let params = dvrk_compliance::ComplianceParams {
+            model: dvrk_compliance::ModelKind::Paper,
+            joint: vec![dvrk_compliance::JointParams {
+                index: 2,
+                backlash_rad: j.backlash_rad,
+                tau_min_nm: 0.2,
+                inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
+                insertion_range_m: j.insertion_range_m,
+                torque_offset: dvrk_compliance::TorqueOffsetParams {
+                    position_rad: t0.position_rad,
+                    effort_nm: t0.effort_nm,
+                },
+            }],
+        };
+        let cfg = ComplianceConfig::from_params(params).unwrap();
+
+        let divot = dir.join("divot.csv");
+        run_procedure(
+            &Procedure::Divot(args(divot.clone(), vec![], vec![])),
+            &stop,
+        )
+        .unwrap();
+        let rows = data::read_divot(&divot).unwrap();
+        let fk = PsmKinematics::new(
+            ArmKind::Classic,
+            instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
+        );
+        let e = evaluate(&cfg, &fk, &rows);
+        let t = e[0].tip_error.unwrap();
+        assert!(
+            t.after_mean_mm <= 0.2 * t.before_mean_mm,
+            "tip error before {} mm, after {} mm",
+            t.before_mean_mm,
+            t.after_mean_mm
+        );
+        assert!(e[0].corrected.std_rad < 0.2 * e[0].uncorrected.std_rad);
+    }
+
+    #[test]
+    fn stop_flag_keeps_the_rows_collected_so_far() {
+        let dir = std::env::temp_dir().join(format!("dvrk-calib-stop-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let sc = load_scenario(&repo_file("config/sim/clamp.toml")).unwrap();
+        let io = load_io(&repo_file("config/io/psm-classic.toml")).unwrap();
+        let stop = AtomicBool::new(false);
+        let plan = DivotPlan::new(DivotConfig::default());
+        let run = run_sim(plan, RunnerConfig::default(), &sc, io, &stop, |r| {
+            if r.progress().steps_done >= 5 {
+                stop.store(true, Ordering::Relaxed);
+            }
+        })
+        .unwrap();
+        assert!(run.stopped);
+        assert_eq!(run.status, Status::Running);
+        assert!(run.records.len() >= 5);
+    }
+
+    #[test]
+    fn effort_limit_abort_writes_the_data_and_fails() {
+        let dir = std::env::temp_dir().join(format!("dvrk-calib-abort-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("divot.csv");
+        let mut a = args(out.clone(), vec![], vec![]);
+        a.effort_limit_nm = 0.6; // below the 1.0 N·m push: must abort
+        let err = format!(
+            "{:#}",
+            run_procedure(&Procedure::Divot(a), &AtomicBool::new(false)).unwrap_err()
+        );
+        assert!(
+            err.contains("aborted") && err.contains("exceeds the limit"),
+            "{err}"
+        );
+        let rows = data::read_divot(&out).unwrap();
+        assert!(rows.len() > 3);
+    }
+}
