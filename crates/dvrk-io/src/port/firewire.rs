@@ -63,7 +63,8 @@ impl FirewirePort {
     /// Opens FireWire port `port` (the `N` of the dVRK's `fw:N`) and scans the bus: every node
     /// below the PC (the root, highest node) is asked for hardware version and status
     /// (registers 4 and 0, quadlet reads only).
-    pub fn open(port: i32) -> Result<Self, PortError> {
+    pub fn open(port: u32) -> Result<Self, PortError> {
+        let port = c_int::try_from(port).map_err(|_| PortError::Unsupported)?;
         // SAFETY: plain FFI call; a null return is handled.
         let raw = unsafe { raw1394_new_handle_on_port(port) };
         let handle =

@@ -23,6 +23,8 @@ pub mod conformance;
 pub use discovery::{BoardInfo, BoardProbe, Discovery, EthMode, FpgaGeneration, reg, scan_boards};
 pub use eth::{EthCounters, EthPort, MAX_READ_BYTES, MAX_WRITE_BYTES, WriteAccess};
 pub use fault::{FaultConfig, FaultCounters, FaultInjector};
+#[cfg(feature = "firewire")]
+pub use firewire::{FirewirePort, FirewireWriteAccess};
 pub use replay::{
     Frame, FramesParseError, RecordingLink, ReplayLink, ReplayPort, frames_from_text,
     frames_to_text,
