@@ -395,3 +395,31 @@ fn writes_exist_only_behind_allow_writes() {
         assert_eq!(b.query_mask, 0xC0);
     });
 }
+
+#[test]
+fn per_board_addressing_of_rev9_ethernet_only_boards() {
+    // 127.0.0.0/8 is all loopback on Linux: board n answers at 127.0.0.(100+n), as Rev 9 boards
+    // do at 169.254.0.(100+n) (reference 3.1).
+    let mut only6 = Boards::psm(9);
+    only6.boards.retain(|b| b.id == 6);
+    let r6 = Responder::spawn_at(only6, "127.0.0.106:0".parse().unwrap()).unwrap();
+    let port = r6.addr.port();
+    let mut only7 = Boards::psm(9);
+    only7.boards.retain(|b| b.id == 7);
+    let Ok(r7) = Responder::spawn_at(only7, format!("127.0.0.107:{port}").parse().unwrap()) else {
+        return; // that port is taken on 127.0.0.107; nothing to test with
+    };
+    let target = dvrk_io::port::UdpTarget::PerBoard {
+        base: Ipv4Addr::new(127, 0, 0, 100),
+        port,
+        broadcast: Ipv4Addr::new(127, 255, 255, 255),
+    };
+    let mut p = UdpPort::new(UdpLink::new(target).unwrap());
+    p.link_mut()
+        .set_timeout(Duration::from_millis(200))
+        .unwrap();
+    assert_eq!(p.read_quadlet(6, 0).unwrap() >> 24 & 0xF, 6);
+    assert_eq!(p.read_quadlet(7, 0).unwrap() >> 24 & 0xF, 7);
+    r6.with(|b| assert_eq!(b.log.len(), 1));
+    r7.with(|b| assert_eq!(b.log.len(), 1));
+}

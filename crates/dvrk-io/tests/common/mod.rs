@@ -408,7 +408,10 @@ pub struct Responder {
 
 impl Responder {
     pub fn spawn(boards: Boards) -> Self {
-        let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
+        Self::spawn_at(boards, "127.0.0.1:0".parse().unwrap()).unwrap()
+    }
+    pub fn spawn_at(boards: Boards, at: SocketAddr) -> std::io::Result<Self> {
+        let sock = UdpSocket::bind(at)?;
         sock.set_read_timeout(Some(Duration::from_millis(5)))
             .unwrap();
         let addr = sock.local_addr().unwrap();
@@ -427,12 +430,12 @@ impl Responder {
                 }
             }
         });
-        Self {
+        Ok(Self {
             addr,
             state,
             stop,
             handle: Some(handle),
-        }
+        })
     }
     pub fn set_fault(&self, f: Fault) {
         self.state.lock().unwrap().fault = f;
