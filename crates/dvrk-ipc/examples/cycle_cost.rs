@@ -77,7 +77,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     // Remove this run's shared-memory files and discovery entries.
-    for dir in ["/dev/shm", "/tmp/iox2t", "/tmp/iox2t/services", "/tmp/iox2t/nodes"] {
+    for dir in [
+        "/dev/shm",
+        "/tmp/iox2t",
+        "/tmp/iox2t/services",
+        "/tmp/iox2t/nodes",
+    ] {
         if let Ok(entries) = std::fs::read_dir(dir) {
             for e in entries.flatten() {
                 let path = e.path();

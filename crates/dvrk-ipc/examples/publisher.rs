@@ -88,11 +88,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     while publisher.number_of_subscribers(Topic::CompensatedMeasuredCp) < args.wait_subscribers {
         std::thread::sleep(Duration::from_millis(1));
     }
-    eprintln!(
-        "publishing under {} at {} Hz",
-        names.prefix(),
-        args.rate_hz
-    );
+    eprintln!("publishing under {} at {} Hz", names.prefix(), args.rate_hz);
     let period = Duration::from_secs_f64(1.0 / args.rate_hz);
     let period_ns = period.as_nanos() as u64;
     let mut seq = 0u64;
@@ -134,10 +130,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             velocity: [0.0; 7],
             effort: [0.05, -0.08, 0.5, 0.0, 0.0, 0.0, 0.0],
         };
-        let cjs = JointStateV1 {
-            position: qc,
-            ..js
-        };
+        let cjs = JointStateV1 { position: qc, ..js };
         // A crude "tip": insertion along a direction set by yaw and pitch (not PSM kinematics).
         let tip = |q: &[f64; 7]| -> PoseV1 {
             let (rotation, orientation_xyzw) = rot_z(q[3]);
