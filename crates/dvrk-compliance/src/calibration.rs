@@ -975,6 +975,166 @@ impl Plan for DivotPlan {
     }
 }
 
+/// Settings of [`Recorder`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RecorderConfig {
+    /// Joint under test, 1 or 2: its position and effort make the rows.
+    pub joint: u8,
+    /// Samples averaged per row. Default 20.
+    pub samples_per_step: u32,
+    /// Stillness window (s). Default 0.3.
+    pub settle_s: f64,
+    /// Still: every joint 1-3 stayed within this of the window's first sample. Default 2e-4.
+    pub still_tolerance: f64,
+    /// A new row needs the joint under test this far from the last row (rad). Default 5e-4.
+    pub min_step_rad: f64,
+    /// An insertion change beyond this starts a new depth (m). Default 0.002.
+    pub depth_tolerance_m: f64,
+}
+
+impl Default for RecorderConfig {
+    fn default() -> Self {
+        Self {
+            joint: 1,
+            samples_per_step: 20,
+            settle_s: 0.3,
+            still_tolerance: 2e-4,
+            min_step_rad: 5e-4,
+            depth_tolerance_m: 0.002,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum RecPhase {
+    Watch {
+        t_ref: u64,
+        q_ref: [f64; 3],
+        moved: f64,
+    },
+    Average {
+        q_ref: [f64; 3],
+    },
+}
+
+/// Records calibration rows from a robot that something else moves (the dVRK's own tools):
+/// whenever the arm has been still for `settle_s`, `samples_per_step` samples are averaged into a
+/// row, if the joint under test has moved at least `min_step_rad` since the last row. The row's
+/// direction is the sign of that move (0 for the first row of a depth); a change of insertion
+/// starts a new depth. Rows are the same as the clamp and sweep procedures produce, so the same
+/// fitting applies. Allocates nothing.
+#[derive(Clone, Debug)]
+pub struct Recorder {
+    cfg: RecorderConfig,
+    phase: Option<RecPhase>,
+    acc: Averaged,
+    last_row: Option<(f64, f64)>,
+    depth_index: u32,
+}
+
+impl Recorder {
+    pub fn new(cfg: RecorderConfig) -> Self {
+        Self {
+            cfg,
+            phase: None,
+            acc: Averaged::default(),
+            last_row: None,
+            depth_index: 0,
+        }
+    }
+
+    fn watch(s: &Sample) -> RecPhase {
+        RecPhase::Watch {
+            t_ref: s.t_ns,
+            q_ref: s.position,
+            moved: 0.0,
+        }
+    }
+
+    /// Feeds the latest sample; returns a row when one was completed.
+    pub fn update(&mut self, s: &Sample) -> Option<Record> {
+        if !s.valid {
+            // a gap in the data restarts the stillness window
+            self.phase = None;
+            return None;
+        }
+        let j = usize::from(self.cfg.joint.clamp(1, 2)) - 1;
+        let excursion = |q_ref: &[f64; 3]| {
+            (0..3)
+                .map(|k| (s.position[k] - q_ref[k]).abs())
+                .fold(0.0, f64::max)
+        };
+        match self.phase {
+            None => self.phase = Some(Self::watch(s)),
+            Some(RecPhase::Watch {
+                t_ref,
+                q_ref,
+                moved,
+            }) => {
+                let moved = moved.max(excursion(&q_ref));
+                if moved > self.cfg.still_tolerance {
+                    self.phase = Some(Self::watch(s));
+                } else if s.t_ns.saturating_sub(t_ref) as f64 * 1e-9 >= self.cfg.settle_s {
+                    self.acc = Averaged::default();
+                    self.phase = Some(RecPhase::Average { q_ref });
+                } else {
+                    self.phase = Some(RecPhase::Watch {
+                        t_ref,
+                        q_ref,
+                        moved,
+                    });
+                }
+            }
+            Some(RecPhase::Average { q_ref }) => {
+                if excursion(&q_ref) > self.cfg.still_tolerance {
+                    self.phase = Some(Self::watch(s));
+                    return None;
+                }
+                let a = &mut self.acc;
+                for k in 0..3 {
+                    a.position[k] += s.position[k];
+                    a.effort[k] += s.effort[k];
+                }
+                for k in 0..AUX {
+                    a.aux[k] += s.aux[k];
+                }
+                a.samples += 1;
+                a.t_ns = s.t_ns;
+                if a.samples < self.cfg.samples_per_step.max(1) {
+                    return None;
+                }
+                let n = f64::from(a.samples);
+                a.position.iter_mut().for_each(|v| *v /= n);
+                a.effort.iter_mut().for_each(|v| *v /= n);
+                a.aux.iter_mut().for_each(|v| *v /= n);
+                a.setpoint = a.position;
+                let avg = *a;
+                self.phase = Some(Self::watch(s));
+                let (q, l) = (avg.position[j], avg.position[2]);
+                let direction = match self.last_row {
+                    None => 0,
+                    Some((_, l_last)) if (l - l_last).abs() > self.cfg.depth_tolerance_m => {
+                        self.depth_index += 1;
+                        0
+                    }
+                    Some((q_last, _)) if (q - q_last).abs() >= self.cfg.min_step_rad => {
+                        if q > q_last { 1 } else { -1 }
+                    }
+                    Some(_) => return None,
+                };
+                self.last_row = Some((q, l));
+                return Some(Record {
+                    joint: self.cfg.joint,
+                    depth_index: self.depth_index,
+                    direction,
+                    averaged: avg,
+                });
+            }
+        }
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1391,5 +1551,72 @@ mod tests {
             assert_eq!(last.direction, -dir);
             assert!((last.averaged.setpoint[joint - 1] - HOME[joint - 1]).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn recorder_makes_one_row_per_still_step() {
+        let mut rec = Recorder::new(RecorderConfig::default());
+        let mut plant = Plant::new(HOME);
+        plant.anchor = Some([HOME[0], HOME[1]]);
+        let mut rows = Vec::new();
+        // someone else steps joint 1: -3 steps, +5 steps, then a new depth, each held 0.6 s
+        let mut sp = HOME;
+        let mut moves: Vec<[f64; 3]> = vec![HOME];
+        for d in [-1.0, -1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0] {
+            sp[0] += d * 0.0025;
+            moves.push(sp);
+        }
+        sp[2] += 0.01;
+        moves.push(sp);
+        for target in moves {
+            for _ in 0..600 {
+                rows.extend(rec.update(&plant.sample()));
+                plant.step(target);
+            }
+        }
+        let dirs: Vec<(u32, i8)> = rows.iter().map(|r| (r.depth_index, r.direction)).collect();
+        // the first row (at HOME, still) has no direction
+        assert_eq!(
+            dirs,
+            vec![
+                (0, 0),
+                (0, -1),
+                (0, -1),
+                (0, -1),
+                (0, 1),
+                (0, 1),
+                (0, 1),
+                (0, 1),
+                (0, 1),
+                (1, 0)
+            ]
+        );
+        assert!((rows[1].averaged.position[0] - (HOME[0] - 0.0025)).abs() < 2e-4);
+        assert_eq!(rows[1].averaged.samples, 20);
+    }
+
+    #[test]
+    fn recorder_skips_moving_and_invalid_data() {
+        let mut rec = Recorder::new(RecorderConfig::default());
+        let mut plant = Plant::new(HOME);
+        let mut n = 0;
+        // a joint that never stops moving gives no rows
+        for i in 0..5000 {
+            plant.step([
+                HOME[0] + 0.1 * (f64::from(i) * 0.01).sin(),
+                HOME[1],
+                HOME[2],
+            ]);
+            n += usize::from(rec.update(&plant.sample()).is_some());
+        }
+        assert_eq!(n, 0);
+        // every other sample invalid: the window keeps restarting, no row either
+        let mut s = plant.sample();
+        for i in 0..5000u64 {
+            s.t_ns += 1_000_000;
+            s.valid = i % 2 == 0;
+            n += usize::from(rec.update(&s).is_some());
+        }
+        assert_eq!(n, 0);
     }
 }

@@ -6,6 +6,11 @@
 //!
 //! A progress bar shows (joint, depth) blocks; Ctrl-C stops cleanly and keeps every row collected
 //! so far. An aborted procedure also writes its rows, then exits non-zero with the reason.
+//!
+//! `calibrate record` is for real robots, where the dVRK console owns the boards and its own tools
+//! move the arm: it subscribes to the running service's `<prefix>/measured_js` and turns every
+//! still period into an averaged row ([`dvrk_compliance::calibration::Recorder`]), in the same
+//! file layout, so `fit` applies unchanged.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -42,6 +47,32 @@ pub enum Procedure {
     Clamp(SimArgs),
     /// Tip in a divot, each joint pushed both ways (evaluation data).
     Divot(SimArgs),
+    /// Real robot: record averaged rows from the running sidecar's measured_js while the dVRK's
+    /// own tools move the arm (one row per still step), for the same fitting.
+    Record(RecordArgs),
+}
+
+/// Options of `calibrate record`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct RecordArgs {
+    /// The running service's configuration (its `prefix` names the topics to record).
+    #[arg(long, default_value = "config/sidecar.toml")]
+    pub config: PathBuf,
+    /// Data file to write (CSV), rewritten after every new row.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Joint under test (1 = yaw, 2 = pitch).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub joint: u8,
+    /// Torque-offset sweep file(s) whose fitted tau_0 fills the torque_offset_nm column.
+    #[arg(long = "torque-offset")]
+    pub torque_offset: Vec<PathBuf>,
+    /// Stillness window before a row is averaged (s).
+    #[arg(long, default_value_t = 0.3)]
+    pub settle_s: f64,
+    /// Stop after this many rows (default: until Ctrl-C).
+    #[arg(long)]
+    pub rows: Option<usize>,
 }
 
 /// Options shared by the simulator procedures.
@@ -278,12 +309,136 @@ pub fn run_calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     run_procedure(&args.procedure, &stop)
 }
 
+/// The `prefix` of a sidecar configuration file (default `dvrk/PSM1` when absent).
+fn config_prefix(path: &Path) -> anyhow::Result<String> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let table: toml::Table = text
+        .parse()
+        .with_context(|| format!("parsing {}", path.display()))?;
+    match table.get("prefix") {
+        None => Ok(dvrk_ipc::DEFAULT_PREFIX.to_owned()),
+        Some(toml::Value::String(p)) => Ok(p.clone()),
+        Some(other) => bail!(
+            "{}: prefix = {other}; expected a string such as \"dvrk/PSM1\"",
+            path.display()
+        ),
+    }
+}
+
+fn sweep_offsets(paths: &[PathBuf], joints: &[u8]) -> anyhow::Result<Vec<fit::TorqueOffsetFit>> {
+    let mut seen = 0;
+    let sweep = data::read_files(paths, &[], &mut seen)?;
+    let offsets = joints
+        .iter()
+        .filter(|j| sweep.iter().any(|r| r.joint == **j))
+        .map(|&j| fit::fit_torque_offset(&sweep, j, &FitOptions::default()))
+        .collect::<Result<Vec<_>, _>>()
+        .context("fitting the torque-offset sweep")?;
+    if offsets.is_empty() {
+        tracing::warn!(
+            "no --torque-offset sweep: the torque_offset_nm column is 0, so tau_ext includes tau_0"
+        );
+    }
+    Ok(offsets)
+}
+
+/// `calibrate record`: subscribes to `<prefix>/measured_js` of the running service and turns
+/// still periods into rows ([`dvrk_compliance::calibration::Recorder`]).
+pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
+    use dvrk_compliance::calibration::{Recorder, RecorderConfig};
+    use dvrk_ipc::iceoryx2::service::ipc::Service;
+    use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic, Update};
+
+    let prefix = config_prefix(&a.config)?;
+    let offsets = sweep_offsets(&a.torque_offset, &[a.joint])?;
+    let names = ServiceNames::new(&prefix).with_context(|| format!("prefix {prefix}"))?;
+    let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
+        .context("creating the iceoryx2 node")?;
+    let mut sub = Subscription::<JointStateV1, Service>::new(
+        &node,
+        &names,
+        Topic::MeasuredJs,
+        NOMINAL_PERIOD,
+    )
+    .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
+    let mut rec = Recorder::new(RecorderConfig {
+        joint: a.joint,
+        settle_s: a.settle_s,
+        ..RecorderConfig::default()
+    });
+    let mut records: Vec<Record> = Vec::new();
+    let limit = a.rows.unwrap_or(usize::MAX);
+    let mut waiting_reported = false;
+    eprintln!(
+        "recording joint {} from {prefix}/measured_js; move the arm with the dVRK tools, Ctrl-C to stop",
+        a.joint
+    );
+    while !stop.load(Ordering::Relaxed) && records.len() < limit {
+        let before = records.len();
+        let update = sub
+            .wait_with(|msg| {
+                let s = Sample {
+                    t_ns: msg.header.sample_t_ns,
+                    valid: msg.header.valid != 0,
+                    position: [msg.position[0], msg.position[1], msg.position[2]],
+                    effort: [msg.effort[0], msg.effort[1], msg.effort[2]],
+                    aux: [0.0; AUX],
+                };
+                records.extend(rec.update(&s));
+            })
+            .context("waiting for samples")?;
+        match update {
+            Update::Fresh(_) => waiting_reported = false,
+            Update::Stale { .. } | Update::Terminated => {
+                if !waiting_reported {
+                    eprintln!("waiting for a publisher on {prefix}/measured_js ...");
+                    waiting_reported = true;
+                }
+            }
+            Update::Interrupted => {}
+        }
+        if records.len() > before {
+            let mut buf = Vec::new();
+            data::write_rows(&mut buf, &to_rows(&records, &offsets))?;
+            data::write_atomically(&a.out, &buf)?;
+            let r = records[records.len() - 1];
+            eprintln!(
+                "row {}: depth {} direction {:+} q {:.5} rad effort {:.3} N·m",
+                records.len(),
+                r.depth_index,
+                r.direction,
+                r.averaged.position[usize::from(a.joint) - 1],
+                r.averaged.effort[usize::from(a.joint) - 1]
+            );
+        }
+    }
+    eprintln!("{} rows in {}", records.len(), a.out.display());
+    Ok(())
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum SimKind {
+    Sweep,
+    Clamp,
+    Divot,
+}
+
 /// Runs one procedure with an external stop flag (the command passes its Ctrl-C flag).
 pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result<()> {
-    let (a, name) = match procedure {
-        Procedure::TorqueOffset(a) => (a, "torque-offset"),
-        Procedure::Clamp(a) => (a, "clamp"),
-        Procedure::Divot(a) => (a, "divot"),
+    match procedure {
+        Procedure::TorqueOffset(a) => run_sim_procedure(SimKind::Sweep, a, stop),
+        Procedure::Clamp(a) => run_sim_procedure(SimKind::Clamp, a, stop),
+        Procedure::Divot(a) => run_sim_procedure(SimKind::Divot, a, stop),
+        Procedure::Record(r) => run_record(r, stop),
+    }
+}
+
+fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::Result<()> {
+    let name = match kind {
+        SimKind::Sweep => "torque-offset",
+        SimKind::Clamp => "clamp",
+        SimKind::Divot => "divot",
     };
     if let Some(j) = a.joints.iter().find(|&&j| j != 1 && j != 2) {
         bail!("--joints {j}: joints must be 1 (yaw) or 2 (pitch)");
@@ -297,8 +452,8 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
         bar.set_position(u64::from(done));
         bar.set_message(format!("{steps} steps"));
     };
-    let run = match procedure {
-        Procedure::TorqueOffset(_) => {
+    let run = match kind {
+        SimKind::Sweep => {
             let mut cfg = SweepConfig {
                 joints: a.joints.clone(),
                 ..SweepConfig::default()
@@ -311,7 +466,7 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
                 tick(p.units_done, p.units_total, p.steps_done)
             })?
         }
-        Procedure::Clamp(_) => {
+        SimKind::Clamp => {
             let mut cfg = ClampConfig {
                 joints: a.joints.clone(),
                 ..ClampConfig::default()
@@ -324,7 +479,7 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
                 tick(p.units_done, p.units_total, p.steps_done)
             })?
         }
-        Procedure::Divot(_) => {
+        SimKind::Divot => {
             let cfg = DivotConfig {
                 joints: a.joints.clone(),
                 ..DivotConfig::default()
@@ -338,26 +493,13 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
     bar.finish_and_clear();
 
     let mut buf = Vec::new();
-    match procedure {
-        Procedure::Divot(_) => data::write_divot(&mut buf, &to_divot_rows(&run.records))?,
-        Procedure::Clamp(_) => {
-            let mut seen = 0;
-            let sweep = data::read_files(&a.torque_offset, &[], &mut seen)?;
-            let offsets = a
-                .joints
-                .iter()
-                .filter(|j| sweep.iter().any(|r| r.joint == **j))
-                .map(|&j| fit::fit_torque_offset(&sweep, j, &FitOptions::default()))
-                .collect::<Result<Vec<_>, _>>()
-                .context("fitting the torque-offset sweep for the clamp rows")?;
-            if offsets.is_empty() {
-                tracing::warn!(
-                    "no --torque-offset sweep: the torque_offset_nm column is 0, so tau_ext includes tau_0"
-                );
-            }
+    match kind {
+        SimKind::Divot => data::write_divot(&mut buf, &to_divot_rows(&run.records))?,
+        SimKind::Clamp => {
+            let offsets = sweep_offsets(&a.torque_offset, &a.joints)?;
             data::write_rows(&mut buf, &to_rows(&run.records, &offsets))?
         }
-        Procedure::TorqueOffset(_) => data::write_rows(&mut buf, &to_rows(&run.records, &[]))?,
+        SimKind::Sweep => data::write_rows(&mut buf, &to_rows(&run.records, &[]))?,
     }
     data::write_atomically(&a.out, &buf)?;
     let simulated_s = run.samples as f64 * PERIOD_NS as f64 * 1e-9;
