@@ -506,3 +506,30 @@ fn killed_publisher_process_is_reported_terminated_and_can_be_replaced() {
     publish(&publisher, 1);
     assert_eq!(expect_fresh(sub.wait().unwrap()).header.seq, 1);
 }
+
+#[test]
+fn in_process_local_service_variant_works() {
+    use dvrk_ipc::iceoryx2::service::local;
+    // local::Service keeps everything in this process (benchmarks of the whole cycle use it).
+    let d = Domain::new("local");
+    let node = create_node::<local::Service>("local", Some(&d.config)).unwrap();
+    let service = dvrk_ipc::open_topic::<PoseV1, local::Service>(
+        &node,
+        &d.names,
+        Topic::CompensatedMeasuredCp,
+    )
+    .unwrap();
+    let subscriber = service.subscriber_builder().create().unwrap();
+    let mut sub = Subscription::<PoseV1, local::Service>::new(
+        &node,
+        &d.names,
+        Topic::CompensatedMeasuredCp,
+        PERIOD,
+    )
+    .unwrap();
+    let publisher = ArmPublisher::<local::Service>::create(&node, &d.names).unwrap();
+    let (js, cp, cjs, ccp, st) = cycle(4);
+    publisher.publish_cycle(&js, &cp, &cjs, &ccp, &st).unwrap();
+    assert_eq!(*subscriber.receive().unwrap().expect("a sample"), ccp);
+    assert_eq!(expect_fresh(sub.wait().unwrap()), ccp);
+}
