@@ -262,8 +262,8 @@ pub fn report(outcome: &FitOutcome) -> String {
     s
 }
 
-/// Runs `fit`: computes everything first, then writes the parameter file atomically, then the
-/// figures, then prints.
+/// Runs `fit`: computes everything first, then draws the figures, then writes the parameter file
+/// atomically, then prints.
 pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
     let outcome = compute(args)?;
     let mut text = String::new();
@@ -281,10 +281,12 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
         ));
     }
     text.push_str(&params_to_toml(&outcome.params));
-    data::write_atomically(&args.out, text.as_bytes())?;
+    // Figures first: a figure that cannot be drawn (no font) fails the command before any
+    // parameter file is written.
     if let Some(dir) = &args.plots {
         super::plots::fit_figures(dir, &args.font, &outcome)?;
     }
+    data::write_atomically(&args.out, text.as_bytes())?;
     if args.json {
         println!("{}", to_json(&outcome.joints)?);
     } else {
@@ -448,6 +450,24 @@ mod tests {
             run_fit(&args(vec![clamp], vec![], vec![1], out.clone())).unwrap_err()
         );
         assert!(err.contains("distinct insertion depths"), "{err}");
+        assert!(!out.exists());
+    }
+
+    #[test]
+    fn missing_font_fails_before_writing_the_parameters() {
+        let dir = tmpdir("nofont");
+        let out = dir.join("params.toml");
+        let _ = std::fs::remove_file(&out);
+        let mut a = args(
+            vec![shared_data("dvrk2017-clamp-joint1.csv")],
+            vec![],
+            vec![1],
+            out.clone(),
+        );
+        a.plots = Some(dir.join("plots"));
+        a.font = PathBuf::from("/nonexistent/DejaVuSans.ttf");
+        let err = format!("{:#}", run_fit(&a).unwrap_err());
+        assert!(err.contains("/nonexistent/DejaVuSans.ttf"), "{err}");
         assert!(!out.exists());
     }
 

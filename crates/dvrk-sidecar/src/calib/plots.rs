@@ -29,10 +29,20 @@ fn load_font(path: &Path) -> anyhow::Result<&'static [u8]> {
     Ok(Box::leak(bytes.into_boxed_slice()))
 }
 
-/// Registers the font for figure text once per process; later calls keep the first font.
-/// Failures are not remembered, so a later call with a good path still works.
+/// Registers the font for figure text once per process; later calls keep the first font (but
+/// still fail for a path that cannot be read). Failures are not remembered, so a later call with
+/// a good path still works.
 pub fn register_font(path: &Path) -> anyhow::Result<()> {
-    if FONT.get().is_some() {
+    if let Some(registered) = FONT.get() {
+        // Still report a bad path, so `--font` errors do not depend on what ran before.
+        if registered != path {
+            std::fs::metadata(path).map_err(|e| {
+                anyhow!(
+                    "cannot read the figure font {}: {e} (install it with `apt-get install -y fonts-dejavu-core`, or pass --font with a TTF file)",
+                    path.display()
+                )
+            })?;
+        }
         return Ok(());
     }
     let bytes = load_font(path)?;
