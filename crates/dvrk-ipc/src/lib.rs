@@ -62,7 +62,10 @@ pub use services::{
     ArmServices, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, create_node, domain_config,
     open_cycle_event, open_topic, qos,
 };
-pub use subscription::{DEADLINE_PERIODS, NOMINAL_PERIOD, Subscription, SubscriptionStats, Update};
+pub use subscription::{
+    DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, NOMINAL_PERIOD, Subscription,
+    SubscriptionStats, Update,
+};
 
 /// The iceoryx2 crate this contract is built on (same version in every process).
 pub use iceoryx2;

@@ -23,6 +23,10 @@ use crate::services::{open_cycle_event, open_topic};
 /// Periods without a cycle event after which [`Subscription::wait`] reports staleness.
 pub const DEADLINE_PERIODS: u32 = 3;
 
+/// Least time between two attempts to reap a dead publisher while stale (each attempt lists the
+/// service's nodes on the file system).
+pub const DEAD_PUBLISHER_CHECK_INTERVAL: Duration = Duration::from_millis(200);
+
 /// Nominal publishing period of the sidecar (1500 Hz, like the dVRK console).
 pub const NOMINAL_PERIOD: Duration = Duration::from_nanos(666_667);
 
@@ -37,8 +41,10 @@ pub enum Update<T> {
     /// `since_ns` is the time since the last fresh sample, or since the subscription was created
     /// if none arrived yet.
     Stale { since_ns: u64 },
-    /// The publisher that was connected is gone (stopped, or died and was cleaned up). A new
-    /// publisher on the same prefix is picked up by later calls.
+    /// The publisher that was connected is gone: stopped (reported at the next deadline), or
+    /// died (reported once its node is reaped, checked at most every
+    /// [`DEAD_PUBLISHER_CHECK_INTERVAL`] while stale). A new publisher on the same prefix is
+    /// picked up by later calls.
     Terminated,
     /// The wait was interrupted by a signal (iceoryx2 signal handling is disabled: the
     /// application's own handler ran). Check the application's stop flag and call again.
@@ -82,6 +88,7 @@ pub struct Subscription<T: Message, S: Service = iceoryx2::service::ipc::Service
     last_seq: Option<u64>,
     latest: Option<T>,
     publisher_seen: bool,
+    last_dead_check: Option<Instant>,
     stats: SubscriptionStats,
 }
 
@@ -132,6 +139,7 @@ where
             last_seq: None,
             latest: None,
             publisher_seen,
+            last_dead_check: None,
             stats: SubscriptionStats::default(),
         })
     }
@@ -270,7 +278,13 @@ where
 
     fn stale_or_terminated(&mut self) -> Update<T> {
         // A publisher whose process died still counts until its node is cleaned up.
-        self.service.try_cleanup_dead_nodes();
+        let due = self
+            .last_dead_check
+            .is_none_or(|t| t.elapsed() >= DEAD_PUBLISHER_CHECK_INTERVAL);
+        if due {
+            self.last_dead_check = Some(Instant::now());
+            self.service.try_cleanup_dead_nodes();
+        }
         if self.service.dynamic_config().number_of_publishers() > 0 {
             self.publisher_seen = true;
         } else if self.publisher_seen {
