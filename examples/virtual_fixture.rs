@@ -108,7 +108,7 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     let mut seen = 0u64;
     let mut inside_margin = false;
     while args.count.is_none_or(|n| seen < n) {
-        match tip.next()? {
+        match tip.wait()? {
             Update::Fresh(p) if p.header.valid == 1 => {
                 seen += 1;
                 let d = signed_distance(args, &p.position_m);

@@ -102,7 +102,7 @@ fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV1, JointStateV1, Pos
     let start = std::time::Instant::now();
     while start.elapsed() < LIVENESS {
         if let Update::Fresh(_) = raw
-            .next_with(|m| {
+            .wait_with(|m| {
                 a.insert(m.header.seq, *m);
             })
             .unwrap()

@@ -74,7 +74,7 @@ fn sub_shm(prefix: &str, seconds: f64) -> Res<()> {
     let mut lat = Vec::with_capacity((seconds * 2000.0) as usize);
     let mut start = None;
     loop {
-        let update = sub.next_with(|m| {
+        let update = sub.wait_with(|m| {
             let now = rt::monotonic_ns();
             start.get_or_insert(now);
             lat.push(now.saturating_sub(m.header.sample_t_ns));

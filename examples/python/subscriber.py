@@ -36,7 +36,7 @@ JOINT_NAMES = ("yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw", 
 # QoS: the same values as dvrk_ipc::qos (Rust) and DVRK_IPC_QOS_* (C).
 QOS_MAX_PUBLISHERS = 1
 QOS_MAX_SUBSCRIBERS = 32
-QOS_SUBSCRIBER_MAX_BUFFER_SIZE = 16
+QOS_SUBSCRIBER_MAX_BUFFER_SIZE = 256
 QOS_SUBSCRIBER_MAX_BORROWED_SAMPLES = 2
 QOS_HISTORY_SIZE = 1
 QOS_ENABLE_SAFE_OVERFLOW = True

@@ -21,9 +21,11 @@ pub mod qos {
     pub const MAX_PUBLISHERS: usize = 1;
     /// Subscribers per service (the latency benchmark runs 16; tools like `echo` come on top).
     pub const MAX_SUBSCRIBERS: usize = 32;
-    /// Samples buffered per subscriber; with safe overflow the oldest is overwritten. 16 cycles
-    /// at 1.5 kHz is 10.7 ms, longer than the scheduling stalls measured on the target VMs.
-    pub const SUBSCRIBER_MAX_BUFFER_SIZE: usize = 16;
+    /// Samples buffered per subscriber; with safe overflow the oldest is overwritten. 256 cycles
+    /// at 1.5 kHz is 170 ms: a consumer descheduled that long on a loaded 2-core PC still gets
+    /// every cycle (16 lost cycles in the end-to-end tests whenever a process stalled > 10 ms).
+    /// Cost: 32 subscribers x 256 x 208 B = 1.7 MB of shared memory per service.
+    pub const SUBSCRIBER_MAX_BUFFER_SIZE: usize = 256;
     /// Samples a subscriber may hold at once.
     pub const SUBSCRIBER_MAX_BORROWED_SAMPLES: usize = 2;
     /// A late subscriber gets the newest sample, delivered at the publisher's next send.

@@ -204,17 +204,6 @@ where
         }
     }
 
-    /// Same as [`Subscription::wait`] (the name some call sites use).
-    #[allow(clippy::should_implement_trait)] // blocking and fallible: not an Iterator
-    pub fn next(&mut self) -> Result<Update<T>, SubscriptionError> {
-        self.wait_with(|_| {})
-    }
-
-    /// Same as [`Subscription::wait_with`].
-    pub fn next_with<F: FnMut(&T)>(&mut self, each: F) -> Result<Update<T>, SubscriptionError> {
-        self.wait_with(each)
-    }
-
     /// Drains the buffer without waiting and returns the newest sample, if any arrived since the
     /// last call. Does not consume cycle events.
     pub fn try_latest(&mut self) -> Result<Option<T>, SubscriptionError> {

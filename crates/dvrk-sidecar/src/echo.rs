@@ -75,7 +75,7 @@ fn echo<T: Message>(
         // Every drained sample is printed, oldest first, so no seq is skipped when this
         // process wakes up late.
         let update = sub
-            .next_with(|msg| {
+            .wait_with(|msg| {
                 if printed < limit {
                     if args.json {
                         println!("{}", to_json(msg));
