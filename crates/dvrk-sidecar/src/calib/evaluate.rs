@@ -244,14 +244,15 @@ pub fn run_evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.plots {
         divot_figures(dir, &args.font, &cfg, &rows)?;
     }
+    use std::fmt::Write as _;
+    let mut text = String::new();
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string(&JsonEvaluation { joints: &result })?
-        );
+        text = serde_json::to_string(&JsonEvaluation { joints: &result })?;
+        text.push('\n');
     } else {
         for e in &result {
-            println!(
+            let _ = writeln!(
+                text,
                 "joint {} ({} rows): uncorrected range {:.3} mrad, std {:.3} mrad; corrected range {:.3} mrad, std {:.3} mrad",
                 e.index,
                 e.rows,
@@ -261,13 +262,17 @@ pub fn run_evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
                 e.corrected.std_rad * 1e3
             );
             if let Some(t) = e.tip_error {
-                println!(
+                let _ = writeln!(
+                    text,
                     "  tip error vs truth: before mean {:.3} mm (max {:.3}), after mean {:.3} mm (max {:.3})",
                     t.before_mean_mm, t.before_max_mm, t.after_mean_mm, t.after_max_mm
                 );
             }
         }
     }
+    // Written with error handling (not `println!`), so a closed pipe is an error, not a panic.
+    std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
+        .context("writing to stdout")?;
     Ok(())
 }
 

@@ -287,13 +287,14 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
         super::plots::fit_figures(dir, &args.font, &outcome)?;
     }
     data::write_atomically(&args.out, text.as_bytes())?;
-    if args.json {
-        println!("{}", to_json(&outcome.joints)?);
+    // Written with error handling (not `println!`), so a closed pipe is an error, not a panic.
+    let text = if args.json {
+        format!("{}\n", to_json(&outcome.joints)?)
     } else {
-        print!("{}", report(&outcome));
-        println!("wrote {}", args.out.display());
-    }
-    Ok(())
+        format!("{}wrote {}\n", report(&outcome), args.out.display())
+    };
+    std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
+        .context("writing to stdout")
 }
 
 #[cfg(test)]
