@@ -1,0 +1,199 @@
+//! The paper's workflow end to end through the real binary, on the simulator: collect
+//! (torque-offset sweep, clamp beam at 14 depths for joints 1 and 2, divot push), fit, evaluate.
+//! Acceptance (issue 5): 1/K(L) within 5% of the simulator's truth over 0.09-0.22 m, backlash
+//! within 20%, corrected tip error during the divot push at most 20% of the uncorrected one.
+
+mod common;
+
+use std::process::Command;
+
+use common::*;
+use serde_json::Value;
+
+fn run(args: &[&str]) -> String {
+    let out = Command::new(sidecar_bin())
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "dvrk-sidecar {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn cubic(c: &[f64], l: f64) -> f64 {
+    ((c[0] * l + c[1]) * l + c[2]) * l + c[3]
+}
+
+#[test]
+fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
+    let dir = scratch("calibration");
+    let p = |f: &str| dir.join(f).to_str().unwrap().to_owned();
+    run(&[
+        "calibrate",
+        "torque-offset",
+        "--config",
+        "config/sim/clamp.toml",
+        "--out",
+        &p("sweep.csv"),
+    ]);
+    run(&[
+        "calibrate",
+        "clamp",
+        "--config",
+        "config/sim/clamp.toml",
+        "--torque-offset",
+        &p("sweep.csv"),
+        "--out",
+        &p("clamp.csv"),
+    ]);
+    let fit: Value = serde_json::from_str(&run(&[
+        "fit",
+        "--clamp",
+        &p("clamp.csv"),
+        "--torque-offset",
+        &p("sweep.csv"),
+        "--out",
+        &p("params.toml"),
+        "--json",
+    ]))
+    .unwrap();
+
+    // The simulator's truth, from the scenario the data was collected with.
+    let scenario = dvrk_sim::Scenario::from_toml_str(
+        &std::fs::read_to_string(repo().join("config/sim/clamp.toml")).unwrap(),
+    )
+    .unwrap();
+    let shaft = scenario.physics.shaft;
+    let joints = fit["joints"].as_array().unwrap();
+    assert_eq!(joints.len(), 2, "both joints fitted");
+    for j in joints {
+        let index = j["index"].as_u64().unwrap() as usize;
+        let depths = j["depths"].as_array().unwrap();
+        assert_eq!(depths.len(), 14, "joint {index}: the paper's 14 depths");
+        let c: Vec<f64> = j["inverse_compliance_nm_per_rad"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        let mut worst: f64 = 0.0;
+        for i in 0..=130 {
+            let l = 0.09 + 0.001 * f64::from(i);
+            let truth = shaft.stiffness_nm_per_rad(index - 1, l);
+            worst = worst.max((cubic(&c, l) / truth - 1.0).abs());
+        }
+        assert!(
+            worst < 0.05,
+            "joint {index}: 1/K(L) off by {:.2}% somewhere in 0.09-0.22 m",
+            worst * 100.0
+        );
+        let delta = j["backlash_rad"].as_f64().unwrap();
+        let truth = shaft.backlash_rad[index - 1];
+        assert!(
+            (delta / truth - 1.0).abs() < 0.2,
+            "joint {index}: backlash {delta} vs truth {truth}"
+        );
+        eprintln!(
+            "joint {index}: 1/K worst error {:.2}%, backlash {delta:.5} (truth {truth})",
+            worst * 100.0
+        );
+    }
+
+    // The fitted file is a valid parameter file for serve, and the correction works on a divot push.
+    run(&[
+        "calibrate",
+        "divot",
+        "--config",
+        "config/sim/divot-push.toml",
+        "--out",
+        &p("divot.csv"),
+    ]);
+    let eval: Value = serde_json::from_str(&run(&[
+        "evaluate",
+        "--params",
+        &p("params.toml"),
+        "--data",
+        &p("divot.csv"),
+        "--json",
+    ]))
+    .unwrap();
+    for j in eval["joints"].as_array().unwrap() {
+        let t = &j["tip_error"];
+        let before = t["before_mean_mm"].as_f64().unwrap();
+        let after = t["after_mean_mm"].as_f64().unwrap();
+        assert!(
+            before > 1.0,
+            "the push deflects the shaft by millimetres: {before} mm"
+        );
+        assert!(
+            after <= 0.2 * before,
+            "joint {}: tip error {before} mm -> {after} mm",
+            j["index"]
+        );
+        let drift_before = j["uncorrected"]["std_rad"].as_f64().unwrap();
+        let drift_after = j["corrected"]["std_rad"].as_f64().unwrap();
+        assert!(
+            drift_after < drift_before,
+            "joint {}: drift {drift_before} -> {drift_after}",
+            j["index"]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_real_2017_clamp_file_gives_the_published_stiffness() {
+    let data = repo().join("../shared/data/dvrk2017-clamp-joint1.csv");
+    assert!(
+        data.exists(),
+        "{} is missing: the shared data set must sit beside the repository",
+        data.display()
+    );
+    let dir = scratch("real2017");
+    let out = dir.join("params.toml");
+    let fit: Value = serde_json::from_str(&run(&[
+        "fit",
+        "--clamp",
+        data.to_str().unwrap(),
+        "--joint",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
+    let depths = fit["joints"][0]["depths"].as_array().unwrap();
+    let k: Vec<f64> = depths
+        .iter()
+        .map(|d| d["stiffness_nm_per_rad"].as_f64().unwrap())
+        .collect();
+    // data/README.md: about 13 N·m/rad at the shallowest depth to about 29 at the deepest.
+    assert!(
+        (k[0] / 13.0 - 1.0).abs() < 0.1,
+        "shallowest stiffness {}",
+        k[0]
+    );
+    assert!(
+        (k[k.len() - 1] / 29.0 - 1.0).abs() < 0.1,
+        "deepest stiffness {}",
+        k[k.len() - 1]
+    );
+    // Without --joint the 2017 file cannot be used: it does not say which joint it holds.
+    let o = Command::new(sidecar_bin())
+        .args([
+            "fit",
+            "--clamp",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--joint"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
