@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use dvrk_io::ArmSample;
 use dvrk_io::port::{Port, UdpLink, UdpPort};
 use dvrk_io::reader::ArmReader;
@@ -153,7 +153,7 @@ fn firewire(cfg: &SidecarConfig, n: u32, stop: &StopFlag) -> Result<()> {
 
 #[cfg(not(feature = "firewire"))]
 fn firewire(_cfg: &SidecarConfig, n: u32, _stop: &StopFlag) -> Result<()> {
-    bail!(
+    anyhow::bail!(
         "source fw:{n}: this binary was built without FireWire support; rebuild with \
          `cargo build --release -p dvrk-sidecar --features firewire` (needs libraw1394-dev)"
     )
