@@ -169,10 +169,11 @@ pub fn free_udp_port() -> u16 {
         .port()
 }
 
-/// Starts the board emulator (`dvrk-sidecar sim`) on `port`.
+/// Starts the board emulator (`dvrk-sidecar sim`) on `port` and returns once it has bound the
+/// port (so a service started next finds the boards).
 pub fn emulator(port: u16, scenario: &str) -> Proc {
     let c = repo().join("config");
-    Proc::spawn(
+    let mut p = Proc::spawn(
         "sim",
         Command::new(sidecar_bin())
             .args([
@@ -187,7 +188,19 @@ pub fn emulator(port: u16, scenario: &str) -> Proc {
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
             .stderr(Stdio::piped()),
-    )
+    );
+    // The port is taken once the emulator listens: binding it ourselves then fails.
+    let bound = eventually(Duration::from_secs(30), || {
+        UdpSocket::bind(("127.0.0.1", port)).is_err().then_some(())
+    });
+    if bound.is_none() {
+        let st = p.wait_timeout(Duration::from_millis(10));
+        panic!(
+            "the emulator did not bind 127.0.0.1:{port} (status {st:?}): {}",
+            p.stderr_text()
+        );
+    }
+    p
 }
 
 /// Runs `dvrk-sidecar echo SERVICE --json --count N` and returns one JSON value per sample.
