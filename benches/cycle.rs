@@ -39,6 +39,37 @@ fn bench_cycle(c: &mut Criterion) {
             })
         });
     }
+    // The sidecar's own share of a cycle, without the simulated boards: compensate, FK of raw
+    // and compensated joints, fill five messages, publish them and notify (no subscriber).
+    let mut source = SimSource::new(&cfg).unwrap();
+    let mut sample = dvrk_io::ArmSample::default();
+    let outcome = dvrk_sidecar::serve::SampleSource::read(&mut source, 1_000_000, &mut sample);
+    let names_c = ServiceNames::new(&format!("{}/compute", names.prefix())).unwrap();
+    let publisher = ArmPublisher::create(&node, &names_c).unwrap();
+    let mut seq = 0u64;
+    group.bench_function("compute_and_publish", |b| {
+        b.iter(|| {
+            seq += 1;
+            let r = dvrk_sidecar::cycle::compute(
+                &cfg.compliance,
+                &cfg.kinematics,
+                black_box(&sample),
+                outcome,
+            );
+            let t = dvrk_sidecar::cycle::CycleTiming {
+                seq,
+                ..Default::default()
+            };
+            let m = dvrk_sidecar::cycle::messages(&sample, &r, &t);
+            black_box(publisher.publish_cycle(
+                &m.measured_js,
+                &m.measured_cp,
+                &m.compensated_js,
+                &m.compensated_cp,
+                &m.status,
+            ))
+        })
+    });
     group.finish();
 }
 

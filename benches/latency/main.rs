@@ -183,9 +183,19 @@ fn json_streamer(cfg_path: &Path, targets: &str, seconds: f64) -> Res<()> {
 // ---------------------------------------------------------------------------------------------
 // The orchestrator.
 
+/// A child process stopped with SIGTERM (so iceoryx2 nodes are removed cleanly), then killed if
+/// it has not exited within 5 s.
 struct Killer(Child);
 impl Drop for Killer {
     fn drop(&mut self) {
+        // SAFETY: kill(2) on our own child.
+        unsafe { libc::kill(self.0.id() as i32, libc::SIGTERM) };
+        for _ in 0..500 {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
