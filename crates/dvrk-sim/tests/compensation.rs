@@ -5,31 +5,16 @@
 //! Everything goes through the real stack: emulated boards -> dvrk-io EthPort/ArmReader ->
 //! dvrk-compliance's `ComplianceConfig::correct`. Also: determinism with a fixed seed.
 
-use std::path::Path;
+mod common;
 
+use common::*;
 use dvrk_compliance::{
     ComplianceConfig, ComplianceParams, JointParams, ModelKind, TorqueOffsetParams,
 };
+use dvrk_io::ArmSample;
 use dvrk_io::reader::{AccessMode, ArmReader};
-use dvrk_io::{ArmSample, IoConfig};
 use dvrk_sim::emulator::MAX_REPLY_BYTES;
 use dvrk_sim::{Emulator, Scenario, SimPort, SimPsm, sim_port};
-
-const NS_PER_MS: u64 = 1_000_000;
-
-fn repo() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
-}
-
-fn io_config() -> IoConfig {
-    let text = std::fs::read_to_string(repo().join("config/io/psm-classic.toml")).unwrap();
-    IoConfig::from_toml_str(&text).unwrap()
-}
-
-fn scenario(name: &str) -> Scenario {
-    Scenario::from_toml_str(&std::fs::read_to_string(repo().join("config/sim").join(name)).unwrap())
-        .unwrap()
-}
 
 /// The compliance model with the simulator's true parameters: the shaft's cubic and backlash,
 /// the paper's tau_min, and a torque-offset table sampled from the simulator's tau_0.

@@ -2,8 +2,9 @@
 //! through config/io/psm-classic.toml; discovery (reference §3.3, §9); timestamps; counters;
 //! malformed input.
 
-use std::path::Path;
+mod common;
 
+use common::*;
 use dvrk_io::port::{EthMode, reg};
 use dvrk_io::wire::block::{SYSCLK_HZ, hardware_version};
 use dvrk_io::wire::eth::extra_flags;
@@ -16,21 +17,6 @@ use dvrk_io::wire::{
 use dvrk_io::{IoConfig, Port};
 use dvrk_sim::emulator::{BUS_GENERATION, MAX_REPLY_BYTES};
 use dvrk_sim::{Emulator, Scenario, SimPort, sim_port};
-
-const NS_PER_MS: u64 = 1_000_000;
-
-fn repo() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
-}
-
-fn io_config() -> IoConfig {
-    static IO: std::sync::OnceLock<IoConfig> = std::sync::OnceLock::new();
-    IO.get_or_init(|| {
-        let text = std::fs::read_to_string(repo().join("config/io/psm-classic.toml")).unwrap();
-        IoConfig::from_toml_str(&text).unwrap()
-    })
-    .clone()
-}
 
 fn hold_scenario() -> &'static Scenario {
     static SC: std::sync::OnceLock<Scenario> = std::sync::OnceLock::new();

@@ -1,32 +1,18 @@
 //! The simulator as dvrk-io's `ArmReader` sees it: over real UDP loopback (discovery with the
 //! dVRK's sequence, then reads), and in-process in shared and exclusive access modes.
 
+mod common;
+
 use std::net::{Ipv4Addr, UdpSocket};
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use common::*;
 use dvrk_io::port::{EthMode, UdpLink, UdpPort};
 use dvrk_io::reader::{AccessMode, ArmReader};
-use dvrk_io::{ArmSample, EthPort, IoConfig, Port};
+use dvrk_io::{ArmSample, EthPort, Port};
 use dvrk_sim::server::serve_udp;
-use dvrk_sim::{Emulator, Scenario, sim_port};
-
-const NS_PER_MS: u64 = 1_000_000;
-
-fn repo() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
-}
-
-fn io_config() -> IoConfig {
-    let text = std::fs::read_to_string(repo().join("config/io/psm-classic.toml")).unwrap();
-    IoConfig::from_toml_str(&text).unwrap()
-}
-
-fn scenario(name: &str) -> Scenario {
-    Scenario::from_toml_str(&std::fs::read_to_string(repo().join("config/sim").join(name)).unwrap())
-        .unwrap()
-}
+use dvrk_sim::{Emulator, sim_port};
 
 #[test]
 fn udp_port_discovers_boards_6_and_7_over_loopback() {
