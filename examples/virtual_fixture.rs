@@ -107,10 +107,16 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
         Subscription::<PoseV1, Service>::new(&node, &names, Topic::MeasuredCp, NOMINAL_PERIOD)?;
     let mut seen = 0u64;
     let mut inside_margin = false;
+    // Report a silent publisher once per episode, not at every missed deadline.
+    let mut stale_reported = false;
     while args.count.is_none_or(|n| seen < n) {
         match tip.wait()? {
             Update::Fresh(p) if p.header.valid == 1 => {
                 seen += 1;
+                if stale_reported {
+                    eprintln!("seq {}: poses flow again", p.header.seq);
+                    stale_reported = false;
+                }
                 let d = signed_distance(args, &p.position_m);
                 let raw_d = raw
                     .try_latest()?
@@ -141,10 +147,19 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
                 "seq {}: invalid sample (flags {:#x}), fixture holds",
                 p.header.seq, p.header.flags
             ),
-            Update::Stale { since_ns } => {
-                eprintln!("no pose for {:.1} ms: fixture holds", since_ns as f64 / 1e6)
+            Update::Stale { since_ns } if !stale_reported => {
+                eprintln!(
+                    "no pose for {:.1} ms: fixture holds until poses flow again",
+                    since_ns as f64 / 1e6
+                );
+                stale_reported = true;
             }
-            Update::Terminated => eprintln!("publisher gone; waiting for it to come back"),
+            Update::Stale { .. } => {}
+            Update::Terminated if !stale_reported => {
+                eprintln!("publisher gone: fixture holds until it comes back");
+                stale_reported = true;
+            }
+            Update::Terminated => {}
             Update::Interrupted => {}
         }
     }

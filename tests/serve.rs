@@ -354,3 +354,49 @@ fn shared_mode_never_writes_and_never_triggers_a_board_sample() {
         "shared mode sent broadcast queries: {c:?}"
     );
 }
+
+#[test]
+fn the_virtual_fixture_example_engages_on_the_compensated_tip() {
+    let prefix = unique_prefix("fixture");
+    let cfg = write_config("fixture", "sim", "shared", &prefix, "divot-push.toml");
+    let mut serve = serve(&cfg);
+    // A plane 0.5 mm above the tip held in the divot, normal +z: the tip is inside the 1 mm
+    // margin, so the fixture must engage on the first pose.
+    let first = echo_json(&format!("{prefix}/compensated/measured_cp"), 1, LIVENESS);
+    let p: Vec<f64> = first[0]["position_m"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let point = format!("{},{},{}", p[0], p[1], p[2] + 0.0005);
+    let example = sidecar_bin()
+        .parent()
+        .unwrap()
+        .join("examples/virtual_fixture");
+    assert!(
+        example.exists(),
+        "{} is built by cargo test",
+        example.display()
+    );
+    let out = std::process::Command::new(example)
+        .args([
+            "--prefix", &prefix, "--point", &point, "--normal", "0,0,1", "--margin", "0.001",
+            "--count", "300",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("would cross, fixture engages"), "{stdout}");
+    assert!(
+        stdout.contains("300 compensated poses received"),
+        "{stdout}"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+}
