@@ -4,7 +4,7 @@ use anyhow::{Context, Result, bail};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
     CompensationStatusV1, Header, JOINT_NAMES, JointStateV1, Message, NOMINAL_PERIOD, PoseV1,
-    ServiceNames, Subscription, Topic, Update,
+    ServiceNames, Subscription, Topic,
 };
 use serde_json::{Value, json};
 
@@ -69,7 +69,7 @@ fn echo<T: Message>(
     let mut sub = Subscription::<T, Service>::new(node, names, topic, NOMINAL_PERIOD)
         .with_context(|| format!("subscribing to {}", names.topic(topic).as_str()))?;
     let mut printed = 0u64;
-    let mut waiting_reported = false;
+    let mut silence = crate::watch::SilenceReporter::default();
     let limit = args.count.unwrap_or(u64::MAX);
     while !stop.raised() && printed < limit {
         // Every drained sample is printed, oldest first, so no seq is skipped when this
@@ -86,19 +86,7 @@ fn echo<T: Message>(
                 }
             })
             .context("waiting for samples")?;
-        match update {
-            Update::Fresh(_) => waiting_reported = false,
-            Update::Stale { .. } | Update::Terminated => {
-                if !waiting_reported {
-                    eprintln!(
-                        "waiting for a publisher on {} ...",
-                        names.topic(topic).as_str()
-                    );
-                    waiting_reported = true;
-                }
-            }
-            Update::Interrupted => {}
-        }
+        silence.report(&update, names.topic(topic).as_str());
     }
     Ok(())
 }

@@ -14,3 +14,4 @@ pub mod serve;
 pub mod signals;
 pub mod simcmd;
 pub mod stats;
+pub mod watch;

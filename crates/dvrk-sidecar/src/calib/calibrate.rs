@@ -348,7 +348,7 @@ fn sweep_offsets(paths: &[PathBuf], joints: &[u8]) -> anyhow::Result<Vec<fit::To
 pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     use dvrk_compliance::calibration::{Recorder, RecorderConfig};
     use dvrk_ipc::iceoryx2::service::ipc::Service;
-    use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic, Update};
+    use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
 
     let prefix = config_prefix(&a.config)?;
     let offsets = sweep_offsets(&a.torque_offset, &[a.joint])?;
@@ -369,7 +369,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     });
     let mut records: Vec<Record> = Vec::new();
     let limit = a.rows.unwrap_or(usize::MAX);
-    let mut waiting_reported = false;
+    let mut silence = crate::watch::SilenceReporter::default();
     eprintln!(
         "recording joint {} from {prefix}/measured_js; move the arm with the dVRK tools, Ctrl-C to stop",
         a.joint
@@ -388,16 +388,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
                 records.extend(rec.update(&s));
             })
             .context("waiting for samples")?;
-        match update {
-            Update::Fresh(_) => waiting_reported = false,
-            Update::Stale { .. } | Update::Terminated => {
-                if !waiting_reported {
-                    eprintln!("waiting for a publisher on {prefix}/measured_js ...");
-                    waiting_reported = true;
-                }
-            }
-            Update::Interrupted => {}
-        }
+        silence.report(&update, names.topic(Topic::MeasuredJs).as_str());
         if records.len() > before {
             let mut buf = Vec::new();
             data::write_rows(&mut buf, &to_rows(&records, &offsets))?;
