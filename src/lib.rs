@@ -1,1 +1,0 @@
-//! End-to-end tests, benchmarks and examples of dvrk-sidecar live in tests/, benches/, examples/.
