@@ -40,7 +40,8 @@ fn samples() -> Vec<([f64; 6], [f64; 3])> {
 }
 
 fn compensation(c: &mut Criterion) {
-    let paper = ComplianceConfig::from_toml_str(PAPER_PSM).expect("paper-psm.toml loads");
+    let paper =
+        dvrk_sidecar::formats::compliance_from_toml(PAPER_PSM).expect("paper-psm.toml loads");
     let mut params = paper.to_params();
     params.model = ModelKind::Continuous;
     let continuous = ComplianceConfig::from_params(params).expect("continuous variant loads");

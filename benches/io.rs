@@ -14,6 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use dvrk_io::ArmSample;
 use dvrk_io::convert::decode_blocks;
 use dvrk_io::port::{Port, UdpPort};
 use dvrk_io::wire::block::{motor_status_bits, status_bits};
@@ -22,7 +23,6 @@ use dvrk_io::wire::{
     Adc, BlockLayout, BoardKind, BoardStatus, EncoderPeriod, EncoderPosition, EthReply, EthRequest,
     ExtraData, FeedbackBlock, RequestKind, RequestRepr, ResponseKind, ResponseRepr, Timestamp,
 };
-use dvrk_io::{ArmSample, IoConfig};
 
 const PSM_CLASSIC: &str = include_str!("../config/io/psm-classic.toml");
 
@@ -58,7 +58,7 @@ fn qla_block(board: u8, seed: i32) -> Vec<u8> {
 }
 
 fn bench_decode(c: &mut Criterion) {
-    let cfg = IoConfig::from_toml_str(PSM_CLASSIC).expect("psm-classic.toml");
+    let cfg = dvrk_sidecar::formats::io_from_toml(PSM_CLASSIC).expect("psm-classic.toml");
     let lay = BlockLayout::new(8, BoardKind::Qla).expect("layout");
     let b6 = qla_block(6, 3);
     let b7 = qla_block(7, -2);

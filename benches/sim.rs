@@ -7,10 +7,9 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use dvrk_io::IoConfig;
 use dvrk_io::wire::{ControlWord, EthRequest, RequestKind, RequestRepr};
 use dvrk_sim::emulator::MAX_REPLY_BYTES;
-use dvrk_sim::{Emulator, Environment, Scenario};
+use dvrk_sim::{Emulator, Environment};
 
 const IDLE: &str = include_str!("../config/sim/idle.toml");
 const DIVOT_PUSH: &str = include_str!("../config/sim/divot-push.toml");
@@ -27,7 +26,7 @@ fn physics(c: &mut Criterion) {
     let mut g = c.benchmark_group("sim/physics_step");
     // A pushing controller against a divot: the PID, the shaft dead zone and the plate are all
     // active.
-    let sc = Scenario::from_toml_str(DIVOT_PUSH).expect("scenario");
+    let sc = dvrk_sidecar::formats::scenario_from_toml(DIVOT_PUSH).expect("scenario");
     let mut psm = sc.build_psm();
     let drv = sc.motion_driver();
     let mut t = 0.0;
@@ -39,7 +38,7 @@ fn physics(c: &mut Criterion) {
         })
     });
     // The compliant surface runs the quasi-static Newton solve for the shaft.
-    let sc = Scenario::from_toml_str(IDLE).expect("scenario");
+    let sc = dvrk_sidecar::formats::scenario_from_toml(IDLE).expect("scenario");
     let mut psm = sc.build_psm();
     psm.set_environment(Environment::Surface {
         stiffness_n_per_m: 2000.0,
@@ -51,8 +50,8 @@ fn physics(c: &mut Criterion) {
 }
 
 fn emulator(c: &mut Criterion) {
-    let io = IoConfig::from_toml_str(PSM_CLASSIC).expect("io config");
-    let sc = Scenario::from_toml_str(DIVOT_PUSH).expect("scenario");
+    let io = dvrk_sidecar::formats::io_from_toml(PSM_CLASSIC).expect("io config");
+    let sc = dvrk_sidecar::formats::scenario_from_toml(DIVOT_PUSH).expect("scenario");
     let mut emu = Emulator::new(&sc, &io).expect("emulator");
     emu.advance_to(0);
     emu.advance_to(1_000_000);

@@ -63,7 +63,7 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
     .unwrap();
 
     // The simulator's truth, from the scenario the data was collected with.
-    let scenario = dvrk_sim::Scenario::from_toml_str(
+    let scenario = dvrk_sidecar::formats::scenario_from_toml(
         &std::fs::read_to_string(repo().join("config/sim/clamp.toml")).unwrap(),
     )
     .unwrap();

@@ -137,7 +137,7 @@ fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
     let prefix = unique_prefix("model_eq");
     let cfg = write_config("model_eq", "sim", "shared", &prefix, "divot-push.toml");
     let mut serve = serve(&cfg);
-    let model = dvrk_compliance::ComplianceConfig::from_toml_str(
+    let model = dvrk_sidecar::formats::compliance_from_toml(
         &std::fs::read_to_string(repo().join("config/compliance/paper-psm.toml")).unwrap(),
     )
     .unwrap();
@@ -309,11 +309,11 @@ fn shared_mode_never_writes_and_never_triggers_a_board_sample() {
     // after the service (another process) has been reading it.
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let port = socket.local_addr().unwrap().port();
-    let io = dvrk_io::IoConfig::from_toml_str(
+    let io = dvrk_sidecar::formats::io_from_toml(
         &std::fs::read_to_string(repo().join("config/io/psm-classic.toml")).unwrap(),
     )
     .unwrap();
-    let scenario = dvrk_sim::Scenario::from_toml_str(
+    let scenario = dvrk_sidecar::formats::scenario_from_toml(
         &std::fs::read_to_string(repo().join("config/sim/divot-push.toml")).unwrap(),
     )
     .unwrap();

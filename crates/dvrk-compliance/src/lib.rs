@@ -5,7 +5,7 @@
 //! ([`ComplianceConfig::correct`] and [`PsmKinematics::forward`] allocate nothing).
 //!
 //! ```
-//! use dvrk_compliance::{ArmKind, ComplianceConfig, PsmKinematics, instrument};
+//! use dvrk_compliance::{ArmKind, ComplianceConfig, ComplianceParams, PsmKinematics, instrument};
 //!
 //! let text = r#"
 //! [[joint]]
@@ -16,7 +16,9 @@
 //! insertion_range_m = [0.09, 0.22]
 //! torque_offset = { position_rad = [0.0], effort_nm = [0.0] }
 //! "#;
-//! let config = ComplianceConfig::from_toml_str(text).unwrap();
+//! // The application parses the file (here with the `toml` crate); this crate validates it.
+//! let params: ComplianceParams = toml::from_str(text).unwrap();
+//! let config = ComplianceConfig::from_params(params).unwrap();
 //! // Pitch pushed with 0.5 N·m at 12 cm insertion.
 //! let c = config.correct(&[0.0, 0.1, 0.12], &[0.0, 0.5, 0.0]);
 //! assert!(c.active[1] && c.delta_rad[1] > 0.0);

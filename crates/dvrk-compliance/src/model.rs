@@ -150,7 +150,7 @@ pub(crate) fn cubic(c: &[f64; 4], x: f64) -> f64 {
 }
 
 /// The validated compliance parameters of one arm; build it with
-/// [`ComplianceConfig::from_toml_str`] or [`ComplianceConfig::from_params`].
+/// [`ComplianceConfig::from_params`] from parsed [`crate::ComplianceParams`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct ComplianceConfig {
     pub(crate) model: ModelKind,

@@ -68,12 +68,6 @@ pub struct TorqueOffsetParams {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum ParamsError {
-    /// The text is not valid TOML; `message` carries the parser's line and column.
-    #[error("compliance parameters: TOML syntax error: {message}")]
-    Syntax { message: String },
-    /// Valid TOML that does not match the schema (unknown or missing field, wrong type or length).
-    #[error("compliance parameters: {message}")]
-    Schema { message: String },
     /// `index` is neither 1 (yaw) nor 2 (pitch).
     #[error("joint {joint}: index = {joint} must be 1 (yaw) or 2 (pitch)")]
     JointIndex { joint: i64 },
@@ -133,20 +127,9 @@ pub enum ParamsError {
 }
 
 impl ComplianceParams {
-    /// Parses a parameter file without checking the numbers: first the TOML syntax
-    /// ([`ParamsError::Syntax`]), then the schema ([`ParamsError::Schema`]).
-    pub fn from_toml_str(text: &str) -> Result<Self, ParamsError> {
-        text.parse::<toml::Table>()
-            .map_err(|e| ParamsError::Syntax {
-                message: e.to_string(),
-            })?;
-        toml::from_str(text).map_err(|e| ParamsError::Schema {
-            message: e.to_string(),
-        })
-    }
-
-    /// Writes the parameters as a TOML file that [`ComplianceParams::from_toml_str`] reads back
-    /// to an equal value (bit-for-bit floats; NaN stays NaN).
+    /// Writes the parameters as a TOML file that deserialises back (serde + any TOML parser) to
+    /// an equal value (bit-for-bit floats; NaN stays NaN). Written by hand so that this crate
+    /// needs no TOML library: parsing text is the application's job (ARCHITECTURE.md).
     pub fn to_toml_string(&self) -> String {
         let mut s = String::new();
         // `write!` into a String cannot fail; the results are ignored for that reason.
@@ -212,11 +195,6 @@ fn toml_array(xs: &[f64]) -> String {
 }
 
 impl ComplianceConfig {
-    /// Parses and validates a parameter file.
-    pub fn from_toml_str(text: &str) -> Result<Self, ParamsError> {
-        Self::from_params(ComplianceParams::from_toml_str(text)?)
-    }
-
     /// Validates parsed parameters. The checks, each reported with joint, field and value:
     /// index 1 or 2 and not repeated; every number finite; backlash and dead band >= 0;
     /// `0 <= min <= max <= 0.24` m; a non-empty torque offset table with equal lengths and

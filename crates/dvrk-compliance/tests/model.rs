@@ -4,6 +4,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic
 #![allow(clippy::needless_range_loop)] // joints 1 and 2 index several parallel arrays
 
+mod common;
+
 use std::fs;
 use std::path::Path;
 
@@ -37,14 +39,14 @@ torque_offset = { position_rad = [0.0], effort_nm = [-0.125] }
 "#;
 
 fn worked(model: ModelKind) -> ComplianceConfig {
-    let mut p = ComplianceParams::from_toml_str(WORKED).unwrap();
+    let mut p = common::params(WORKED).unwrap();
     p.model = model;
     ComplianceConfig::from_params(p).unwrap()
 }
 
 fn paper_file() -> ComplianceParams {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/compliance/paper-psm.toml");
-    ComplianceParams::from_toml_str(&fs::read_to_string(path).unwrap()).unwrap()
+    common::params(&fs::read_to_string(path).unwrap()).unwrap()
 }
 
 /// The paper's Eq. 3/4 with a realistic backlash (the 2017 calibration found about 0.008 and
@@ -155,7 +157,7 @@ fn insertion_at_the_range_ends_is_not_clamped() {
 
 #[test]
 fn joints_without_parameters_pass_through() {
-    let mut p = ComplianceParams::from_toml_str(WORKED).unwrap();
+    let mut p = common::params(WORKED).unwrap();
     p.joint.remove(0); // keep joint 2 only
     let config = ComplianceConfig::from_params(p).unwrap();
     let c = config.correct(&[0.5, -0.25, 0.3], &[9.0, 0.375, 0.0]);
@@ -169,7 +171,7 @@ fn joints_without_parameters_pass_through() {
     // The reported L is then joint 2's.
     assert_eq!((c.insertion_m, c.insertion_clamped), (0.2, true));
 
-    let none = ComplianceConfig::from_toml_str("joint = []").unwrap();
+    let none = common::config("joint = []").unwrap();
     let q = [0.1, 0.2, 0.3];
     let c = none.correct(&q, &[5.0, -5.0, 1.0]);
     assert_eq!(
@@ -214,7 +216,7 @@ fn continuous_equals_paper_outside_and_at_the_edge() {
 
 #[test]
 fn continuous_with_zero_tau_min_is_the_bare_formula() {
-    let mut p = ComplianceParams::from_toml_str(WORKED).unwrap();
+    let mut p = common::params(WORKED).unwrap();
     p.model = ModelKind::Continuous;
     p.joint[0].tau_min_nm = 0.0;
     let config = ComplianceConfig::from_params(p).unwrap();

@@ -3,6 +3,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic
 
+mod common;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -54,7 +56,7 @@ fn count<R>(f: impl FnOnce() -> R) -> (R, usize) {
 #[test]
 fn correct_and_forward_do_not_allocate() {
     let text = include_str!("../../../config/compliance/paper-psm.toml");
-    let paper = ComplianceConfig::from_toml_str(text).unwrap();
+    let paper = common::config(text).unwrap();
     let mut params = paper.to_params();
     params.model = ModelKind::Continuous;
     params.joint[0].torque_offset.position_rad =

@@ -3,6 +3,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -29,8 +31,14 @@ fn toml_files(dir: &Path, prefix: &str) -> Vec<PathBuf> {
     files
 }
 
-/// The variant's name as `Debug` prints it: `NonFinite { .. }` -> `NonFinite`.
-fn variant_name(e: &ParamsError) -> String {
+/// The variant's name as `Debug` prints it: `NonFinite { .. }` -> `NonFinite`; parser errors
+/// are `Syntax` and `Schema`.
+fn variant_name(e: &common::LoadError) -> String {
+    let e = match e {
+        common::LoadError::Syntax(_) => return "Syntax".to_owned(),
+        common::LoadError::Schema(_) => return "Schema".to_owned(),
+        common::LoadError::Params(e) => e,
+    };
     let debug = format!("{e:?}");
     debug
         .split([' ', '{', '('])
@@ -45,7 +53,7 @@ fn every_shipped_compliance_file_loads() {
     assert!(!files.is_empty(), "no files in config/compliance");
     for path in files {
         let text = fs::read_to_string(&path).unwrap();
-        if let Err(e) = ComplianceConfig::from_toml_str(&text) {
+        if let Err(e) = common::config(&text) {
             panic!("{}: {e}", path.display());
         }
     }
@@ -68,7 +76,7 @@ fn every_bad_file_fails_with_its_expected_error() {
                 )
             })
             .trim();
-        match ComplianceConfig::from_toml_str(&text) {
+        match common::config(&text) {
             Ok(_) => panic!("{}: loaded, expected {expected}", path.display()),
             Err(e) => {
                 assert_eq!(variant_name(&e), expected, "{}: {e}", path.display());
@@ -102,7 +110,7 @@ fn every_bad_file_fails_with_its_expected_error() {
 #[test]
 fn paper_file_holds_the_papers_numbers() {
     let text = fs::read_to_string(repo_root().join("config/compliance/paper-psm.toml")).unwrap();
-    let p = ComplianceParams::from_toml_str(&text).unwrap();
+    let p = common::params(&text).unwrap();
     assert_eq!(p.model, ModelKind::Paper);
     assert_eq!(p.joint.len(), 2);
     let (j1, j2) = (&p.joint[0], &p.joint[1]);
@@ -289,47 +297,25 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
 }
 
 #[test]
-fn syntax_errors_carry_line_and_column() {
-    let e = ComplianceParams::from_toml_str("model = \"paper\"\n[[joint]\n").unwrap_err();
-    let ParamsError::Syntax { message } = &e else {
-        panic!("{e:?}")
-    };
-    assert!(message.contains("line 2"), "{message}");
-    // Schema errors point at the offending key as well.
-    let e =
-        ComplianceParams::from_toml_str("model = \"paper\"\njoint = []\nextra = 1\n").unwrap_err();
-    let ParamsError::Schema { message } = &e else {
-        panic!("{e:?}")
-    };
-    assert!(
-        message.contains("line 3") && message.contains("extra"),
-        "{message}"
-    );
-}
-
-#[test]
 fn model_defaults_to_paper_and_joints_may_be_absent() {
-    let c = ComplianceConfig::from_toml_str("joint = []").unwrap();
+    let c = common::config("joint = []").unwrap();
     assert_eq!(c.model(), ModelKind::Paper);
     assert!(c.joint(0).is_none() && c.joint(1).is_none());
-    let c = ComplianceConfig::from_toml_str("model = \"continuous\"\njoint = []").unwrap();
+    let c = common::config("model = \"continuous\"\njoint = []").unwrap();
     assert_eq!(c.model(), ModelKind::Continuous);
 }
 
 #[test]
 fn shipped_file_round_trips_through_the_writer() {
     let text = fs::read_to_string(repo_root().join("config/compliance/paper-psm.toml")).unwrap();
-    let config = ComplianceConfig::from_toml_str(&text).unwrap();
+    let config = common::config(&text).unwrap();
     let written = params_to_toml(&config.to_params());
-    let again = ComplianceConfig::from_toml_str(&written).unwrap();
+    let again = common::config(&written).unwrap();
     assert_eq!(again, config);
     assert_eq!(again.to_params(), config.to_params());
     // serde's own serializer agrees with the schema, too.
     let via_serde = toml::to_string(&config.to_params()).unwrap();
-    assert_eq!(
-        ComplianceParams::from_toml_str(&via_serde).unwrap(),
-        config.to_params()
-    );
+    assert_eq!(common::params(&via_serde).unwrap(), config.to_params());
 }
 
 /// Any float, including NaN, infinities, subnormals and -0.0.
@@ -381,7 +367,7 @@ proptest! {
         let model = if continuous { ModelKind::Continuous } else { ModelKind::Paper };
         let p = ComplianceParams { model, joint: joints };
         let text = params_to_toml(&p);
-        let back = ComplianceParams::from_toml_str(&text)
+        let back = common::params(&text)
             .map_err(|e| TestCaseError::fail(format!("{e}\n{text}")))?;
         prop_assert_eq!(bits(&back), bits(&p));
     }

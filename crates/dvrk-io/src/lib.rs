@@ -14,8 +14,12 @@
 //!
 //! ```no_run
 //! use dvrk_io::{AccessMode, ArmReader, ArmSample, IoConfig, UdpPort};
+//! use dvrk_io::convert::IoParams;
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
-//! let cfg = IoConfig::from_toml_str(&std::fs::read_to_string("config/io/psm-classic.toml")?)?;
+//! // The application reads and parses the file (here with the `toml` crate); this crate
+//! // validates it and never touches text formats or files itself.
+//! let params: IoParams = toml::from_str(&std::fs::read_to_string("config/io/psm-classic.toml")?)?;
+//! let cfg = IoConfig::from_params(params)?;
 //! let mut port = UdpPort::open_udp("169.254.0.100:1394".parse()?)?;
 //! port.discover(cfg.board_ids())?; // read-only: hardware, firmware, status of boards 6 and 7
 //! let mut reader = ArmReader::new(port, cfg, AccessMode::Shared);

@@ -2,9 +2,9 @@
 //! first line names (`# expect: <text>`).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::path::Path;
+mod common;
 
-use dvrk_io::IoConfig;
+use std::path::Path;
 
 fn toml_files(dir: &Path) -> Vec<std::path::PathBuf> {
     let mut v: Vec<_> = std::fs::read_dir(dir)
@@ -23,7 +23,7 @@ fn shipped_io_configs_parse() {
     assert!(!files.is_empty());
     for f in files {
         let text = std::fs::read_to_string(&f).unwrap();
-        IoConfig::from_toml_str(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+        common::io_from_toml(&text).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
     }
 }
 
@@ -39,7 +39,7 @@ fn bad_io_configs_fail_with_their_expected_error() {
             .next()
             .and_then(|l| l.strip_prefix("# expect: "))
             .unwrap_or_else(|| panic!("{}: no expect line", f.display()));
-        match IoConfig::from_toml_str(&text) {
+        match common::io_from_toml(&text) {
             Ok(_) => panic!(
                 "{} parsed, expected error containing {expect:?}",
                 f.display()
@@ -60,6 +60,6 @@ fn saw_json_sample_imports() {
             .join("../../tests/data/io/sawRobotIO1394-PSM1-00000.json"),
     )
     .unwrap();
-    let c = IoConfig::from_saw_json_str(&text).unwrap();
+    let c = common::io_from_saw_json(&text).unwrap();
     assert_eq!(c.board_ids(), &[6, 7]);
 }

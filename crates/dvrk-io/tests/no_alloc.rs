@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use common::{Boards, InProcLink, PSM_CLASSIC_TOML};
 use dvrk_io::port::{EthPort, RecordingLink, ReplayLink};
-use dvrk_io::{AccessMode, ArmReader, ArmSample, IoConfig};
+use dvrk_io::{AccessMode, ArmReader, ArmSample};
 
 struct Counting;
 static ALLOCS: AtomicUsize = AtomicUsize::new(0);
@@ -32,7 +32,7 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn read_allocates_nothing() {
-    let cfg = IoConfig::from_toml_str(PSM_CLASSIC_TOML).unwrap();
+    let cfg = common::io_from_toml(PSM_CLASSIC_TOML).unwrap();
     // The counter sees allocations at all (so this test can fail).
     let probe = ALLOCS.load(Ordering::Relaxed);
     std::hint::black_box(vec![0u8; 8]);
@@ -63,7 +63,7 @@ fn read_allocates_nothing() {
                 "hardware_version = \"QLA1\"\nfirmware_version = 8",
                 1,
             );
-            let cfg8 = IoConfig::from_toml_str(&text).unwrap();
+            let cfg8 = common::io_from_toml(&text).unwrap();
             let steady = reader.into_port().into_link();
             reader = ArmReader::new(EthPort::new(steady), cfg8, mode);
         }

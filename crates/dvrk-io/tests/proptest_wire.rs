@@ -2,7 +2,8 @@
 //! gives them back.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use dvrk_io::IoConfig;
+mod common;
+
 use dvrk_io::port::{EthPort, Link, Port, PortError, frames_from_text};
 use dvrk_io::wire::{
     BlockLayout, BoardKind, ControlWord, EthReply, EthRequest, ExtraData, FeedbackBlock, HubLayout,
@@ -144,8 +145,8 @@ proptest! {
 
     #[test]
     fn text_parsers_never_panic(s in "\\PC{0,200}") {
-        let _ = IoConfig::from_toml_str(&s);
-        let _ = IoConfig::from_saw_json_str(&s);
+        let _ = common::io_from_toml(&s);
+        let _ = common::io_from_saw_json(&s);
         let _ = frames_from_text(&s);
     }
 

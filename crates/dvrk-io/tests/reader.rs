@@ -18,7 +18,7 @@ const K_YAW: f64 = 2.0 * std::f64::consts::PI / 14400.0 / 56.5;
 const K_INS: f64 = 2.0 * std::f64::consts::PI / 14400.0 / 336.6;
 
 fn cfg() -> IoConfig {
-    IoConfig::from_toml_str(PSM_CLASSIC_TOML).unwrap()
+    common::io_from_toml(PSM_CLASSIC_TOML).unwrap()
 }
 
 /// Boards with actuator 1 at +1000 counts and 40000 current bits, insertion at 50000 counts.
@@ -424,7 +424,7 @@ fn exclusive_software_velocity_uses_the_board_sample_interval() {
         "velocity_source = \"software\"",
         1,
     );
-    let cfg = IoConfig::from_toml_str(&text).unwrap();
+    let cfg = common::io_from_toml(&text).unwrap();
     let mut reader = ArmReader::new(
         EthPort::new(InProcLink::new(posed(8))),
         cfg,

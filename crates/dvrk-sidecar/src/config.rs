@@ -187,8 +187,8 @@ pub fn read_file(path: &Path) -> Result<String> {
 pub fn load_io(path: &Path) -> Result<IoConfig> {
     let text = read_file(path)?;
     let parsed = match path.extension().and_then(|e| e.to_str()) {
-        Some("json") => IoConfig::from_saw_json_str(&text),
-        _ => IoConfig::from_toml_str(&text),
+        Some("json") => crate::formats::io_from_saw_json(&text),
+        _ => crate::formats::io_from_toml(&text),
     };
     parsed.with_context(|| format!("{}: invalid I/O conversion file", path.display()))
 }
@@ -196,14 +196,14 @@ pub fn load_io(path: &Path) -> Result<IoConfig> {
 /// Loads a compliance parameter file.
 pub fn load_compliance(path: &Path) -> Result<ComplianceConfig> {
     let text = read_file(path)?;
-    ComplianceConfig::from_toml_str(&text)
+    crate::formats::compliance_from_toml(&text)
         .with_context(|| format!("{}: invalid compliance parameters", path.display()))
 }
 
 /// Loads a simulator scenario file.
 pub fn load_scenario(path: &Path) -> Result<dvrk_sim::Scenario> {
     let text = read_file(path)?;
-    dvrk_sim::Scenario::from_toml_str(&text)
+    crate::formats::scenario_from_toml(&text)
         .with_context(|| format!("{}: invalid simulator scenario", path.display()))
 }
 

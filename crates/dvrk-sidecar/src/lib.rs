@@ -8,6 +8,7 @@ pub mod calib;
 pub mod config;
 pub mod cycle;
 pub mod echo;
+pub mod formats;
 pub mod offline;
 pub mod rt;
 pub mod serve;

@@ -32,9 +32,6 @@ pub use scenario::{Motion, MotionDriver, Scenario, ScenarioParams};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SimError {
-    /// The scenario file is not valid TOML for the schema (the message names the field).
-    #[error("scenario: {0}")]
-    ScenarioParse(String),
     /// A scenario value is out of range.
     #[error("scenario field `{field}` = {value}: {reason}")]
     InvalidScenario {

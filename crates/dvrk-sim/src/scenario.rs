@@ -176,14 +176,8 @@ fn check_non_negative(field: &str, v: f64) -> Result<f64, SimError> {
 }
 
 impl Scenario {
-    /// Parse and validate a scenario file's text.
-    pub fn from_toml_str(text: &str) -> Result<Self, SimError> {
-        let params: ScenarioParams =
-            toml::from_str(text).map_err(|e| SimError::ScenarioParse(e.to_string()))?;
-        Self::from_params(params)
-    }
-
-    /// Validate parsed parameters.
+    /// Validate parsed parameters (a scenario file deserialised by the application: this crate
+    /// reads no text formats itself, like the pure crates it builds on).
     pub fn from_params(p: ScenarioParams) -> Result<Self, SimError> {
         let mut physics = PhysicsParams::CLASSIC;
         if !(p.dt_s.is_finite() && p.dt_s > 0.0 && p.dt_s <= 0.001) {
@@ -496,6 +490,13 @@ current_noise_amps = 0.0
 pot_noise_volts = 0.0
 "#;
 
+    /// Reads a scenario as the application does: TOML parsed outside this crate, then
+    /// validated by [`Scenario::from_params`]. Parse errors come back as text.
+    fn from_toml_str(text: &str) -> Result<Scenario, String> {
+        let p: ScenarioParams = toml::from_str(text).map_err(|e| e.to_string())?;
+        Scenario::from_params(p).map_err(|e| e.to_string())
+    }
+
     #[test]
     fn every_config_sim_file_loads() {
         let mut names = Vec::new();
@@ -505,8 +506,7 @@ pot_noise_volts = 0.0
                 continue;
             }
             let text = std::fs::read_to_string(&path).unwrap();
-            let sc = Scenario::from_toml_str(&text)
-                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let sc = from_toml_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             // Each one runs for a simulated second without leaving the limits.
             let mut psm = sc.build_psm();
             let drv = sc.motion_driver();
@@ -533,14 +533,14 @@ pot_noise_volts = 0.0
 
     #[test]
     fn base_scenario_parses() {
-        let sc = Scenario::from_toml_str(BASE).unwrap();
+        let sc = from_toml_str(BASE).unwrap();
         assert_eq!(sc.environment, Environment::Clamp);
         assert_eq!(sc.motion, Motion::Hold);
         assert_eq!(sc.physics.shaft, ShaftParams::PAPER);
     }
 
     fn err_of(text: &str) -> String {
-        Scenario::from_toml_str(text).unwrap_err().to_string()
+        from_toml_str(text).unwrap_err().to_string()
     }
 
     #[test]
@@ -597,7 +597,7 @@ pot_noise_volts = 0.0
     #[test]
     fn custom_shaft_is_used() {
         let shaft = "\n[shaft]\ninverse_compliance_j1 = [0.0, 0.0, 0.0, 20.0]\ninverse_compliance_j2 = [0.0, 0.0, 0.0, 30.0]\nbacklash_rad = [0.001, 0.002]\ninsertion_range_m = [0.05, 0.24]\n";
-        let sc = Scenario::from_toml_str(&format!("{BASE}{shaft}")).unwrap();
+        let sc = from_toml_str(&format!("{BASE}{shaft}")).unwrap();
         assert_eq!(sc.physics.shaft.stiffness_nm_per_rad(0, 0.1), 20.0);
         assert_eq!(sc.physics.shaft.backlash_rad, [0.001, 0.002]);
     }
@@ -613,7 +613,7 @@ pot_noise_volts = 0.0
                 "kind = \"hold\"",
                 "kind = \"push_cycle\"\neffort_amplitude_nm = [1.5, 1.0]\nperiod_s = 8.0\ninsertion_force_n = 2.0",
             );
-        let sc = Scenario::from_toml_str(&text).unwrap();
+        let sc = from_toml_str(&text).unwrap();
         let mut psm = sc.build_psm();
         let drv = sc.motion_driver();
         let (mut lo, mut hi) = ([0.0f64; 2], [0.0f64; 2]);

@@ -25,7 +25,7 @@ fn hold_scenario() -> &'static Scenario {
 
 /// A scenario with no measurement noise, so replies can be compared bit for bit.
 fn quiet(env: &str, motion: &str) -> Scenario {
-    Scenario::from_toml_str(&format!(
+    scenario_from_toml(&format!(
         r#"
 seed = 11
 dt_s = 0.0001
@@ -39,7 +39,6 @@ current_noise_amps = 0.0
 pot_noise_volts = 0.0
 "#
     ))
-    .unwrap()
 }
 
 fn free_motion() -> Scenario {

@@ -11,7 +11,7 @@
 //! actuator effort (the inverse is computed once, when the coupling is set).
 //!
 //! Config comes from this crate's TOML schema ([`IoParams`], `config/io/*.toml`) or from the
-//! dVRK's own sawRobotIO1394 JSON version 6 ([`IoConfig::from_saw_json_str`]).
+//! dVRK's own sawRobotIO1394 JSON version 6 ([`IoConfig::from_saw_file`]).
 
 mod sample;
 mod saw;
@@ -20,6 +20,7 @@ pub use sample::{
     ActuatorState, ArmSample, AxisHealth, BoardHealth, SharedRaw, decode_blocks, decode_shared,
     joints_from_actuators,
 };
+pub use saw::{SawFile, strip_json_comments};
 
 use serde::{Deserialize, Serialize};
 
@@ -154,10 +155,6 @@ pub struct IoParams {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum IoConfigError {
-    #[error("IO config TOML: {0}")]
-    Toml(#[from] toml::de::Error),
-    #[error("sawRobotIO1394 JSON: {0}")]
-    Json(#[from] serde_json::Error),
     #[error("sawRobotIO1394 JSON: $version is {found}, only \"6\" is supported")]
     SawVersion { found: String },
     #[error("sawRobotIO1394 JSON: $id is {found:?}, expected \"saw-robot-io.schema.json\"")]
@@ -375,13 +372,8 @@ fn invert4(m: &[[f64; 4]; 4]) -> Result<[[f64; 4]; 4], f64> {
 }
 
 impl IoConfig {
-    /// Parses and validates this crate's TOML schema ([`IoParams`]).
-    pub fn from_toml_str(text: &str) -> Result<Self, IoConfigError> {
-        let p: IoParams = toml::from_str(text)?;
-        Self::from_params(p)
-    }
-
-    /// Validates parsed params.
+    /// Validates parsed params (the TOML schema of config/io/, deserialised by the application:
+    /// this crate reads no text formats itself, ARCHITECTURE.md).
     pub fn from_params(p: IoParams) -> Result<Self, IoConfigError> {
         let kind = BoardKind::from_name(&p.hardware_version).ok_or_else(|| {
             IoConfigError::UnknownHardware {

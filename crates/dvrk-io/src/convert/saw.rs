@@ -17,14 +17,25 @@ use super::{
     JointType, PotentiometerParams, VelocitySource,
 };
 
+/// A sawRobotIO1394 JSON file as deserialised by the application (e.g. with `serde_json`,
+/// after [`strip_json_comments`]); [`IoConfig::from_saw_file`] validates it.
 #[derive(Deserialize)]
-struct SawFile {
+pub struct SawFile {
     #[serde(rename = "$id")]
     id: Option<String>,
     #[serde(rename = "$version")]
-    version: Option<serde_json::Value>,
+    version: Option<SawVersionValue>,
     #[serde(default)]
     robots: Vec<SawRobot>,
+}
+
+/// `$version`, written as a string ("6") or a number (6) in the wild.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum SawVersionValue {
+    Text(String),
+    Integer(i64),
+    Other(serde::de::IgnoredAny),
 }
 
 #[derive(Deserialize)]
@@ -65,7 +76,9 @@ struct SawPot {
 }
 
 /// Removes `//` line comments and `/* */` block comments outside strings.
-fn strip_comments(text: &str) -> String {
+/// Removes the `//` and `/* */` comments that the dVRK's JSON reader accepts, so a standard
+/// JSON parser can read the file (string contents are kept as they are).
+pub fn strip_json_comments(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     let mut chars = text.chars().peekable();
     let mut in_str = false;
@@ -112,18 +125,12 @@ fn strip_comments(text: &str) -> String {
 }
 
 impl IoConfig {
-    /// Imports the first robot of a sawRobotIO1394 JSON v6 file.
-    pub fn from_saw_json_str(text: &str) -> Result<Self, IoConfigError> {
-        Self::from_saw_json_robot(text, None)
-    }
-
-    /// Imports robot `name` (or the first robot) of a sawRobotIO1394 JSON v6 file.
-    pub fn from_saw_json_robot(text: &str, name: Option<&str>) -> Result<Self, IoConfigError> {
-        let file: SawFile = serde_json::from_str(&strip_comments(text))?;
+    /// Imports robot `name` (or the first robot) of a deserialised sawRobotIO1394 JSON v6 file.
+    pub fn from_saw_file(file: SawFile, name: Option<&str>) -> Result<Self, IoConfigError> {
         let version = match &file.version {
-            Some(serde_json::Value::String(s)) => s.clone(),
-            Some(serde_json::Value::Number(n)) => n.to_string(),
-            Some(v) => v.to_string(),
+            Some(SawVersionValue::Text(s)) => s.clone(),
+            Some(SawVersionValue::Integer(n)) => n.to_string(),
+            Some(SawVersionValue::Other(_)) => "not a string or an integer".to_string(),
             None => "missing".to_string(),
         };
         if version != "6" {
@@ -224,12 +231,12 @@ impl IoConfig {
 
 #[cfg(test)]
 mod tests {
-    use super::strip_comments;
+    use super::strip_json_comments;
 
     #[test]
     fn comments_are_stripped_outside_strings() {
         let t = "{\"a\": \"x//y\", // c\n \"b\": /* z */ 1}";
-        let v: serde_json::Value = serde_json::from_str(&strip_comments(t)).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&strip_json_comments(t)).unwrap();
         assert_eq!(v["a"], "x//y");
         assert_eq!(v["b"], 1);
     }

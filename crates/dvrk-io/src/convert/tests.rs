@@ -7,8 +7,43 @@ use crate::wire::{Adc, BlockLayout, BoardKind, EncoderPeriod, EncoderPosition, F
 const PSM_CLASSIC: &str = include_str!("../../../../config/io/psm-classic.toml");
 const SAW_JSON: &str = include_str!("../../../../tests/data/io/sawRobotIO1394-PSM1-00000.json");
 
+/// What reading a config file can fail with in a test: the parser (the application's job) or
+/// this crate's validation.
+#[derive(Debug, thiserror::Error)]
+enum Load {
+    #[error("{0}")]
+    Toml(#[from] toml::de::Error),
+    #[error("{0}")]
+    Json(#[from] serde_json::Error),
+    #[error("{0}")]
+    Config(#[from] IoConfigError),
+}
+
+impl Load {
+    /// The validation error; a parse error here is a broken test fixture.
+    fn config(&self) -> &IoConfigError {
+        match self {
+            Load::Config(e) => e,
+            other => panic!("expected a validation error, got a parse error: {other}"),
+        }
+    }
+}
+
+fn from_toml_str(text: &str) -> Result<IoConfig, Load> {
+    Ok(IoConfig::from_params(toml::from_str(text)?)?)
+}
+
+fn from_saw_json_robot(text: &str, name: Option<&str>) -> Result<IoConfig, Load> {
+    let file: SawFile = serde_json::from_str(&strip_json_comments(text))?;
+    Ok(IoConfig::from_saw_file(file, name)?)
+}
+
+fn from_saw_json_str(text: &str) -> Result<IoConfig, Load> {
+    from_saw_json_robot(text, None)
+}
+
 fn cfg() -> IoConfig {
-    IoConfig::from_toml_str(PSM_CLASSIC).unwrap()
+    from_toml_str(PSM_CLASSIC).unwrap()
 }
 
 #[test]
@@ -125,7 +160,7 @@ fn coupling_hand_computed_lnd_400006() {
 
 #[test]
 fn saw_json_v6_import_matches_toml() {
-    let j = IoConfig::from_saw_json_str(SAW_JSON).unwrap();
+    let j = from_saw_json_str(SAW_JSON).unwrap();
     let t = cfg();
     assert_eq!(j.name(), "PSM1");
     assert_eq!(j.board_ids(), t.board_ids());
@@ -175,20 +210,20 @@ fn saw_json_v6_import_matches_toml() {
 #[test]
 fn saw_json_rejects_wrong_version_and_names_robot() {
     let v5 = SAW_JSON.replacen("\"$version\": \"6\"", "\"$version\": \"5\"", 1);
-    let e = IoConfig::from_saw_json_str(&v5).unwrap_err();
+    let e = from_saw_json_str(&v5).unwrap_err();
     assert!(
-        matches!(e, IoConfigError::SawVersion { ref found } if found == "5"),
+        matches!(*e.config(), IoConfigError::SawVersion { ref found } if found == "5"),
         "{e}"
     );
     let num = SAW_JSON.replacen("\"$version\": \"6\"", "\"$version\": 6", 1);
-    assert!(IoConfig::from_saw_json_str(&num).is_ok());
-    let e = IoConfig::from_saw_json_robot(SAW_JSON, Some("PSM2")).unwrap_err();
+    assert!(from_saw_json_str(&num).is_ok());
+    let e = from_saw_json_robot(SAW_JSON, Some("PSM2")).unwrap_err();
     assert!(
         e.to_string().contains("PSM2") && e.to_string().contains("PSM1"),
         "{e}"
     );
     let no_enc = SAW_JSON.replacen("\"bits_to_position\"", "\"bits_to_pos\"", 1);
-    let e = IoConfig::from_saw_json_str(&no_enc).unwrap_err();
+    let e = from_saw_json_str(&no_enc).unwrap_err();
     assert!(
         e.to_string().contains("actuator 1") && e.to_string().contains("encoder.bits_to_position"),
         "{e}"
@@ -205,19 +240,19 @@ fn toml_with(from: &str, to: &str) -> String {
 
 #[test]
 fn toml_errors_name_field_actuator_value() {
-    let e = IoConfig::from_toml_str(&toml_with("name = \"PSM1\"", "name = \"PSM1\"\ncolour = 3"))
-        .unwrap_err();
+    let e =
+        from_toml_str(&toml_with("name = \"PSM1\"", "name = \"PSM1\"\ncolour = 3")).unwrap_err();
     assert!(e.to_string().contains("colour"), "{e}");
-    let e = IoConfig::from_toml_str(&toml_with(
+    let e = from_toml_str(&toml_with(
         "hardware_version = \"QLA1\"",
         "hardware_version = \"QLA2\"",
     ))
     .unwrap_err();
     assert!(e.to_string().contains("QLA2"), "{e}");
-    let e = IoConfig::from_toml_str(&toml_with("axis_id = 3", "axis_id = 4")).unwrap_err();
+    let e = from_toml_str(&toml_with("axis_id = 3", "axis_id = 4")).unwrap_err();
     assert!(
         matches!(
-            e,
+            *e.config(),
             IoConfigError::AxisId {
                 actuator: 4,
                 value: 4,
@@ -226,10 +261,10 @@ fn toml_errors_name_field_actuator_value() {
         ),
         "{e}"
     );
-    let e = IoConfig::from_toml_str(&toml_with("axis_id = 1", "axis_id = 0")).unwrap_err();
+    let e = from_toml_str(&toml_with("axis_id = 1", "axis_id = 0")).unwrap_err();
     assert!(
         matches!(
-            e,
+            *e.config(),
             IoConfigError::DuplicateAxis {
                 actuator: 2,
                 board: 6,
@@ -239,11 +274,10 @@ fn toml_errors_name_field_actuator_value() {
         ),
         "{e}"
     );
-    let e = IoConfig::from_toml_str(&toml_with("scale = 0.4040893845718673", "scale = 0.0"))
-        .unwrap_err();
+    let e = from_toml_str(&toml_with("scale = 0.4040893845718673", "scale = 0.0")).unwrap_err();
     assert!(
         matches!(
-            e,
+            *e.config(),
             IoConfigError::BadScale {
                 actuator: 1,
                 field: "drive.effort_to_current",
@@ -252,7 +286,7 @@ fn toml_errors_name_field_actuator_value() {
         ),
         "{e}"
     );
-    let e = IoConfig::from_toml_str(&toml_with(
+    let e = from_toml_str(&toml_with(
         "maximum_current = 1.34",
         "maximum_current = -1.0",
     ))
@@ -261,28 +295,34 @@ fn toml_errors_name_field_actuator_value() {
         e.to_string().contains("actuator 1") && e.to_string().contains("-1"),
         "{e}"
     );
-    let e = IoConfig::from_toml_str(&toml_with(
+    let e = from_toml_str(&toml_with(
         "[-1.5632, 0.0, 0.0, 0.0]",
         "[0.0, 0.0, 0.0, 0.0]",
     ))
     .unwrap_err();
-    assert!(matches!(e, IoConfigError::SingularCoupling { .. }), "{e}");
-    let e = IoConfig::from_toml_str(&toml_with(
+    assert!(
+        matches!(*e.config(), IoConfigError::SingularCoupling { .. }),
+        "{e}"
+    );
+    let e = from_toml_str(&toml_with(
         "board_id = 7\naxis_id = 2",
         "board_id = 8\naxis_id = 2",
     ))
     .unwrap_err();
     assert!(
-        matches!(e, IoConfigError::TooManyBoards { count: 3, max: 2 }),
+        matches!(
+            *e.config(),
+            IoConfigError::TooManyBoards { count: 3, max: 2 }
+        ),
         "{e}"
     );
-    let e = IoConfig::from_toml_str(&toml_with(
+    let e = from_toml_str(&toml_with(
         "hardware_version = \"QLA1\"",
         "hardware_version = \"QLA1\"\nfirmware_version = 6",
     ))
     .unwrap_err();
     assert!(
-        matches!(e, IoConfigError::UnsupportedFirmware { value: 6 }),
+        matches!(*e.config(), IoConfigError::UnsupportedFirmware { value: 6 }),
         "{e}"
     );
     let mut p = cfg().to_params();
@@ -307,7 +347,7 @@ fn params_round_trip() {
     let c2 = IoConfig::from_params(c.to_params()).unwrap();
     assert_eq!(c, c2);
     let text = toml::to_string(&c.to_params()).unwrap();
-    assert_eq!(IoConfig::from_toml_str(&text).unwrap(), c);
+    assert_eq!(from_toml_str(&text).unwrap(), c);
 }
 
 fn block_bytes(

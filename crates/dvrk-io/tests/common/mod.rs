@@ -23,6 +23,21 @@ use dvrk_io::wire::{
 
 pub const PSM_CLASSIC_TOML: &str = include_str!("../../../../config/io/psm-classic.toml");
 
+/// Reads a config as the application does: parse the text (here `toml`/`serde_json`, dev
+/// dependencies), then let the crate validate it. The error is the parser's or the crate's.
+pub fn io_from_toml(text: &str) -> Result<dvrk_io::IoConfig, String> {
+    let params: dvrk_io::convert::IoParams = toml::from_str(text).map_err(|e| e.to_string())?;
+    dvrk_io::IoConfig::from_params(params).map_err(|e| e.to_string())
+}
+
+/// As [`io_from_toml`], for a sawRobotIO1394 JSON v6 file.
+pub fn io_from_saw_json(text: &str) -> Result<dvrk_io::IoConfig, String> {
+    let file: dvrk_io::convert::SawFile =
+        serde_json::from_str(&dvrk_io::convert::strip_json_comments(text))
+            .map_err(|e| e.to_string())?;
+    dvrk_io::IoConfig::from_saw_file(file, None).map_err(|e| e.to_string())
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Fault {
     None,

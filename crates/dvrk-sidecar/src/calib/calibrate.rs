@@ -118,17 +118,7 @@ pub struct SimRun {
     pub samples: u64,
 }
 
-fn load_scenario(path: &Path) -> anyhow::Result<Scenario> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    Scenario::from_toml_str(&text).with_context(|| format!("loading {}", path.display()))
-}
-
-fn load_io(path: &Path) -> anyhow::Result<IoConfig> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    IoConfig::from_toml_str(&text).with_context(|| format!("loading {}", path.display()))
-}
+use crate::config::{load_io, load_scenario};
 
 /// Runs `plan` on the simulated PSM until it is done, aborts, or `stop` is set. `on_progress`
 /// is called every 1000 samples.

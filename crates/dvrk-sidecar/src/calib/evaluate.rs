@@ -224,10 +224,7 @@ pub fn divot_figures(
 
 /// Runs `evaluate`.
 pub fn run_evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(&args.params)
-        .with_context(|| format!("reading {}", args.params.display()))?;
-    let cfg = ComplianceConfig::from_toml_str(&text)
-        .with_context(|| format!("loading {}", args.params.display()))?;
+    let cfg = crate::config::load_compliance(&args.params)?;
     let rows = data::read_divot(&args.data)?;
     let tool = instrument(&args.tool).with_context(|| {
         format!(

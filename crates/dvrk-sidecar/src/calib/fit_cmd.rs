@@ -485,7 +485,7 @@ mod tests {
         a.json = false;
         a.plots = Some(dir.join("plots"));
         run_fit(&a).unwrap();
-        let cfg = ComplianceConfig::from_toml_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        let cfg = crate::config::load_compliance(&out).unwrap();
         let range = cfg.insertion_range_m(0).unwrap();
         assert!(range[0] > 0.09 && range[1] < 0.23);
         assert!(cfg.insertion_range_m(1).is_none());

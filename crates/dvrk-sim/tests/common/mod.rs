@@ -17,13 +17,17 @@ pub fn io_config() -> IoConfig {
     static IO: std::sync::OnceLock<IoConfig> = std::sync::OnceLock::new();
     IO.get_or_init(|| {
         let text = std::fs::read_to_string(repo().join("config/io/psm-classic.toml")).unwrap();
-        IoConfig::from_toml_str(&text).unwrap()
+        IoConfig::from_params(toml::from_str(&text).unwrap()).unwrap()
     })
     .clone()
 }
 
 /// A scenario of config/sim/.
 pub fn scenario(name: &str) -> Scenario {
-    Scenario::from_toml_str(&std::fs::read_to_string(repo().join("config/sim").join(name)).unwrap())
-        .unwrap()
+    scenario_from_toml(&std::fs::read_to_string(repo().join("config/sim").join(name)).unwrap())
+}
+
+/// A scenario from TOML text: parsed here (the application's job), validated by the crate.
+pub fn scenario_from_toml(text: &str) -> Scenario {
+    Scenario::from_params(toml::from_str(text).unwrap()).unwrap()
 }
