@@ -208,3 +208,47 @@ fn check_config_rejects_every_bad_service_config_with_its_expected_message() {
     }
     assert!(n >= 6, "only {n} bad service configs found");
 }
+
+#[test]
+fn check_config_accepts_a_labs_sawrobotio1394_json() {
+    let dir = std::env::temp_dir().join(format!("dvrk-cli-saw-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let r = repo();
+    let cfg = dir.join("sidecar.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "source = \"udp:169.254.0.100\"\nio = \"{}\"\narm = \"classic\"\n\
+             instrument = \"LARGE_NEEDLE_DRIVER_400006\"\ncompliance = \"{}\"\n",
+            r.join("tests/data/io/sawRobotIO1394-PSM1-00000.json")
+                .display(),
+            r.join("config/compliance/sim-psm.toml").display()
+        ),
+    )
+    .unwrap();
+    let o = run(&["check-config", "--config", cfg.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("boards [6, 7]"), "{}", stdout(&o));
+    // A broken JSON file is named, with the line of the problem.
+    let bad = dir.join("bad.json");
+    std::fs::write(
+        &bad,
+        "{\n  \"$version\": \"6\",\n  \"robots\": [ oops ]\n}\n",
+    )
+    .unwrap();
+    std::fs::write(
+        &cfg,
+        std::fs::read_to_string(&cfg).unwrap().replace(
+            &r.join("tests/data/io/sawRobotIO1394-PSM1-00000.json")
+                .display()
+                .to_string(),
+            bad.to_str().unwrap(),
+        ),
+    )
+    .unwrap();
+    let o = run(&["check-config", "--config", cfg.to_str().unwrap()]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("bad.json") && e.contains("line 3"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
