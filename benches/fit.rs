@@ -9,25 +9,14 @@ use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use dvrk_compliance::fit::{DataRow, FitOptions, fit_clamp};
+use dvrk_sim::SimRng;
 
 const PAPER: [[f64; 4]; 2] = [
     [639.16, -432.35, 136.32, 3.12],
     [3163.17, -1969.15, 448.92, -6.00],
 ];
 
-struct Lcg(u64);
-
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    }
-}
-
-fn depth_rows(joint: u8, depth_index: u32, l: f64, rng: &mut Lcg) -> Vec<DataRow> {
+fn depth_rows(joint: u8, depth_index: u32, l: f64, rng: &mut SimRng) -> Vec<DataRow> {
     let c = PAPER[usize::from(joint) - 1];
     let k = ((c[0] * l + c[1]) * l + c[2]) * l + c[3];
     let delta = if joint == 1 { 0.003 } else { 0.0017 };
@@ -55,7 +44,7 @@ fn depth_rows(joint: u8, depth_index: u32, l: f64, rng: &mut Lcg) -> Vec<DataRow
             depth_index,
             insertion_m: l,
             position_rad: q,
-            effort_nm: tau + 0.1 + 0.01 * rng.next(),
+            effort_nm: tau + 0.1 + 0.01 * (2.0 * rng.uniform_open() - 1.0),
             torque_offset_nm: 0.1,
             direction: dir as i8,
         });
@@ -70,7 +59,7 @@ fn depth_rows(joint: u8, depth_index: u32, l: f64, rng: &mut Lcg) -> Vec<DataRow
 }
 
 fn data_set() -> Vec<DataRow> {
-    let mut rng = Lcg(42);
+    let mut rng = SimRng::new(42);
     let mut rows = Vec::new();
     for joint in [1u8, 2] {
         for d in 0..14u32 {
