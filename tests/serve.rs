@@ -400,3 +400,59 @@ fn the_virtual_fixture_example_engages_on_the_compensated_tip() {
     let (st, log) = serve.terminate();
     assert!(st.success(), "{log}");
 }
+
+#[test]
+fn under_systemd_it_notifies_ready_watchdog_and_stopping() {
+    use std::os::unix::net::UnixDatagram;
+    // systemd's side of sd_notify: a datagram socket named by NOTIFY_SOCKET.
+    let dir = scratch("notify");
+    let sock_path = dir.join("notify.sock");
+    let _ = std::fs::remove_file(&sock_path);
+    let sock = UnixDatagram::bind(&sock_path).unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let prefix = unique_prefix("notify");
+    let cfg = write_config("notify", "sim", "shared", &prefix, "idle.toml");
+    let mut serve = Proc::spawn(
+        "serve",
+        std::process::Command::new(sidecar_bin())
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env("NOTIFY_SOCKET", &sock_path)
+            .env("WATCHDOG_USEC", "200000") // 200 ms: pings every 100 ms
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped()),
+    );
+    let mut buf = [0u8; 256];
+    let mut messages = Vec::new();
+    let start = std::time::Instant::now();
+    while start.elapsed() < LIVENESS {
+        if let Ok(n) = sock.recv(&mut buf) {
+            messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+        if messages.iter().filter(|m| m.contains("WATCHDOG=1")).count() >= 3 {
+            break;
+        }
+    }
+    assert_eq!(
+        messages.first().map(|m| m.trim()),
+        Some("READY=1"),
+        "{messages:?}"
+    );
+    assert!(
+        messages.iter().filter(|m| m.contains("WATCHDOG=1")).count() >= 3,
+        "{messages:?}"
+    );
+    serve.signal(libc::SIGTERM);
+    let stopping = eventually(LIVENESS, || {
+        sock.recv(&mut buf)
+            .ok()
+            .filter(|&n| String::from_utf8_lossy(&buf[..n]).contains("STOPPING=1"))
+    });
+    assert!(stopping.is_some(), "STOPPING=1 after SIGTERM");
+    let st = serve
+        .wait_timeout(LIVENESS)
+        .expect("serve exits after SIGTERM");
+    assert!(st.success());
+    let _ = std::fs::remove_dir_all(&dir);
+}
