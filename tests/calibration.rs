@@ -197,3 +197,38 @@ fn the_real_2017_clamp_file_gives_the_published_stiffness() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--joint"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn calibrate_record_turns_a_live_still_arm_into_a_data_row() {
+    // A real service on the simulator (arm held still), and `calibrate record` subscribing to it
+    // in another process, as on a robot moved by the dVRK's own tools.
+    let prefix = unique_prefix("record");
+    let cfg = write_config("record", "sim", "shared", &prefix, "idle.toml");
+    let mut serve = serve(&cfg);
+    let dir = scratch("record-out");
+    let out = dir.join("rows.csv");
+    let o = Command::new(sidecar_bin())
+        .args(["calibrate", "record", "--config"])
+        .arg(&cfg)
+        .args(["--joint", "1", "--rows", "1", "--settle-s", "0.2", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(&out).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction")
+    );
+    let row: Vec<&str> = lines.next().expect("one data row").split(',').collect();
+    assert_eq!(row[0], "1");
+    let insertion: f64 = row[2].parse().unwrap();
+    assert!(
+        (insertion - 0.12).abs() < 0.01,
+        "idle scenario holds the insertion near 0.12 m: {insertion}"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
