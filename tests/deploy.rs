@@ -67,16 +67,21 @@ fn the_unit_keeps_what_iceoryx2_and_firewire_need() {
     }
 }
 
-#[test]
-fn install_script_stages_binary_config_and_unit() {
-    let dest = scratch("install");
-    let out = Command::new("bash")
+/// Runs deploy/install.sh with the built binary, staged under `dest` (DESTDIR).
+fn staged_install(dest: &std::path::Path) -> std::process::Output {
+    Command::new("bash")
         .arg(repo().join("deploy/install.sh"))
         .args(["--binary"])
         .arg(sidecar_bin())
-        .env("DESTDIR", &dest)
+        .env("DESTDIR", dest)
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+#[test]
+fn install_script_stages_binary_config_and_unit() {
+    let dest = scratch("install");
+    let out = staged_install(&dest);
     assert!(
         out.status.success(),
         "{}",
@@ -109,13 +114,7 @@ fn install_script_stages_binary_config_and_unit() {
         "# edited by the lab\n",
     )
     .unwrap();
-    let out = Command::new("bash")
-        .arg(repo().join("deploy/install.sh"))
-        .args(["--binary"])
-        .arg(sidecar_bin())
-        .env("DESTDIR", &dest)
-        .output()
-        .unwrap();
+    let out = staged_install(&dest);
     assert!(out.status.success());
     assert_eq!(
         std::fs::read_to_string(dest.join("etc/dvrk-sidecar/sidecar.toml")).unwrap(),
