@@ -100,7 +100,7 @@ fn first6(q: &[f64; 7]) -> [f64; 6] {
     [q[0], q[1], q[2], q[3], q[4], q[5]]
 }
 
-/// Timing of one cycle, from the loop.
+/// Timing and counters of one cycle, from the loop, as the status message carries them.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct CycleTiming {
     pub seq: u64,
@@ -108,7 +108,11 @@ pub struct CycleTiming {
     pub publish_t_ns: u64,
     pub cycle_period_ns: u64,
     pub cycle_duration_ns: u64,
-    pub missed_reads: u64,
+    /// Cycles published since start, this one included.
+    pub cycles_total: u64,
+    pub read_failures_total: u64,
+    pub overruns_total: u64,
+    pub consecutive_read_failures: u32,
 }
 
 /// The five messages of one cycle.
@@ -171,7 +175,10 @@ pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
         insertion_m: r.correction.insertion_m,
         cycle_period_ns: t.cycle_period_ns,
         cycle_duration_ns: t.cycle_duration_ns,
-        read_failures_total: t.missed_reads,
+        cycles_total: t.cycles_total,
+        read_failures_total: t.read_failures_total,
+        overruns_total: t.overruns_total,
+        consecutive_read_failures: t.consecutive_read_failures,
         ..Default::default()
     };
     Messages {

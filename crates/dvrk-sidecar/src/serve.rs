@@ -240,14 +240,12 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 .last_sample_t_ns
                 .map_or(0, |t| t_sample.saturating_sub(t)),
             cycle_duration_ns: self.last_duration_ns,
-            missed_reads: c.read_failures,
+            cycles_total: c.cycles + 1,
+            read_failures_total: c.read_failures,
+            overruns_total: c.overruns,
+            consecutive_read_failures: c.consecutive_read_failures.min(u64::from(u32::MAX)) as u32,
         };
-        let mut msgs = cycle::messages(&self.sample, &result, &timing);
-        msgs.status.cycles_total = c.cycles + 1;
-        msgs.status.read_failures_total = c.read_failures;
-        msgs.status.overruns_total = c.overruns;
-        msgs.status.consecutive_read_failures =
-            c.consecutive_read_failures.min(u64::from(u32::MAX)) as u32;
+        let msgs = cycle::messages(&self.sample, &result, &timing);
         let sent = self.publisher.publish_cycle(
             &msgs.measured_js,
             &msgs.measured_cp,
