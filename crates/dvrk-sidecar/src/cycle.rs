@@ -43,7 +43,9 @@ pub fn health_flags(s: &ArmSample, outcome: ReadOutcome) -> u32 {
         ReadOutcome::Timeout => f |= flags::BOARD_TIMEOUT,
         ReadOutcome::Error => f |= flags::BOARD_ERROR,
     }
-    for b in s.boards.iter().filter(|b| b.board_id != 0 || b.read_ok) {
+    // Hardware bits mean something only for boards whose status was read: an unread board's
+    // power bits are unknown, not off (its BOARD_TIMEOUT/BOARD_ERROR says why).
+    for b in s.boards.iter().filter(|b| b.read_ok) {
         if b.watchdog_timeout {
             f |= flags::WATCHDOG_TIMEOUT;
         }
@@ -187,5 +189,45 @@ pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
         compensated_js,
         compensated_cp: pose_msg(header, &r.compensated_pose),
         status,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dvrk_io::BoardHealth;
+
+    fn powered(board_id: u8) -> BoardHealth {
+        BoardHealth {
+            board_id,
+            read_ok: true,
+            power_enabled: true,
+            motor_supply_good: true,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn an_unread_board_is_reported_by_its_read_error_not_as_powered_off() {
+        let mut s = ArmSample {
+            boards: [
+                powered(6),
+                BoardHealth {
+                    board_id: 7,
+                    ..Default::default()
+                },
+            ],
+            ..Default::default()
+        };
+        assert_eq!(health_flags(&s, ReadOutcome::Timeout), flags::BOARD_TIMEOUT);
+        // A board that was read and reports power off is flagged.
+        s.boards[1] = BoardHealth {
+            power_enabled: false,
+            ..powered(7)
+        };
+        assert_eq!(health_flags(&s, ReadOutcome::Ok), flags::POWER_OFF);
+        s.boards[1].watchdog_timeout = true;
+        s.boards[1].power_enabled = true;
+        assert_eq!(health_flags(&s, ReadOutcome::Ok), flags::WATCHDOG_TIMEOUT);
     }
 }
