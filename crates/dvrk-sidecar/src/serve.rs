@@ -204,8 +204,10 @@ pub fn run(path: &Path) -> Result<()> {
             run_loop(&cfg, source, &stop)
         }
         Source::Udp(addr) => {
-            let link =
+            let mut link =
                 UdpLink::connect(addr).with_context(|| format!("opening UDP socket to {addr}"))?;
+            link.set_timeout(cfg.reply_timeout)
+                .context("setting the reply timeout")?;
             let mut port = UdpPort::new(link);
             let ids = board_ids(&cfg);
             if !discover_until_found(&mut port, &ids, &addr.to_string(), &stop)? {
@@ -410,7 +412,11 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 .map_or(u64::MAX, |h| t_sample.saturating_sub(h.sample_t_ns));
             (
                 age,
-                cycle::held(self.held.as_ref(), &self.sample, fresh.flags),
+                cycle::held(
+                    self.held.as_ref(),
+                    &self.sample,
+                    cycle::health_flags(&self.sample, read),
+                ),
             )
         };
         if self.source.simulated() {
