@@ -99,33 +99,32 @@ for p in sorted((REPO / "tests/data/bad-config").glob("sidecar-*.toml")):
     put("sidecar_toml", p.name, t)
 
 # --- calibration CSVs: excerpts of the real 2017 files, and the project layout ---------------
-def excerpt(path, depths, every, limit):
+def excerpt(path, depths, every):
+    """The header and every `every`-th step of the given depths, in recorded order."""
     lines = path.read_text().splitlines()
     out = [lines[0]]
     for l in lines[1:]:
         cols = l.split(",")
         if int(cols[1]) in depths and int(cols[0]) % every == 0:
             out.append(l)
-        if len(out) > limit:
-            break
     return "\n".join(out) + "\n"
 clamp = SHARED / "data/dvrk2017-clamp-joint1.csv"
 sweep = SHARED / "data/dvrk2017-torque-offset-joint1.csv"
+# 4 depths (a cubic 1/K(L) needs 4) and every 8th step: enough for `fit` to succeed (4.3 KB).
+clamp4 = excerpt(clamp, {0, 4, 9, 13}, 8)
 # selector byte: bits 0-1 joint (0 none, 1, 2, 3), bit 2 also the sweep, bit 3 continuous.
-put("calib_csv", "dvrk2017-clamp-j1-depths01", b"\x01" + excerpt(clamp, {0, 1}, 3, 60).encode())
-put("calib_csv", "dvrk2017-clamp-j1-depths05-13", b"\x01" + excerpt(clamp, {5, 13}, 4, 50).encode())
-put("calib_csv", "dvrk2017-clamp-nojoint", b"\x00" + excerpt(clamp, {0}, 5, 12).encode())
-put("calib_csv", "dvrk2017-sweep-j1", b"\x05" + excerpt(sweep, {0, 1}, 3, 60).encode())
-put("calib_csv", "dvrk2017-sweep-j2-continuous", b"\x0e" + excerpt(sweep, {2}, 2, 30).encode())
+put("calib_csv", "dvrk2017-clamp-j1", b"\x01" + clamp4.encode())
+put("calib_csv", "dvrk2017-clamp-j1-as-sweep-continuous", b"\x0d" + clamp4.encode())
+put("calib_csv", "dvrk2017-clamp-nojoint", b"\x00" + excerpt(clamp, {0}, 12).encode())
+put("calib_csv", "dvrk2017-sweep-j1", b"\x05" + excerpt(sweep, {0, 4, 9, 13}, 8).encode())
+put("calib_csv", "dvrk2017-sweep-j3", b"\x07" + excerpt(sweep, {2}, 6).encode())
+# The same clamp steps in the project layout, as joint 2 (direction 0: from the row order).
 proj = ["joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction"]
-for d, L in enumerate([0.10, 0.15, 0.20]):
-    for j in (1, 2):
-        for k in range(8):
-            q = (k if k < 4 else 8 - k) * 0.002
-            dirn = 1 if k < 4 else -1
-            proj.append(f"{j},{d},{L},{q},{q * (15 + 40 * L) + 0.05 * dirn},{0.02},{dirn}")
-put("calib_csv", "project-two-joints", b"\x00" + ("\n".join(proj) + "\n").encode())
-put("calib_csv", "project-also-sweep", b"\x04" + ("\n".join(proj[:20]) + "\n").encode())
+for l in clamp4.splitlines()[1:]:
+    c = l.split(",")
+    proj.append(",".join(["2", c[1], c[2], c[3], c[4], c[5], "0"]))
+put("calib_csv", "project-j2", b"\x00" + ("\n".join(proj) + "\n").encode())
+put("calib_csv", "project-j2-also-sweep", b"\x04" + ("\n".join(proj) + "\n").encode())
 
 # --- divot-push files (evaluate --data) -------------------------------------------------------
 DIVOT = "push_index,joint,direction,t_s,position_1_rad,position_2_rad,insertion_m,position_4_rad,position_5_rad,position_6_rad,effort_1_nm,effort_2_nm,effort_3_n"
