@@ -34,6 +34,18 @@ put("eth_reply", "dropped", bytes([0x02, 0, 0, 0, 0, 0, 0, 0]))
 put("eth_reply", "ref9-quadlet-write", bytes.fromhex("ffff0400ffd000000000000b0100007f11c036d8") + bytes(8))
 put("eth_reply", "ref9-quadlet-read", bytes.fromhex("ffff0840ffd000000000000458ffb182") + bytes(8))
 
+# --- requests to the emulator: length-prefixed datagrams (the recorded cycles' requests, and
+# the reference section 9 discovery datagrams) -------------------------------------------------
+requests = [bytes.fromhex(l[2:].strip()) for l in frames.splitlines() if l.startswith("> ")]
+ref9 = [bytes.fromhex("0100" "ffff0400" "ffd00000" "0000000b" "0100007f" "11c036d8"),
+        bytes.fromhex("0100" "ffff0840" "ffd00000" "00000004" "58ffb182")]
+def seq(ds):
+    return b"".join(bytes([len(d)]) + d for d in ds)
+put("emulator_request", "recorded-cycles", seq(requests))
+put("emulator_request", "reference-9-discovery", seq(ref9))
+for i, r in enumerate(requests[:3]):
+    put("emulator_request", f"recorded-{i}", seq([r]))
+
 # --- feedback blocks: the recorded Rev 8 QLA blocks, and synthetic ones per layout ----------
 # Block responses: 20-byte header, payload (data_length in q3 >> 16), 4-byte data CRC, 8 extra.
 blocks = []
