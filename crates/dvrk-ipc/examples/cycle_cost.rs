@@ -60,7 +60,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             if i % drain_every == 0 {
                 for s in &mut subs {
-                    s.listener().try_wait(|_| {})?;
+                    if let Some(l) = s.listener() {
+                        l.try_wait(|_| {})?;
+                    }
                     s.try_latest()?;
                 }
             }

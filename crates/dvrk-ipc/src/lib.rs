@@ -47,9 +47,11 @@ mod error;
 pub mod flags;
 mod msg;
 mod names;
+mod predict;
 mod publisher;
 mod services;
 mod subscription;
+mod sys;
 
 pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
@@ -57,15 +59,17 @@ pub use msg::{
     JOINT_STATE_V1_SIZE, JointStateV1, Message, NUM_JOINTS, POSE_V1_SIZE, PoseV1,
 };
 pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, ServiceNames, Topic};
-pub use publisher::ArmPublisher;
+pub use publisher::{ArmPublisher, ReapReport, SubscriberCounts};
 pub use services::{
-    ArmServices, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, create_node, domain_config,
-    open_cycle_event, open_topic, qos,
+    ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, create_node,
+    domain_config, open_cycle_event, open_topic, qos,
 };
 pub use subscription::{
-    DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, NOMINAL_PERIOD, Subscription,
-    SubscriptionStats, Update,
+    DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, MIN_DEFAULT_DEADLINE, NOMINAL_PERIOD,
+    Prediction, SubscribeOptions, Subscription, SubscriptionStats, UnknownWaitStrategy, Update,
+    WaitStrategy,
 };
+pub use sys::monotonic_ns;
 
 /// The iceoryx2 crate this contract is built on (same version in every process).
 pub use iceoryx2;
