@@ -4,7 +4,7 @@ use anyhow::{Context, Result, bail};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
     CompensationStatusV1, Header, JOINT_NAMES, JointStateV1, Message, NOMINAL_PERIOD, PoseV1,
-    ServiceNames, Subscription, Topic,
+    ServiceNames, SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
 };
 use serde_json::{Value, json};
 
@@ -20,6 +20,15 @@ pub struct EchoArgs {
     /// One JSON object per line instead of text.
     #[arg(long)]
     json: bool,
+    /// How to wait for samples: event (sleep until the publisher notifies), spin (poll, one
+    /// whole core) or predictive (sleep until just before the next sample is due, then poll).
+    #[arg(long, default_value = "event", value_parser = parse_wait)]
+    wait: WaitStrategy,
+}
+
+fn parse_wait(s: &str) -> Result<WaitStrategy, String> {
+    s.parse()
+        .map_err(|e: dvrk_ipc::UnknownWaitStrategy| e.to_string())
 }
 
 pub fn run(args: &EchoArgs) -> Result<()> {
@@ -66,10 +75,16 @@ fn echo<T: Message>(
     to_json: fn(&T) -> Value,
     to_text: fn(&T) -> String,
 ) -> Result<()> {
-    let mut sub = Subscription::<T, Service>::new(node, names, topic, NOMINAL_PERIOD)
+    let options = SubscribeOptions {
+        period: NOMINAL_PERIOD,
+        wait: args.wait,
+        deadline: None,
+    };
+    let mut sub = Subscription::<T, Service>::with_options(node, names, topic, options)
         .with_context(|| format!("subscribing to {}", names.topic(topic).as_str()))?;
     let mut printed = 0u64;
     let mut silence = crate::watch::SilenceReporter::default();
+    let mut gone = false;
     let limit = args.count.unwrap_or(u64::MAX);
     while !stop.raised() && printed < limit {
         // Every drained sample is printed, oldest first, so no seq is skipped when this
@@ -86,7 +101,23 @@ fn echo<T: Message>(
                 }
             })
             .context("waiting for samples")?;
-        silence.report(&update, names.topic(topic).as_str());
+        // A publisher that stopped or died is said once, in one line; echo then keeps waiting
+        // for a new one (like `ros2 topic echo`), until Ctrl-C or --count.
+        match update {
+            Update::Terminated if !gone => {
+                eprintln!(
+                    "publisher of {} is gone; waiting for a new one (Ctrl-C to stop)",
+                    sub.service_name()
+                );
+                gone = true;
+            }
+            Update::Terminated => {}
+            Update::Fresh(_) if gone => {
+                eprintln!("a publisher of {} is back", sub.service_name());
+                gone = false;
+            }
+            other => silence.report(&other, names.topic(topic).as_str()),
+        }
     }
     Ok(())
 }
