@@ -20,7 +20,10 @@
 //!
 //! - the QoS ([`qos`]) applied by the one function that opens or creates services
 //!   ([`open_topic`], [`open_cycle_event`], [`ArmServices::open_or_create`]);
-//! - [`ArmPublisher`] (used by the sidecar) and [`Subscription`] (for consumers).
+//! - [`ArmPublisher`] (used by the sidecar; also counts subscribers of every topic and reaps dead
+//!   nodes) and [`Subscription`] (for consumers), which waits as the consumer chooses
+//!   ([`WaitStrategy`]): `Event` (sleep until notified), `Spin` (poll, a core of its own, no
+//!   listener) or `Predictive` (sleep until just before the next sample is due, then poll).
 //!
 //! ```no_run
 //! use dvrk_ipc::{create_node, PoseV1, ServiceNames, Subscription, Topic, Update, NOMINAL_PERIOD};
