@@ -75,8 +75,15 @@ fn cpu_ns() -> u64 {
 
 /// What one subscriber process measured: latencies (ns) of every sample, the publisher's share
 /// of each (`publish_t_ns - sample_t_ns`), the sequence gaps and its CPU use.
-fn report(lat: Vec<u64>, publisher: Vec<u64>, lost: u64, cpu_percent: f64) -> serde_json::Value {
-    serde_json::json!({ "all": lat, "publisher": publisher, "lost": lost, "cpu_percent": cpu_percent })
+fn report(
+    lat: Vec<u64>,
+    publisher: Vec<u64>,
+    lost: u64,
+    cpu_percent: f64,
+    on_time: Option<(u64, u64)>,
+) -> serde_json::Value {
+    serde_json::json!({ "all": lat, "publisher": publisher, "lost": lost,
+                        "cpu_percent": cpu_percent, "on_time": on_time })
 }
 
 /// Measures CPU use over the measuring window: from the first sample to the end.
@@ -138,7 +145,15 @@ fn sub_shm(prefix: &str, seconds: f64, wait: WaitStrategy) -> Res<()> {
     }
     let now = rt::monotonic_ns();
     let lost = sub.stats().seq_gaps_total - first_gaps.unwrap_or(0);
-    println!("{}", report(lat, publisher, lost, window.percent(now)));
+    let st = sub.stats();
+    let on_time = (wait == WaitStrategy::Predictive).then_some((
+        st.predicted_on_time_total,
+        st.predicted_on_time_total + st.predicted_late_total + st.predicted_missed_total,
+    ));
+    println!(
+        "{}",
+        report(lat, publisher, lost, window.percent(now), on_time)
+    );
     Ok(())
 }
 
@@ -184,7 +199,10 @@ fn sub_json(port: u16, seconds: f64) -> Res<()> {
         }
     }
     let now = rt::monotonic_ns();
-    println!("{}", report(lat, Vec::new(), lost, window.percent(now)));
+    println!(
+        "{}",
+        report(lat, Vec::new(), lost, window.percent(now), None)
+    );
     Ok(())
 }
 
@@ -277,6 +295,8 @@ struct Case {
     publisher: Vec<u64>,
     lost: u64,
     cpu_percent: f64,
+    /// Predictive waits that were polling when the sample landed, of all predictive waits.
+    on_time: (u64, u64),
 }
 
 fn collect(children: Vec<Child>) -> Res<Case> {
@@ -298,6 +318,10 @@ fn collect(children: Vec<Child>) -> Res<Case> {
         case.all.extend(nums("all"));
         case.publisher.extend(nums("publisher"));
         case.lost += v["lost"].as_u64().ok_or("no lost")?;
+        if let Some(a) = v["on_time"].as_array() {
+            case.on_time.0 += a[0].as_u64().unwrap_or(0);
+            case.on_time.1 += a[1].as_u64().unwrap_or(0);
+        }
         case.cpu_percent += v["cpu_percent"].as_f64().ok_or("no cpu_percent")? / n as f64;
         let status = c.wait()?;
         if !status.success() {
@@ -417,9 +441,9 @@ fn orchestrate(args: &[String]) -> Res<()> {
             o.seconds
         );
         println!(
-            "| subscribers | path | samples | p50 µs | p99 µs | p99.9 µs | max µs | lost | CPU % per subscriber | publisher's share p50 µs | hand-off p50 µs |"
+            "| subscribers | path | samples | p50 µs | p99 µs | p99.9 µs | max µs | lost | CPU % per subscriber | publisher's share p50 µs | hand-off p50 µs | predicted on time |"
         );
-        println!("|---|---|---|---|---|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     }
     let mut total_lost = 0;
     let mut ratios = Vec::new();
@@ -518,8 +542,17 @@ fn orchestrate(args: &[String]) -> Res<()> {
                     // close to the difference of the p50s.
                     format!("{:.1}", q(v, 0.5) - q(&r.publisher, 0.5))
                 };
+                let on_time = if r.on_time.1 > 0 {
+                    format!(
+                        "{:.1} % of {}",
+                        100.0 * r.on_time.0 as f64 / r.on_time.1 as f64,
+                        r.on_time.1
+                    )
+                } else {
+                    "".to_owned()
+                };
                 println!(
-                    "| {n} | {path} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {share} | {handoff} |",
+                    "| {n} | {path} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {share} | {handoff} | {on_time} |",
                     v.len(),
                     q(v, 0.5),
                     q(v, 0.99),

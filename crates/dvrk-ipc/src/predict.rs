@@ -3,10 +3,12 @@
 //! subscription feeds it times and grades.
 //!
 //! The sidecar starts its cycles on an absolute-time grid (period P) and publishes each a
-//! variable time later (its own wake-up lateness, the board read). The model estimates P over the
-//! longest baseline it has (from the first sample it learnt to the newest) and the grid's phase
-//! as the *earliest* arrival over the last `WINDOW` samples, so arrivals come at or after the
-//! prediction. The subscriber sets its timer `guard` before the prediction, so that its own timer
+//! variable time later (its own wake-up lateness, the board read); after a stall longer than a
+//! period it restarts the grid from the end of the late cycle. The model smooths P over the gaps
+//! between consecutive cycles (leaving out stalls) and takes the grid's phase as a low quantile
+//! (`PHASE_QUANTILE_PERCENT`) of the last `WINDOW` arrivals projected onto the next cycle, so
+//! most arrivals come at or after the prediction and a restarted grid is learnt within `WINDOW`
+//! cycles. The subscriber sets its timer `guard` before the prediction, so that its own timer
 //! lateness still leaves it polling before the sample lands, and polls until `spin_after` past
 //! the prediction before it goes back to sleep on the event.
 //!
@@ -31,15 +33,18 @@ const SPIN_AFTER_UP_NS: f64 = 30_000.0;
 const SPIN_AFTER_DOWN_NS: f64 = 1_000.0;
 /// Guard and spin-after are each at most this fraction of the period.
 const MAX_MARGIN_DIVISOR: f64 = 8.0;
-/// Recent arrivals whose earliest gives the phase.
-const WINDOW: usize = 128;
+/// Recent arrivals whose low quantile gives the phase: short, because the publisher restarts
+/// its grid after every stall longer than a period (often, on a loaded PC).
+const WINDOW: usize = 16;
+/// Weight of a new period measurement once learnt.
+const PERIOD_ALPHA: f64 = 1.0 / 64.0;
+/// The quantile (percent) of recent arrivals that is predicted.
+const PHASE_QUANTILE_PERCENT: usize = 10;
 
 #[derive(Debug, Clone)]
 pub struct Predictor {
     nominal_ns: f64,
     period_ns: f64,
-    /// The first sample of this publisher that was learnt (seq, ns).
-    anchor: (u64, u64),
     /// The newest samples (seq, ns), a ring of `filled` entries.
     recent: [(u64, u64); WINDOW],
     filled: usize,
@@ -57,7 +62,6 @@ impl Predictor {
         Self {
             nominal_ns: p,
             period_ns: p,
-            anchor: (0, 0),
             recent: [(0, 0); WINDOW],
             filled: 0,
             next: 0,
@@ -89,9 +93,8 @@ impl Predictor {
         self.prediction_ns
     }
 
-    fn restart(&mut self, seq: u64, t_ns: u64) {
+    fn restart(&mut self) {
         self.period_ns = self.nominal_ns;
-        self.anchor = (seq, t_ns);
         self.filled = 0;
         self.next = 0;
         self.observed = 0;
@@ -100,29 +103,43 @@ impl Predictor {
     /// The newest sample `seq` landed (was published) at `t_ns`.
     pub fn observe(&mut self, seq: u64, t_ns: u64) {
         if self.observed == 0 {
-            self.restart(seq, t_ns);
+            self.restart();
         } else if let Some(&(last_seq, last_t)) = self.newest()
             && (seq <= last_seq || t_ns <= last_t)
         {
             // A new publisher (seq starts again) or a clock oddity: learn afresh.
-            self.restart(seq, t_ns);
+            self.restart();
         }
         let late = t_ns as f64 - self.prediction_ns as f64;
-        let graded = self.ready() && self.newest().is_some_and(|&(s, _)| seq == s + 1);
-        let (a_seq, a_t) = self.anchor;
-        if seq - a_seq >= u64::from(LEARN_SAMPLES) {
-            // The grid is exact; only the two ends' publish delays blur this, divided by n.
-            self.period_ns = (t_ns - a_t) as f64 / (seq - a_seq) as f64;
+        let newest = self.newest().copied();
+        let graded = self.ready() && newest.is_some_and(|(s, _)| seq == s + 1);
+        if let Some((last_seq, last_t)) = newest
+            && seq == last_seq + 1
+        {
+            // Consecutive cycles are one period apart on the publisher's grid; a longer gap is a
+            // stall after which the publisher restarts its grid, and is left out.
+            // Catch-up cycles after a short stall come back to back: only gaps near the nominal
+            // period measure it (the consumer's nominal period must be right within 20 %).
+            let d = (t_ns - last_t) as f64;
+            let nominal = self.nominal_ns;
+            if (0.8 * nominal..=1.2 * nominal).contains(&d) {
+                self.period_ns += (d - self.period_ns) * PERIOD_ALPHA;
+            }
         }
         self.recent[self.next] = (seq, t_ns);
         self.next = (self.next + 1) % WINDOW;
         self.filled = (self.filled + 1).min(WINDOW);
         let target = seq + 1;
-        self.prediction_ns = self.recent[..self.filled]
-            .iter()
-            .map(|&(s, t)| t as f64 + (target - s) as f64 * self.period_ns)
-            .fold(f64::INFINITY, f64::min)
-            .max(0.0) as u64;
+        // Each recent arrival projected onto the next grid point; the prediction is a low
+        // quantile of them (the earliest few are outliers the timer catches anyway).
+        let mut projected = [0.0f64; WINDOW];
+        for (p, &(s, t)) in projected.iter_mut().zip(&self.recent[..self.filled]) {
+            *p = t as f64 + (target - s) as f64 * self.period_ns;
+        }
+        let projected = &mut projected[..self.filled];
+        let k = (self.filled * PHASE_QUANTILE_PERCENT) / 100;
+        let (_, at, _) = projected.select_nth_unstable_by(k, f64::total_cmp);
+        self.prediction_ns = at.max(0.0) as u64;
         self.observed = self.observed.saturating_add(1);
         if graded {
             let cap = self.period_ns / MAX_MARGIN_DIVISOR;
@@ -169,11 +186,16 @@ mod tests {
 
     #[test]
     fn learns_a_period_that_differs_from_the_nominal_one() {
-        let real = 1_000_000u64; // 1 kHz publisher, told 1.5 kHz
+        let real = 700_000u64; // 5 % slower than the nominal period
         let mut p = Predictor::new(P);
         let t0 = 5_000_000_000u64;
         for k in 0..2000 {
             p.observe(k + 1, t0 + k * real + delay(k));
+        }
+        // A stall and a burst of catch-up cycles do not disturb it.
+        let t1 = t0 + 2000 * real + 5_000_000;
+        for k in 0..5 {
+            p.observe(2001 + k, t1 + k * 50_000);
         }
         assert!(p.ready());
         let err = (p.period_ns() as f64 - real as f64).abs();
@@ -181,25 +203,27 @@ mod tests {
     }
 
     #[test]
-    fn predicts_the_floor_of_the_arrivals_not_their_mean() {
+    fn predicts_a_low_quantile_of_the_arrivals_not_their_mean() {
         let mut p = Predictor::new(P);
         let t0 = 1_000_000_000u64;
         for k in 0..3000 {
             p.observe(k + 1, t0 + k * P + delay(k));
         }
-        // Next grid point 3000, whose earliest arrival is 20 µs after it.
-        let floor = t0 + 3000 * P + 20_000;
+        // Next grid point 3000, whose delays are spread 20..=80 µs: the 10 % quantile is 26 µs.
+        let low = t0 + 3000 * P + 26_000;
         let pred = p.next_arrival_ns() as i64;
         assert!(
-            (pred - floor as i64).abs() < 2_000,
-            "predicted {pred}, floor {floor}"
+            (pred - low as i64).abs() < 3_000,
+            "predicted {pred}, 10 % quantile {low}"
         );
-        // Samples never come much before the prediction.
-        for k in 3000..3100 {
+        // Few samples come before the prediction.
+        let mut early = 0;
+        for k in 3000..3610 {
             let t = t0 + k * P + delay(k);
-            assert!(t as i64 >= p.next_arrival_ns() as i64 - 2_000, "seq {k}");
+            early += u32::from((t as i64) < p.next_arrival_ns() as i64);
             p.observe(k + 1, t);
         }
+        assert!((30..=90).contains(&early), "{early} of 610 early");
     }
 
     #[test]
