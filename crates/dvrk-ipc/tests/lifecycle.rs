@@ -12,7 +12,7 @@ use common::Domain;
 use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, JointStateV1, PoseV1, SubscribeOptions, Subscription,
+    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, SubscribeOptions, Subscription,
     Topic, Update, WaitStrategy, create_node, monotonic_ns,
 };
 
@@ -34,9 +34,9 @@ fn publish(p: &ArmPublisher, seq: u64) {
         ..PoseV1::default()
     };
     cp.position_m[2] = -0.1;
-    let st = CompensationStatusV1 {
+    let st = CompensationStatusV2 {
         header: js.header,
-        ..CompensationStatusV1::default()
+        ..CompensationStatusV2::default()
     };
     p.publish_cycle(&js, &cp, &js, &cp, &st).expect("publish");
 }

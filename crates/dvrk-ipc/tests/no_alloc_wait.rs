@@ -12,7 +12,7 @@ use std::time::Duration;
 use common::Domain;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, JointStateV1, PoseV1, SubscribeOptions, Subscription,
+    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, SubscribeOptions, Subscription,
     Topic, Update, WaitStrategy, create_node, monotonic_ns,
 };
 
@@ -91,9 +91,9 @@ fn waiting_allocates_nothing_with_any_strategy() {
                     header: js.header,
                     ..PoseV1::default()
                 };
-                let st = CompensationStatusV1 {
+                let st = CompensationStatusV2 {
                     header: js.header,
-                    ..CompensationStatusV1::default()
+                    ..CompensationStatusV2::default()
                 };
                 p.publish_cycle(&js, &cp, &js, &cp, &st).unwrap();
             }
