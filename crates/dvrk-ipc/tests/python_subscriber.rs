@@ -203,8 +203,10 @@ fn python_subscriber_waits_every_way() {
             }
             let mut cp = pose(seq);
             cp.header.publish_t_ns = dvrk_ipc::monotonic_ns();
-            let mut js = JointStateV1::default();
-            js.header = cp.header;
+            let js = JointStateV1 {
+                header: cp.header,
+                ..JointStateV1::default()
+            };
             let st = CompensationStatusV2 {
                 header: cp.header,
                 ..Default::default()
