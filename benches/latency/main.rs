@@ -1,19 +1,27 @@
 //! End-to-end latency harness.
 //!
 //! Runs the UDP board emulator (`dvrk-sidecar sim`), `dvrk-sidecar serve` reading it at 1500 Hz,
-//! and N subscriber processes (N = 1, 4, 16), each measuring the one-way latency from a
+//! and N subscriber processes (N = 1, 4, 16) per path, each measuring the one-way latency from a
 //! sample's time (host CLOCK_MONOTONIC when the board read completed, `header.sample_t_ns`) to
-//! its receipt, for 10 s. In the same run, for comparison, the same state (the compensated tip
-//! pose) goes the way the dVRK's existing non-ROS path sends it: a sawSocketStreamer-style JSON
-//! datagram over UDP loopback to N subscriber processes that parse it. The JSON streamer runs
-//! the same read + compensate + FK pipeline against the same emulator; its timestamp is taken at
-//! the same point, so both paths are measured from the same instant to the consumer's hands.
+//! its receipt. The shared-memory paths are the wait strategies of `dvrk_ipc::Subscription`:
+//! `event`, `predictive`, and `spin` (only while N is below the number of CPUs: a spinning
+//! subscriber needs a core of its own). In the same run, for comparison, the same state (the
+//! compensated tip pose) goes the way the dVRK's existing non-ROS path sends it (`json_udp`): a
+//! sawSocketStreamer-style JSON datagram over UDP loopback to N subscriber processes that parse
+//! it. The JSON streamer runs the same read + compensate + FK pipeline against the same emulator;
+//! its timestamp is taken at the same point, so every path is measured from the same instant to
+//! the consumer's hands.
 //!
 //! ```text
 //! cargo build --release -p dvrk-sidecar && cargo bench --bench latency
-//! cargo bench --bench latency -- --seconds 3 --subscribers 1,4   # shorter
+//! cargo bench --bench latency -- --seconds 5 --subscribers 1,4,16 --json
+//! cargo bench --bench latency -- --seconds 2 --subscribers 1,4 --check-lost   # CI: exit 1 on loss
 //! ```
-//! Prints a markdown table for benches/README.md.
+//! Prints a markdown table (with the publisher's own share, `publish_t_ns - sample_t_ns`, and the
+//! hand-off, receipt - `publish_t_ns`), or with `--json` one line per case:
+//! `{"subscribers":N,"path":"event|predictive|spin|json_udp","samples":..,"p50_us":..,"p99_us":..,
+//! "p999_us":..,"max_us":..,"lost":..,"cpu_percent":..}`, where `lost` counts sequence gaps and
+//! `cpu_percent` is the mean CPU use of one subscriber process while it measured.
 
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
@@ -22,7 +30,10 @@ use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{NOMINAL_PERIOD, PoseV1, ServiceNames, Subscription, Topic, Update};
+use dvrk_ipc::{
+    NOMINAL_PERIOD, PoseV1, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
+    WaitStrategy,
+};
 use dvrk_sidecar::config::SidecarConfig;
 use dvrk_sidecar::cycle::{self, ReadOutcome};
 use dvrk_sidecar::rt;
@@ -40,7 +51,7 @@ fn main() -> Res<()> {
         .filter(|a| a != "--bench")
         .collect();
     match args.first().map(String::as_str) {
-        Some("--sub-shm") => sub_shm(&args[1], args[2].parse()?),
+        Some("--sub-shm") => sub_shm(&args[1], args[2].parse()?, args[3].parse()?),
         Some("--sub-json") => sub_json(args[1].parse()?, args[2].parse()?),
         Some("--json-streamer") => json_streamer(Path::new(&args[1]), &args[2], args[3].parse()?),
         _ => orchestrate(&args),
@@ -50,45 +61,99 @@ fn main() -> Res<()> {
 // ---------------------------------------------------------------------------------------------
 // Subscribers (each its own process): record latencies, print one JSON line of stats at the end.
 
-/// Latency statistics in ns over all samples.
-fn stats(mut v: Vec<u64>) -> serde_json::Value {
-    v.sort_unstable();
-    let q = |p: f64| {
-        v.get(((p * v.len() as f64) as usize).min(v.len().saturating_sub(1)))
-            .copied()
-            .unwrap_or(0)
+/// CPU time (user + system) of this process, ns.
+fn cpu_ns() -> u64 {
+    // SAFETY: getrusage fills the zeroed struct it is given.
+    let ru = unsafe {
+        let mut ru: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_SELF, &mut ru);
+        ru
     };
-    serde_json::json!({ "n": v.len(), "p50": q(0.5), "p99": q(0.99), "p999": q(0.999),
-                        "max": v.last().copied().unwrap_or(0), "all": v })
+    let tv = |t: libc::timeval| t.tv_sec as u64 * 1_000_000_000 + t.tv_usec as u64 * 1_000;
+    tv(ru.ru_utime) + tv(ru.ru_stime)
 }
 
-fn sub_shm(prefix: &str, seconds: f64) -> Res<()> {
+/// What one subscriber process measured: latencies (ns) of every sample, the publisher's share
+/// of each (`publish_t_ns - sample_t_ns`), the sequence gaps and its CPU use.
+fn report(
+    lat: Vec<u64>,
+    publisher: Vec<u64>,
+    lost: u64,
+    cpu_percent: f64,
+    on_time: Option<(u64, u64)>,
+) -> serde_json::Value {
+    serde_json::json!({ "all": lat, "publisher": publisher, "lost": lost,
+                        "cpu_percent": cpu_percent, "on_time": on_time })
+}
+
+/// Measures CPU use over the measuring window: from the first sample to the end.
+struct CpuWindow {
+    start: Option<(u64, u64)>,
+}
+impl CpuWindow {
+    fn mark(&mut self, now: u64) {
+        self.start.get_or_insert_with(|| (now, cpu_ns()));
+    }
+    fn elapsed_s(&self, now: u64) -> f64 {
+        self.start.map_or(0.0, |(t, _)| (now - t) as f64 * 1e-9)
+    }
+    fn percent(&self, now: u64) -> f64 {
+        match self.start {
+            Some((t, c)) if now > t => 100.0 * (cpu_ns() - c) as f64 / (now - t) as f64,
+            _ => 0.0,
+        }
+    }
+}
+
+fn sub_shm(prefix: &str, seconds: f64, wait: WaitStrategy) -> Res<()> {
     let node = dvrk_ipc::create_node::<Service>("latency-sub", None)?;
     let names = ServiceNames::new(prefix)?;
-    let mut sub = Subscription::<PoseV1, Service>::new(
+    let options = SubscribeOptions {
+        period: NOMINAL_PERIOD,
+        wait,
+        deadline: None,
+    };
+    let mut sub = Subscription::<PoseV1, Service>::with_options(
         &node,
         &names,
         Topic::CompensatedMeasuredCp,
-        NOMINAL_PERIOD,
+        options,
     )?;
-    let mut lat = Vec::with_capacity((seconds * 2000.0) as usize);
-    let mut start = None;
+    let capacity = (seconds * 2000.0) as usize;
+    let mut lat = Vec::with_capacity(capacity);
+    let mut publisher = Vec::with_capacity(capacity);
+    let mut window = CpuWindow { start: None };
+    let mut first_gaps = None;
     loop {
         let update = sub.wait_with(|m| {
             let now = rt::monotonic_ns();
-            start.get_or_insert(now);
+            window.mark(now);
             lat.push(now.saturating_sub(m.header.sample_t_ns));
+            publisher.push(m.header.publish_t_ns.saturating_sub(m.header.sample_t_ns));
         })?;
-        if let Some(s) = start
-            && rt::monotonic_ns() - s > (seconds * 1e9) as u64
-        {
+        if window.start.is_some() {
+            // Gaps before the first sample (joining mid-stream) are not losses.
+            first_gaps.get_or_insert(sub.stats().seq_gaps_total);
+        }
+        let now = rt::monotonic_ns();
+        if window.elapsed_s(now) > seconds {
             break;
         }
-        if matches!(update, Update::Terminated) && start.is_some() {
+        if matches!(update, Update::Terminated) && window.start.is_some() {
             break;
         }
     }
-    println!("{}", stats(lat));
+    let now = rt::monotonic_ns();
+    let lost = sub.stats().seq_gaps_total - first_gaps.unwrap_or(0);
+    let st = sub.stats();
+    let on_time = (wait == WaitStrategy::Predictive).then_some((
+        st.predicted_on_time_total,
+        st.predicted_on_time_total + st.predicted_late_total + st.predicted_missed_total,
+    ));
+    println!(
+        "{}",
+        report(lat, publisher, lost, window.percent(now), on_time)
+    );
     Ok(())
 }
 
@@ -96,36 +161,48 @@ fn sub_json(port: u16, seconds: f64) -> Res<()> {
     let sock = UdpSocket::bind(("127.0.0.1", port))?;
     sock.set_read_timeout(Some(Duration::from_millis(200)))?;
     let mut buf = [0u8; 2048];
-    let mut lat = Vec::with_capacity((seconds * 2000.0) as usize);
-    let mut start = None;
+    let capacity = (seconds * 2000.0) as usize;
+    let mut lat = Vec::with_capacity(capacity);
+    let mut window = CpuWindow { start: None };
+    let mut last_seq: Option<u64> = None;
+    let mut lost = 0;
     let mut idle = 0;
     loop {
         match sock.recv(&mut buf) {
             Ok(n) => {
                 idle = 0;
                 let now = rt::monotonic_ns();
-                start.get_or_insert(now);
+                window.mark(now);
                 // A consumer of sawSocketStreamer parses the JSON to get at the values.
                 let v: serde_json::Value = serde_json::from_slice(&buf[..n])?;
                 let ts = v["measured_cp"]["Timestamp"]
                     .as_f64()
                     .ok_or("datagram without Timestamp")?;
                 lat.push(now.saturating_sub((ts * 1e9) as u64));
+                let seq = v["seq"].as_u64().ok_or("datagram without seq")?;
+                if let Some(prev) = last_seq
+                    && seq > prev + 1
+                {
+                    lost += seq - prev - 1;
+                }
+                last_seq = Some(seq);
             }
             Err(_) => {
                 idle += 1;
-                if start.is_some() && idle > 5 {
+                if window.start.is_some() && idle > 5 {
                     break;
                 }
             }
         }
-        if let Some(s) = start
-            && rt::monotonic_ns() - s > (seconds * 1e9) as u64
-        {
+        if window.elapsed_s(rt::monotonic_ns()) > seconds {
             break;
         }
     }
-    println!("{}", stats(lat));
+    let now = rt::monotonic_ns();
+    println!(
+        "{}",
+        report(lat, Vec::new(), lost, window.percent(now), None)
+    );
     Ok(())
 }
 
@@ -149,6 +226,7 @@ fn json_streamer(cfg_path: &Path, targets: &str, seconds: f64) -> Res<()> {
     let period = 666_667u64;
     let t0 = rt::monotonic_ns();
     let mut deadline = t0;
+    let mut seq = 0u64;
     while rt::monotonic_ns() - t0 < (seconds * 1e9) as u64 {
         rt::sleep_until_ns(deadline);
         deadline += period;
@@ -161,7 +239,9 @@ fn json_streamer(cfg_path: &Path, targets: &str, seconds: f64) -> Res<()> {
         let m = m.matrix();
         // sawSocketStreamer's prmPositionCartesianGet serialisation (reference section 2.3),
         // with the timestamp in seconds of the host monotonic clock.
-        let json = serde_json::json!({ "measured_cp": {
+        seq += 1;
+        // `seq` (not part of sawSocketStreamer's message) lets the subscribers count losses.
+        let json = serde_json::json!({ "seq": seq, "measured_cp": {
             "AutomaticTimestamp": false,
             "MovingFrame": "PSM1",
             "Position": {
@@ -208,8 +288,20 @@ fn free_port() -> u16 {
         .unwrap_or(0)
 }
 
-fn collect(children: Vec<Child>) -> Res<Vec<u64>> {
-    let mut all = Vec::new();
+/// What the N subscriber processes of one case measured together.
+#[derive(Default)]
+struct Case {
+    all: Vec<u64>,
+    publisher: Vec<u64>,
+    lost: u64,
+    cpu_percent: f64,
+    /// Predictive waits that were polling when the sample landed, of all predictive waits.
+    on_time: (u64, u64),
+}
+
+fn collect(children: Vec<Child>) -> Res<Case> {
+    let mut case = Case::default();
+    let n = children.len();
     for mut c in children {
         let out = c.stdout.take().ok_or("no stdout")?;
         let line = BufReader::new(out)
@@ -217,17 +309,28 @@ fn collect(children: Vec<Child>) -> Res<Vec<u64>> {
             .next()
             .ok_or("subscriber printed nothing")??;
         let v: serde_json::Value = serde_json::from_str(&line)?;
-        all.extend(
-            v["all"]
+        let nums = |key: &str| -> Vec<u64> {
+            v[key]
                 .as_array()
-                .ok_or("no samples")?
-                .iter()
-                .filter_map(|x| x.as_u64()),
-        );
-        c.wait()?;
+                .map(|a| a.iter().filter_map(|x| x.as_u64()).collect())
+                .unwrap_or_default()
+        };
+        case.all.extend(nums("all"));
+        case.publisher.extend(nums("publisher"));
+        case.lost += v["lost"].as_u64().ok_or("no lost")?;
+        if let Some(a) = v["on_time"].as_array() {
+            case.on_time.0 += a[0].as_u64().unwrap_or(0);
+            case.on_time.1 += a[1].as_u64().unwrap_or(0);
+        }
+        case.cpu_percent += v["cpu_percent"].as_f64().ok_or("no cpu_percent")? / n as f64;
+        let status = c.wait()?;
+        if !status.success() {
+            return Err(format!("a subscriber failed: {status}").into());
+        }
     }
-    all.sort_unstable();
-    Ok(all)
+    case.all.sort_unstable();
+    case.publisher.sort_unstable();
+    Ok(case)
 }
 
 fn q(v: &[u64], p: f64) -> f64 {
@@ -237,24 +340,61 @@ fn q(v: &[u64], p: f64) -> f64 {
         / 1e3
 }
 
-fn orchestrate(args: &[String]) -> Res<()> {
-    let mut seconds = 10.0;
-    let mut counts = vec![1usize, 4, 16];
+struct Options {
+    seconds: f64,
+    counts: Vec<usize>,
+    json: bool,
+    check_lost: bool,
+    paths: Vec<String>,
+}
+
+fn parse_options(args: &[String]) -> Res<Options> {
+    let mut o = Options {
+        seconds: 10.0,
+        counts: vec![1, 4, 16],
+        json: false,
+        check_lost: false,
+        paths: ["event", "predictive", "spin", "json_udp"]
+            .map(String::from)
+            .to_vec(),
+    };
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
-            "--seconds" => seconds = it.next().ok_or("--seconds N")?.parse()?,
+            "--seconds" => o.seconds = it.next().ok_or("--seconds S")?.parse()?,
             "--subscribers" => {
-                counts = it
+                o.counts = it
                     .next()
-                    .ok_or("--subscribers 1,4")?
+                    .ok_or("--subscribers 1,4,16")?
                     .split(',')
                     .map(str::parse)
                     .collect::<Result<_, _>>()?
             }
+            "--paths" => {
+                o.paths = it
+                    .next()
+                    .ok_or("--paths event,predictive,spin,json_udp")?
+                    .split(',')
+                    .map(String::from)
+                    .collect()
+            }
+            "--json" => o.json = true,
+            "--check-lost" => o.check_lost = true,
+            // cargo bench passes filters and flags of its own; ignore them.
             _ => {}
         }
     }
+    for p in &o.paths {
+        if p != "json_udp" {
+            p.parse::<WaitStrategy>()?;
+        }
+    }
+    Ok(o)
+}
+
+fn orchestrate(args: &[String]) -> Res<()> {
+    let o = parse_options(args)?;
+    let cores = std::thread::available_parallelism()?.get();
     let me = std::env::current_exe()?;
     let bin = me
         .parent()
@@ -295,15 +435,19 @@ fn orchestrate(args: &[String]) -> Res<()> {
                 .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_owned())
         })
         .unwrap_or_default();
-    println!(
-        "# latency, {} s per case, 1500 Hz, {} CPUs ({cpu})\n",
-        seconds,
-        std::thread::available_parallelism()?.get()
-    );
-    println!("| subscribers | path | samples | p50 µs | p99 µs | p99.9 µs | max µs |");
-    println!("|---|---|---|---|---|---|---|");
+    if !o.json {
+        println!(
+            "# latency, {} s per case, 1500 Hz, {cores} CPUs ({cpu})\n",
+            o.seconds
+        );
+        println!(
+            "| subscribers | path | samples | p50 µs | p99 µs | p99.9 µs | max µs | lost | CPU % per subscriber | publisher's share p50 µs | hand-off p50 µs | predicted on time |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    }
+    let mut total_lost = 0;
     let mut ratios = Vec::new();
-    for &n in &counts {
+    for &n in &o.counts {
         let prefix = format!("latency/p{}/n{n}", std::process::id());
         let cfg = dir.join(format!("sidecar-{n}.toml"));
         std::fs::write(
@@ -315,70 +459,130 @@ fn orchestrate(args: &[String]) -> Res<()> {
                 c.join("compliance/paper-psm.toml").display()
             ),
         )?;
-        // Shared memory: serve + n subscriber processes.
-        let serve = Killer(
-            Command::new(&bin)
-                .args(["serve", "--config"])
-                .arg(&cfg)
-                .env("RUST_LOG", "warn")
-                .spawn()?,
-        );
-        let subs: Vec<Child> = (0..n)
-            .map(|_| {
-                Command::new(&me)
-                    .args(["--sub-shm", &prefix, &seconds.to_string()])
-                    .stdout(Stdio::piped())
-                    .spawn()
-            })
-            .collect::<Result<_, _>>()?;
-        let shm = collect(subs)?;
-        drop(serve);
-        // JSON over UDP: the streamer + n subscriber processes.
-        let ports: Vec<u16> = (0..n).map(|_| free_port()).collect();
-        let subs: Vec<Child> = ports
+        let mut results: Vec<(String, Case)> = Vec::new();
+        // Shared memory: one serve, then n subscriber processes per wait strategy in turn.
+        let shm_paths: Vec<WaitStrategy> = o
+            .paths
             .iter()
-            .map(|p| {
-                Command::new(&me)
-                    .args(["--sub-json", &p.to_string(), &seconds.to_string()])
-                    .stdout(Stdio::piped())
-                    .spawn()
-            })
-            .collect::<Result<_, _>>()?;
-        std::thread::sleep(Duration::from_millis(200));
-        let targets = ports
-            .iter()
-            .map(u16::to_string)
-            .collect::<Vec<_>>()
-            .join(",");
-        let streamer = Killer(
-            Command::new(&me)
-                .args(["--json-streamer"])
-                .arg(&cfg)
-                .args([&targets, &(seconds + 1.0).to_string()])
-                .spawn()?,
-        );
-        let json = collect(subs)?;
-        drop(streamer);
-        for (name, v) in [("iceoryx2 shm", &shm), ("JSON/UDP", &json)] {
-            println!(
-                "| {n} | {name} | {} | {:.1} | {:.1} | {:.1} | {:.1} |",
-                v.len(),
-                q(v, 0.5),
-                q(v, 0.99),
-                q(v, 0.999),
-                q(v, 1.0)
+            .filter_map(|p| p.parse::<WaitStrategy>().ok())
+            .filter(|w| *w != WaitStrategy::Spin || n < cores)
+            .collect();
+        if !shm_paths.is_empty() {
+            let serve = Killer(
+                Command::new(&bin)
+                    .args(["serve", "--config"])
+                    .arg(&cfg)
+                    .env("RUST_LOG", "warn")
+                    .spawn()?,
             );
+            for wait in shm_paths {
+                let subs: Vec<Child> = (0..n)
+                    .map(|_| {
+                        Command::new(&me)
+                            .args(["--sub-shm", &prefix, &o.seconds.to_string(), wait.name()])
+                            .stdout(Stdio::piped())
+                            .spawn()
+                    })
+                    .collect::<Result<_, _>>()?;
+                results.push((wait.name().to_owned(), collect(subs)?));
+            }
+            drop(serve);
         }
-        ratios.push((
-            n,
-            q(&json, 0.5) / q(&shm, 0.5),
-            q(&json, 0.99) / q(&shm, 0.99),
-        ));
+        if o.paths.iter().any(|p| p == "json_udp") {
+            // JSON over UDP: the streamer + n subscriber processes.
+            let ports: Vec<u16> = (0..n).map(|_| free_port()).collect();
+            let subs: Vec<Child> = ports
+                .iter()
+                .map(|p| {
+                    Command::new(&me)
+                        .args(["--sub-json", &p.to_string(), &o.seconds.to_string()])
+                        .stdout(Stdio::piped())
+                        .spawn()
+                })
+                .collect::<Result<_, _>>()?;
+            std::thread::sleep(Duration::from_millis(200));
+            let targets = ports
+                .iter()
+                .map(u16::to_string)
+                .collect::<Vec<_>>()
+                .join(",");
+            let streamer = Killer(
+                Command::new(&me)
+                    .args(["--json-streamer"])
+                    .arg(&cfg)
+                    .args([&targets, &(o.seconds + 1.0).to_string()])
+                    .spawn()?,
+            );
+            results.push(("json_udp".to_owned(), collect(subs)?));
+            drop(streamer);
+        }
+        for (path, r) in &results {
+            let v = &r.all;
+            total_lost += r.lost;
+            if o.json {
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "subscribers": n, "path": path, "samples": v.len(),
+                        "p50_us": q(v, 0.5), "p99_us": q(v, 0.99), "p999_us": q(v, 0.999),
+                        "max_us": q(v, 1.0), "lost": r.lost,
+                        "cpu_percent": (r.cpu_percent * 10.0).round() / 10.0,
+                    })
+                );
+            } else {
+                let share = if r.publisher.is_empty() {
+                    "".to_owned()
+                } else {
+                    format!("{:.1}", q(&r.publisher, 0.5))
+                };
+                let handoff = if r.publisher.is_empty() {
+                    "".to_owned()
+                } else {
+                    // Per-sample hand-off is latency minus the publisher's share; its p50 is
+                    // close to the difference of the p50s.
+                    format!("{:.1}", q(v, 0.5) - q(&r.publisher, 0.5))
+                };
+                let on_time = if r.on_time.1 > 0 {
+                    format!(
+                        "{:.1} % of {}",
+                        100.0 * r.on_time.0 as f64 / r.on_time.1 as f64,
+                        r.on_time.1
+                    )
+                } else {
+                    "".to_owned()
+                };
+                println!(
+                    "| {n} | {path} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {share} | {handoff} | {on_time} |",
+                    v.len(),
+                    q(v, 0.5),
+                    q(v, 0.99),
+                    q(v, 0.999),
+                    q(v, 1.0),
+                    r.lost,
+                    r.cpu_percent
+                );
+            }
+        }
+        if let Some((_, json)) = results.iter().find(|(p, _)| p == "json_udp") {
+            for (path, r) in results.iter().filter(|(p, _)| p != "json_udp") {
+                ratios.push((
+                    n,
+                    path.clone(),
+                    q(&json.all, 0.5) / q(&r.all, 0.5),
+                    q(&json.all, 0.99) / q(&r.all, 0.99),
+                ));
+            }
+        }
     }
-    println!("\n| subscribers | JSON/shm p50 | JSON/shm p99 |\n|---|---|---|");
-    for (n, r50, r99) in ratios {
-        println!("| {n} | {r50:.2}x | {r99:.2}x |");
+    if !o.json && !ratios.is_empty() {
+        println!("\n| subscribers | path | JSON/path p50 | JSON/path p99 |\n|---|---|---|---|");
+        for (n, path, r50, r99) in ratios {
+            println!("| {n} | {path} | {r50:.2}x | {r99:.2}x |");
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
+    if o.check_lost && total_lost > 0 {
+        return Err(format!("{total_lost} samples lost (sequence gaps) over all cases").into());
+    }
     Ok(())
 }

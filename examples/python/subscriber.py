@@ -8,13 +8,20 @@ Requires the iceoryx2 Python package of the same version as the sidecar's crate:
 Usage:
 
     python3 examples/python/subscriber.py [--prefix dvrk/PSM1] [--count 10] [--json]
-        [--topic compensated/measured_cp] [--timeout-s 10]
+        [--topic compensated/measured_cp] [--timeout-s 10] [--wait event|spin|predictive]
         [--domain PREFIX [--root /tmp/iox2t/]]
 
-It sleeps in an iceoryx2 WaitSet on the `<prefix>/cycle` event (deadline: 3 nominal periods),
-drains the event and every buffered sample, and prints the newest sample of each wake-up, until
-`--count` samples are printed (exit 0). Exit 2 if no sample arrives for `--timeout-s` seconds,
-exit 3 if the publisher goes away. `--json` prints one JSON object per line.
+`--wait` chooses how to wait for the next sample, as dvrk_ipc::WaitStrategy does in Rust:
+- `event` (default): sleep in an iceoryx2 WaitSet on the `<prefix>/cycle` event (deadline: 10 ms),
+  then drain the event and every buffered sample;
+- `spin`: poll the subscriber without sleeping (one whole core; opens no listener, so it costs the
+  publisher nothing);
+- `predictive`: learn the publisher's period and phase from the samples' `publish_t_ns`, sleep on
+  the cycle event's socket with a timeout that ends shortly before the next sample is due
+  (select(2), timer slack set to 1 ns), then poll; never later than the event.
+It prints the newest sample of each wake-up, until `--count` samples are printed (exit 0). Exit 2
+if no sample arrives for `--timeout-s` seconds, exit 3 if the publisher goes away (one line on
+stderr). `--json` prints one JSON object per line.
 
 The ctypes structures mirror crates/dvrk-ipc/src/msg.rs (and include/dvrk_ipc.h) byte for byte,
 and declare the same iceoryx2 type names (`dvrk::PoseV1`, ...) through the `type_name()`
@@ -25,6 +32,8 @@ project's QoS, so this script may start before or after the sidecar.
 import argparse
 import ctypes
 import json
+import os
+import select
 import sys
 import time
 
@@ -44,8 +53,9 @@ QOS_MAX_NODES = 36
 QOS_EVENT_MAX_NOTIFIERS = 1
 QOS_EVENT_MAX_LISTENERS = 32
 
-DEADLINE_PERIODS = 3
 NOMINAL_PERIOD_NS = 666_667  # 1500 Hz
+# Staleness deadline: 3 periods, at least 10 ms (dvrk_ipc::SubscribeOptions::effective_deadline).
+DEADLINE_NS = max(3 * NOMINAL_PERIOD_NS, 10_000_000)
 
 # Header.flags bits (dvrk_ipc::flags), in bit order.
 FLAG_NAMES = (
@@ -242,6 +252,64 @@ def drain(subscriber, payload):
         sample.delete()  # release the shared-memory slot now, not at garbage collection
 
 
+def socket_fds() -> set:
+    """This process's open socket descriptors."""
+    fds = set()
+    for name in os.listdir("/proc/self/fd"):
+        try:
+            if os.readlink(f"/proc/self/fd/{name}").startswith("socket:"):
+                fds.add(int(name))
+        except OSError:
+            pass
+    return fds
+
+
+def minimise_timer_slack() -> None:
+    """PR_SET_TIMERSLACK = 1 ns, so the predictive wake-up is not deferred by 50 µs."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    PR_SET_TIMERSLACK = 29
+    if libc.prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_TIMERSLACK)")
+
+
+class Predictor:
+    """The publisher's period (over the longest baseline) and phase (earliest arrival of the last
+    128), and an adaptive guard: the same model as dvrk_ipc's predictive wait."""
+
+    WINDOW = 128
+    LEARN = 16
+
+    def __init__(self, period_ns: int):
+        self.nominal = period_ns
+        self.period = float(period_ns)
+        self.anchor = None
+        self.recent = []
+        self.guard = 100_000.0  # Python wakes up slower than Rust: start wider
+        self.spin_after = 50_000.0
+
+    def ready(self) -> bool:
+        return len(self.recent) >= self.LEARN
+
+    def observe(self, seq: int, t_ns: int) -> None:
+        if self.recent and (seq <= self.recent[-1][0] or t_ns <= self.recent[-1][1]):
+            self.anchor, self.recent, self.period = None, [], float(self.nominal)
+        if self.anchor is None:
+            self.anchor = (seq, t_ns)
+        a_seq, a_t = self.anchor
+        if seq - a_seq >= self.LEARN:
+            self.period = (t_ns - a_t) / (seq - a_seq)
+        self.recent.append((seq, t_ns))
+        del self.recent[: -self.WINDOW]
+
+    def next_arrival_ns(self) -> int:
+        target = self.recent[-1][0] + 1
+        return int(min(t + (target - s) * self.period for s, t in self.recent))
+
+    def graded(self, on_time: bool) -> None:
+        cap = self.period / 4
+        self.guard = max(10_000.0, self.guard - 1_000.0) if on_time else min(cap, self.guard + 30_000.0)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--prefix", default="dvrk/PSM1", help="service prefix (default dvrk/PSM1)")
@@ -255,6 +323,12 @@ def main(argv=None) -> int:
     )
     parser.add_argument(
         "--timeout-s", type=float, default=10.0, help="give up (exit 2) after this long without a sample"
+    )
+    parser.add_argument(
+        "--wait",
+        default="event",
+        choices=("event", "spin", "predictive"),
+        help="how to wait for samples (default event)",
     )
     parser.add_argument("--domain", help="iceoryx2 domain prefix (default: iceoryx2's iox2_)")
     parser.add_argument("--root", help="iceoryx2 root path of the domain (default /tmp/iceoryx2/)")
@@ -272,30 +346,96 @@ def main(argv=None) -> int:
     )
     service, event = open_services(node, args.prefix, args.topic)
     subscriber = service.subscriber_builder().create()
-    listener = event.listener_builder().create()
-    waitset = (
-        iox2.WaitSetBuilder.new()
-        .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
-        .create(iox2.ServiceType.Ipc)
-    )
-    guard = waitset.attach_deadline(
-        listener, iox2.Duration.from_nanos(DEADLINE_PERIODS * NOMINAL_PERIOD_NS)
-    )
+    listener = None
+    listener_fd = None
+    waitset = guard = None
+    predictor = None
+    if args.wait != "spin":
+        before = socket_fds()
+        listener = event.listener_builder().create()
+        # iceoryx2's Python API does not expose the listener's descriptor; it is the one unix
+        # socket that creating the listener opened.
+        new = socket_fds() - before
+        listener_fd = new.pop() if len(new) == 1 else None
+    if args.wait == "predictive":
+        if listener_fd is None:
+            print("cannot find the cycle event's socket; use --wait event", file=sys.stderr)
+            return 1
+        minimise_timer_slack()
+        predictor = Predictor(NOMINAL_PERIOD_NS)
+    if args.wait == "event":
+        waitset = (
+            iox2.WaitSetBuilder.new()
+            .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+            .create(iox2.ServiceType.Ipc)
+        )
+        guard = waitset.attach_deadline(listener, iox2.Duration.from_nanos(DEADLINE_NS))
+
+    def wait_readable(fd, until_ns) -> bool:
+        """Sleeps until the event's socket is readable (True) or until_ns passes (False)."""
+        timeout = max(0.0, (until_ns - time.monotonic_ns()) / 1e9)
+        try:
+            readable, _, _ = select.select([fd], [], [], timeout)
+        except InterruptedError:
+            return False
+        return bool(readable)
+
+    def next_sample():
+        """Waits as --wait says; returns the newest sample or None after the deadline."""
+        stale_at = time.monotonic_ns() + DEADLINE_NS
+        if args.wait == "spin":
+            while time.monotonic_ns() < stale_at:
+                sample = drain(subscriber, payload)
+                if sample is not None:
+                    return sample
+            return None
+        if args.wait == "event":
+            (triggers, result) = waitset.wait_and_process()
+            for attachment in triggers:
+                if attachment.has_event_from(guard):
+                    listener.try_wait()  # level-triggered: consume the notifications
+            if result in (iox2.WaitSetRunResult.Interrupt, iox2.WaitSetRunResult.TerminationRequest):
+                raise KeyboardInterrupt
+            return drain(subscriber, payload)
+        # predictive: consume old notifications, then look before sleeping.
+        sample = drain(subscriber, payload)
+        if sample is None:
+            listener.try_wait()
+            sample = drain(subscriber, payload)
+        if sample is not None or not predictor.ready():
+            if sample is None and wait_readable(listener_fd, stale_at):
+                sample = drain(subscriber, payload)
+            return sample
+        arrival = predictor.next_arrival_ns()
+        woke_on_event = wait_readable(listener_fd, min(stale_at, arrival - int(predictor.guard)))
+        started = time.monotonic_ns()
+        spin_until = min(stale_at, arrival + int(predictor.spin_after))
+        first = True
+        while True:
+            sample = drain(subscriber, payload)
+            if sample is not None:
+                predictor.graded(not woke_on_event and not first and started <= sample.header.publish_t_ns)
+                return sample
+            first = False
+            if time.monotonic_ns() >= spin_until:
+                break
+        if wait_readable(listener_fd, stale_at):
+            return drain(subscriber, payload)
+        return None
 
     printed = 0
     publisher_seen = service.dynamic_config.number_of_publishers > 0
     last_fresh = time.monotonic()
     while printed < args.count:
-        (triggers, result) = waitset.wait_and_process()
-        for attachment in triggers:
-            if attachment.has_event_from(guard):
-                listener.try_wait()  # level-triggered: consume the notifications
-        if result in (iox2.WaitSetRunResult.Interrupt, iox2.WaitSetRunResult.TerminationRequest):
+        try:
+            sample = next_sample()
+        except KeyboardInterrupt:
             return 130
-        sample = drain(subscriber, payload)
         if sample is not None:
             publisher_seen = True
             last_fresh = time.monotonic()
+            if predictor is not None:
+                predictor.observe(sample.header.seq, sample.header.publish_t_ns or time.monotonic_ns())
             if args.json:
                 record = to_dict(sample)
                 record["topic"] = f"{args.prefix}/{args.topic}"
@@ -311,7 +451,7 @@ def main(argv=None) -> int:
         if service.dynamic_config.number_of_publishers > 0:
             publisher_seen = True
         elif publisher_seen:
-            print(f"publisher under {args.prefix} terminated", file=sys.stderr)
+            print(f"publisher of {args.prefix}/{args.topic} is gone", file=sys.stderr)
             return 3
         if time.monotonic() - last_fresh > args.timeout_s:
             print(

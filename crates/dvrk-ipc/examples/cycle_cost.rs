@@ -1,19 +1,22 @@
 //! Per-cycle cost of `ArmPublisher::publish_cycle` (five loans + writes + sends, one notify),
-//! with 0, 1, 4 and 16 in-process subscriptions to every topic's cycle event.
+//! with 0, 1, 4 and 16 in-process subscriptions of each kind: `spin` (no listener on the cycle
+//! event) and `event` (a listener, drained every cycle as an event or predictive subscriber
+//! drains it before it sleeps: to the publisher both kinds are one listener).
 //!
 //! ```text
 //! cargo run --release -p dvrk-ipc --example cycle_cost -- [cycles per case, default 100000]
 //!     [drain every N cycles, default 1]
 //! ```
 //! Each cycle is timed on its own with `Instant`; subscriptions drain their event and samples
-//! every N cycles (1 = subscribers that keep up, as in production), outside the timed region. Runs in its own iceoryx2 domain under /tmp/iox2t/.
+//! every N cycles (1 = subscribers that keep up, as in production), outside the timed region.
+//! Runs in its own iceoryx2 domain under /tmp/iox2t/.
 
 use std::time::{Duration, Instant};
 
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, ServiceNames, Subscription, Topic,
-    create_node, domain_config,
+    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, ServiceNames, SubscribeOptions,
+    Subscription, Topic, WaitStrategy, create_node, domain_config,
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -28,17 +31,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let domain = format!("cc{}_", std::process::id());
     let config = domain_config(&domain, Some("/tmp/iox2t/"))?;
     println!("{cycles} cycles per case, subscribers drain every {drain_every} cycle(s)");
-    println!("subscribers | mean ns | p50 ns | p99 ns | p99.9 ns | max ns");
-    for n_subs in [0usize, 1, 4, 16] {
+    println!("subscribers | kind | mean ns | p50 ns | p99 ns | p99.9 ns | max ns");
+    let cases =
+        [(0usize, WaitStrategy::Event)]
+            .into_iter()
+            .chain([1usize, 4, 16].into_iter().flat_map(|n| {
+                [WaitStrategy::Spin, WaitStrategy::Event]
+                    .into_iter()
+                    .map(move |w| (n, w))
+            }));
+    for (n_subs, wait) in cases {
         let node = create_node::<ipc::Service>("cycle_cost", Some(&config))?;
-        let names = ServiceNames::new(&format!("bench/subs{n_subs}"))?;
+        let names = ServiceNames::new(&format!("bench/subs{n_subs}/{wait}"))?;
+        let options = SubscribeOptions {
+            period: Duration::from_micros(667),
+            wait,
+            deadline: None,
+        };
         let mut subs = (0..n_subs)
             .map(|_| {
-                Subscription::<PoseV1>::new(
+                Subscription::<PoseV1>::with_options(
                     &node,
                     &names,
                     Topic::CompensatedMeasuredCp,
-                    Duration::from_millis(2),
+                    options,
                 )
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -60,7 +76,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             if i % drain_every == 0 {
                 for s in &mut subs {
-                    s.listener().try_wait(|_| {})?;
+                    if let Some(l) = s.listener() {
+                        l.try_wait(|_| {})?;
+                    }
                     s.try_latest()?;
                 }
             }
@@ -68,8 +86,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         samples.sort_unstable();
         let q = |p: f64| samples[((samples.len() - 1) as f64 * p) as usize];
         let mean = samples.iter().sum::<u64>() / samples.len() as u64;
+        let kind = if n_subs == 0 { "-" } else { wait.name() };
         println!(
-            "{n_subs:>11} | {mean:>7} | {:>6} | {:>6} | {:>8} | {:>6}",
+            "{n_subs:>11} | {kind:>5} | {mean:>7} | {:>6} | {:>6} | {:>8} | {:>6}",
             q(0.5),
             q(0.99),
             q(0.999),

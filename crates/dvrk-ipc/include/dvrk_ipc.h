@@ -52,7 +52,8 @@ extern "C" {
 #define DVRK_IPC_QOS_EVENT_MAX_NOTIFIERS 1
 #define DVRK_IPC_QOS_EVENT_MAX_LISTENERS 32
 
-/* Staleness: no cycle event for this many nominal periods (1500 Hz -> 666667 ns). */
+/* Staleness (default of dvrk_ipc::Subscription): no sample for this many nominal periods, but at
+ * least 10 ms (1500 Hz -> 666667 ns; a consumer may choose its own deadline). */
 #define DVRK_IPC_DEADLINE_PERIODS 3
 #define DVRK_IPC_NOMINAL_PERIOD_NS 666667
 

@@ -9,7 +9,6 @@ use iceoryx2::port::subscriber::SubscriberCreateError;
 use iceoryx2::port::{LoanError, ReceiveError, SendError};
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
-use iceoryx2::waitset::{WaitSetAttachmentError, WaitSetCreateError, WaitSetRunError};
 
 use crate::names::Topic;
 
@@ -106,11 +105,12 @@ pub enum IpcError {
         source: ListenerCreateError,
     },
 
-    /// The WaitSet could not be created.
-    #[error("creating the WaitSet failed: {source}")]
-    CreateWaitSet {
+    /// The timer of a predictive subscription could not be set up.
+    #[error("{what} failed: {source}")]
+    Timer {
+        what: &'static str,
         #[source]
-        source: WaitSetCreateError,
+        source: std::io::Error,
     },
 }
 
@@ -137,8 +137,16 @@ pub enum SubscriptionError {
     Receive(ReceiveError),
     #[error("draining the cycle event failed: {0}")]
     ListenerWait(ListenerWaitError),
-    #[error("attaching to the WaitSet failed: {0}")]
-    Attach(WaitSetAttachmentError),
-    #[error("waiting in the WaitSet failed: {0}")]
-    Wait(WaitSetRunError),
+    /// `ppoll` on the cycle event (and timer) failed; the errno.
+    #[error("waiting for the cycle event failed: {}", std::io::Error::from_raw_os_error(*.0))]
+    Poll(i32),
+    /// Arming the predictive timer failed; the errno.
+    #[error("arming the wake-up timer failed: {}", std::io::Error::from_raw_os_error(*.0))]
+    Timer(i32),
+    /// A wait that needs the cycle event on a subscription without a listener (internal).
+    #[error("this subscription has no listener on the cycle event")]
+    NoListener,
+    /// A predictive wait on a subscription without a timer (internal).
+    #[error("this subscription has no wake-up timer")]
+    NoTimer,
 }

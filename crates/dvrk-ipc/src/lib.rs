@@ -20,7 +20,10 @@
 //!
 //! - the QoS ([`qos`]) applied by the one function that opens or creates services
 //!   ([`open_topic`], [`open_cycle_event`], [`ArmServices::open_or_create`]);
-//! - [`ArmPublisher`] (used by the sidecar) and [`Subscription`] (for consumers).
+//! - [`ArmPublisher`] (used by the sidecar; also counts subscribers of every topic and reaps dead
+//!   nodes) and [`Subscription`] (for consumers), which waits as the consumer chooses
+//!   ([`WaitStrategy`]): `Event` (sleep until notified), `Spin` (poll, a core of its own, no
+//!   listener) or `Predictive` (sleep until just before the next sample is due, then poll).
 //!
 //! ```no_run
 //! use dvrk_ipc::{create_node, PoseV1, ServiceNames, Subscription, Topic, Update, NOMINAL_PERIOD};
@@ -47,9 +50,11 @@ mod error;
 pub mod flags;
 mod msg;
 mod names;
+mod predict;
 mod publisher;
 mod services;
 mod subscription;
+mod sys;
 
 pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
@@ -57,15 +62,17 @@ pub use msg::{
     JOINT_STATE_V1_SIZE, JointStateV1, Message, NUM_JOINTS, POSE_V1_SIZE, PoseV1,
 };
 pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, ServiceNames, Topic};
-pub use publisher::ArmPublisher;
+pub use publisher::{ArmPublisher, ReapReport, SubscriberCounts};
 pub use services::{
-    ArmServices, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, create_node, domain_config,
-    open_cycle_event, open_topic, qos,
+    ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, create_node,
+    domain_config, open_cycle_event, open_topic, qos,
 };
 pub use subscription::{
-    DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, NOMINAL_PERIOD, Subscription,
-    SubscriptionStats, Update,
+    DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, MIN_DEFAULT_DEADLINE, NOMINAL_PERIOD,
+    Prediction, SubscribeOptions, Subscription, SubscriptionStats, UnknownWaitStrategy, Update,
+    WaitStrategy,
 };
+pub use sys::monotonic_ns;
 
 /// The iceoryx2 crate this contract is built on (same version in every process).
 pub use iceoryx2;

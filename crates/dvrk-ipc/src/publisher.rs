@@ -155,6 +155,40 @@ impl<S: Service> ArmPublisher<S> {
         &self.services
     }
 
+    /// Subscribers of every topic and listeners of the cycle event (reads shared memory; no
+    /// allocation). A subscriber process that died still counts until
+    /// [`ArmPublisher::reap_dead_nodes`] (or any other process's node creation) removes it.
+    pub fn subscriber_counts(&self) -> SubscriberCounts {
+        let mut per_topic = [0; 5];
+        for (n, topic) in per_topic.iter_mut().zip(Topic::ALL) {
+            *n = self.number_of_subscribers(topic);
+        }
+        SubscriberCounts {
+            per_topic,
+            cycle_listeners: self.services.cycle.dynamic_config().number_of_listeners(),
+        }
+    }
+
+    /// Removes the resources of dead nodes (processes that died without cleaning up, e.g. by
+    /// SIGKILL) from all six services, so they no longer count as subscribers nor cost the
+    /// publisher a notification per cycle. Lists the nodes on the file system: call it every few
+    /// seconds from outside the cycle, never on the per-cycle path.
+    pub fn reap_dead_nodes(&self) -> ReapReport {
+        let s = &self.services;
+        let states = [
+            s.measured_js.try_cleanup_dead_nodes(),
+            s.measured_cp.try_cleanup_dead_nodes(),
+            s.compensated_measured_js.try_cleanup_dead_nodes(),
+            s.compensated_measured_cp.try_cleanup_dead_nodes(),
+            s.compensated_status.try_cleanup_dead_nodes(),
+            s.cycle.try_cleanup_dead_nodes(),
+        ];
+        ReapReport {
+            reaped: states.iter().map(|c| c.cleanups).sum(),
+            failed: states.iter().map(|c| c.failed_cleanups).sum(),
+        }
+    }
+
     /// Subscribers currently connected to `topic` (reads shared memory; no allocation).
     pub fn number_of_subscribers(&self, topic: Topic) -> usize {
         let s = &self.services;
@@ -177,6 +211,60 @@ impl<S: Service> ArmPublisher<S> {
     }
 }
 
+/// Subscriber counts of every topic of an arm ([`ArmPublisher::subscriber_counts`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SubscriberCounts {
+    /// Subscribers per topic, in [`Topic::ALL`] order.
+    pub per_topic: [usize; 5],
+    /// Listeners of the cycle event (event and predictive subscriptions; spinning ones have
+    /// none). Each costs the publisher one notification per cycle.
+    pub cycle_listeners: usize,
+}
+
+impl SubscriberCounts {
+    /// Subscribers of `topic`.
+    pub fn get(&self, topic: Topic) -> usize {
+        Topic::ALL
+            .iter()
+            .position(|t| *t == topic)
+            .map_or(0, |i| self.per_topic[i])
+    }
+
+    /// The topic with the most subscribers (the first of equals) and their number.
+    pub fn max(&self) -> (Topic, usize) {
+        self.extreme(|a, b| a > b)
+    }
+
+    /// The topic with the fewest subscribers (the first of equals) and their number.
+    pub fn min(&self) -> (Topic, usize) {
+        self.extreme(|a, b| a < b)
+    }
+
+    fn extreme(&self, better: impl Fn(usize, usize) -> bool) -> (Topic, usize) {
+        let mut best = (Topic::ALL[0], self.per_topic[0]);
+        for (t, n) in Topic::ALL.into_iter().zip(self.per_topic).skip(1) {
+            if better(n, best.1) {
+                best = (t, n);
+            }
+        }
+        best
+    }
+
+    /// Subscriptions over all topics.
+    pub fn total(&self) -> usize {
+        self.per_topic.iter().sum()
+    }
+}
+
+/// What [`ArmPublisher::reap_dead_nodes`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReapReport {
+    /// Dead nodes whose resources were removed (summed over the six services).
+    pub reaped: u64,
+    /// Dead nodes whose removal failed (e.g. resources owned by another user).
+    pub failed: u64,
+}
+
 #[inline]
 fn send<S: Service, T: Message>(
     publisher: &Publisher<S, T, ()>,
@@ -191,4 +279,21 @@ fn send<S: Service, T: Message>(
         .send()
         .map_err(|error| PublishError::Send { topic, error })?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_name_the_topics_with_most_and_fewest_subscribers() {
+        let c = SubscriberCounts {
+            per_topic: [2, 0, 5, 5, 1],
+            cycle_listeners: 3,
+        };
+        assert_eq!(c.max(), (Topic::CompensatedMeasuredJs, 5));
+        assert_eq!(c.min(), (Topic::MeasuredCp, 0));
+        assert_eq!(c.get(Topic::CompensatedStatus), 1);
+        assert_eq!(c.total(), 13);
+    }
 }

@@ -94,7 +94,16 @@ pub fn domain_config(prefix: &str, root_path: Option<&str>) -> Result<Config, Ip
     Ok(cfg)
 }
 
+/// iceoryx2's own log level when `IOX2_LOG_LEVEL` is not set: iceoryx2 logs its failures
+/// (e.g. a publisher that died under a subscriber) with a debug dump of its internal state,
+/// several KB per line, on the terminal; every one of them also comes back to this crate as an
+/// error or an [`crate::Update`] that the application reports in one line.
+pub const ICEORYX2_LOG_LEVEL: iceoryx2::prelude::LogLevel = iceoryx2::prelude::LogLevel::Fatal;
+
 /// Creates an iceoryx2 node with signal handling disabled (the application owns SIGINT/SIGTERM).
+///
+/// Also sets iceoryx2's process-wide log level to `IOX2_LOG_LEVEL` if set, else
+/// [`ICEORYX2_LOG_LEVEL`].
 ///
 /// `config: None` uses iceoryx2's built-in defaults, not a config file looked up relative to the
 /// working directory, so every process of the project agrees regardless of where it runs.
@@ -102,6 +111,7 @@ pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<No
     let node_name = NodeName::new(name).map_err(|_| IpcError::InvalidNodeName {
         name: name.to_owned(),
     })?;
+    iceoryx2::prelude::set_log_level_from_env_or(ICEORYX2_LOG_LEVEL);
     let default_config;
     let config = match config {
         Some(c) => c,

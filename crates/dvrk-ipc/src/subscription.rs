@@ -1,27 +1,32 @@
-//! The subscribing side: wait for the cycle event, drain, return the newest sample, and notice a
-//! silent or vanished publisher.
+//! The subscribing side: wait for the next sample with the consumer's choice of strategy
+//! ([`WaitStrategy`]), drain, return the newest sample, and notice a silent or vanished publisher.
 
 use core::time::Duration;
-use std::time::Instant;
 
 use iceoryx2::node::Node;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::{
-    CallbackProgression, SignalHandlingMode, SynchronousMultiplexing, WaitSet, WaitSetBuilder,
-};
+use iceoryx2::prelude::SynchronousMultiplexing;
 use iceoryx2::service::Service;
 use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
-use iceoryx2::waitset::WaitSetRunResult;
 
 use crate::error::{IpcError, SubscriptionError};
 use crate::msg::Message;
 use crate::names::{ServiceNames, Topic};
+use crate::predict::Predictor;
 use crate::services::{open_cycle_event, open_topic};
+use crate::sys::{self, Ready, TimerFd};
 
-/// Periods without a cycle event after which [`Subscription::wait`] reports staleness.
+/// Periods without a sample after which [`Subscription::wait`] reports staleness, unless that is
+/// shorter than [`MIN_DEFAULT_DEADLINE`].
 pub const DEADLINE_PERIODS: u32 = 3;
+
+/// The least default staleness deadline. A loaded PC delays the sidecar's cycle by several
+/// milliseconds now and then (cycle maxima of 1.4-5.3 ms were seen with other builds running);
+/// a 2 ms deadline reported those as silences. A consumer that needs a tighter or looser
+/// deadline sets [`SubscribeOptions::deadline`].
+pub const MIN_DEFAULT_DEADLINE: Duration = Duration::from_millis(10);
 
 /// Least time between two attempts to reap a dead publisher while stale (each attempt lists the
 /// service's nodes on the file system).
@@ -29,6 +34,113 @@ pub const DEAD_PUBLISHER_CHECK_INTERVAL: Duration = Duration::from_millis(200);
 
 /// Nominal publishing period of the sidecar (1500 Hz, like the dVRK console).
 pub const NOMINAL_PERIOD: Duration = Duration::from_nanos(666_667);
+
+/// How a [`Subscription`] waits for the next sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub enum WaitStrategy {
+    /// Sleep until the publisher's cycle event wakes the process (one unix datagram per cycle
+    /// and listener). Least CPU; latency is one cross-process wake-up.
+    #[default]
+    Event,
+    /// Poll the shared memory without sleeping. Lowest latency, one whole CPU core per
+    /// subscription; opens no listener, so it costs the publisher nothing per cycle. Only for a
+    /// consumer that owns a core.
+    Spin,
+    /// Learn the publisher's period and phase from the samples' publish times, sleep until
+    /// shortly before the next sample is due (or until the cycle event, whichever comes first),
+    /// then poll. Close to `Spin` in latency at a fraction of its CPU, and never later than
+    /// `Event`. Sets the calling thread's timer slack to 1 ns (`PR_SET_TIMERSLACK`).
+    Predictive,
+}
+
+impl WaitStrategy {
+    /// All strategies, in the order of their names in [`WaitStrategy::NAMES`].
+    pub const ALL: [WaitStrategy; 3] = [Self::Event, Self::Spin, Self::Predictive];
+    /// The names accepted by [`WaitStrategy::from_str`](core::str::FromStr).
+    pub const NAMES: &'static str = "event, spin, predictive";
+
+    /// The name used on command lines (`--wait event|spin|predictive`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Event => "event",
+            Self::Spin => "spin",
+            Self::Predictive => "predictive",
+        }
+    }
+
+    /// Whether this strategy needs a listener on the cycle event.
+    pub fn uses_event(self) -> bool {
+        !matches!(self, Self::Spin)
+    }
+}
+
+impl core::fmt::Display for WaitStrategy {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A wait strategy name that is none of [`WaitStrategy::NAMES`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown wait strategy {0:?}; expected one of: event, spin, predictive")]
+pub struct UnknownWaitStrategy(pub String);
+
+impl core::str::FromStr for WaitStrategy {
+    type Err = UnknownWaitStrategy;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|w| w.name() == s)
+            .ok_or_else(|| UnknownWaitStrategy(s.to_owned()))
+    }
+}
+
+/// How a [`Subscription`] waits and when it calls the publisher silent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SubscribeOptions {
+    /// The publisher's nominal period ([`NOMINAL_PERIOD`] for the sidecar at 1500 Hz); the
+    /// predictive strategy starts from it and learns the real one.
+    pub period: Duration,
+    /// How to wait.
+    pub wait: WaitStrategy,
+    /// After how long without a sample [`Subscription::wait`] returns [`Update::Stale`].
+    /// `None`: [`DEADLINE_PERIODS`] periods, at least [`MIN_DEFAULT_DEADLINE`].
+    pub deadline: Option<Duration>,
+}
+
+impl Default for SubscribeOptions {
+    fn default() -> Self {
+        Self {
+            period: NOMINAL_PERIOD,
+            wait: WaitStrategy::Event,
+            deadline: None,
+        }
+    }
+}
+
+impl SubscribeOptions {
+    /// The staleness deadline these options give.
+    pub fn effective_deadline(&self) -> Duration {
+        self.deadline.unwrap_or_else(|| {
+            self.period
+                .saturating_mul(DEADLINE_PERIODS)
+                .max(MIN_DEFAULT_DEADLINE)
+        })
+    }
+}
+
+/// The predictive strategy's model of the publisher ([`Subscription::prediction`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Prediction {
+    /// The publisher's period as measured from its publish times.
+    pub period_ns: u64,
+    /// When the next sample is expected at the earliest (CLOCK_MONOTONIC).
+    pub next_arrival_ns: u64,
+    /// How long before `next_arrival_ns` the timer ends the sleep and polling starts.
+    pub guard_ns: u64,
+    /// How long after `next_arrival_ns` polling goes on before it sleeps on the event again.
+    pub spin_after_ns: u64,
+}
 
 /// What [`Subscription::wait`] saw.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -63,13 +175,22 @@ pub struct SubscriptionStats {
     pub seq_gaps_total: u64,
     /// Calls that returned [`Update::Stale`].
     pub stale_total: u64,
+    /// Predictive waits that were already polling when the sample landed.
+    pub predicted_on_time_total: u64,
+    /// Predictive waits where the sample landed before polling started (the cycle event or
+    /// the late timer delivered it).
+    pub predicted_late_total: u64,
+    /// Predictive waits that polled until the spin window closed without a sample and went
+    /// back to sleep on the cycle event.
+    pub predicted_missed_total: u64,
 }
 
-/// A subscriber to one topic of an arm plus a listener on its cycle event.
+/// A subscriber to one topic of an arm, waiting with the consumer's [`WaitStrategy`].
 ///
-/// [`Subscription::wait`] sleeps in a WaitSet (signal handling disabled) until the publisher
-/// notifies the cycle event or the deadline of [`DEADLINE_PERIODS`] periods passes, then drains
-/// the event and every buffered sample and returns the newest.
+/// [`Subscription::wait`] returns as soon as a sample is there, after draining every buffered
+/// sample; with [`WaitStrategy::Event`] and [`WaitStrategy::Predictive`] it consumes the cycle
+/// event's notifications before it sleeps, never between a wake-up and the sample (the sample
+/// comes first).
 ///
 /// History: a subscriber created after the publisher's last send receives that sample (history
 /// of 1) only when the publisher sends again, together with the new sample. Use
@@ -79,72 +200,122 @@ pub struct SubscriptionStats {
 #[derive(Debug)]
 pub struct Subscription<T: Message, S: Service = iceoryx2::service::ipc::Service> {
     topic: Topic,
+    service_name: String,
     service: PubSubFactory<S, T, ()>,
     subscriber: Subscriber<S, T, ()>,
-    listener: Listener<S>,
-    waitset: WaitSet<S>,
-    deadline: Duration,
-    last_fresh: Instant,
+    listener: Option<Listener<S>>,
+    timer: Option<TimerFd>,
+    predictor: Predictor,
+    wait: WaitStrategy,
+    deadline_ns: u64,
+    last_fresh_ns: u64,
     last_seq: Option<u64>,
     latest: Option<T>,
     publisher_seen: bool,
-    last_dead_check: Option<Instant>,
+    last_dead_check_ns: Option<u64>,
     stats: SubscriptionStats,
+}
+
+/// Where a predictive wait started polling, to grade the prediction when the sample comes.
+#[derive(Debug, Clone, Copy)]
+enum Polling {
+    /// The timer fired at this time (ns) and the cycle event had not come yet.
+    OnTimer(u64),
+    /// The sample came another way (event first, or already there): the prediction was late.
+    Late,
 }
 
 impl<T: Message, S: Service> Subscription<T, S>
 where
     Listener<S>: SynchronousMultiplexing,
 {
-    /// Subscribes to `topic` under `names` (opening or creating the services with the project's
-    /// QoS). `period` is the publisher's nominal period ([`NOMINAL_PERIOD`] for the sidecar at
-    /// 1500 Hz); the staleness deadline is [`DEADLINE_PERIODS`] times it.
+    /// Subscribes to `topic` under `names` with the [`WaitStrategy::Event`] strategy and the
+    /// default deadline for `period` (see [`SubscribeOptions::effective_deadline`]).
     pub fn new(
         node: &Node<S>,
         names: &ServiceNames,
         topic: Topic,
         period: Duration,
     ) -> Result<Self, IpcError> {
+        Self::with_options(
+            node,
+            names,
+            topic,
+            SubscribeOptions {
+                period,
+                ..SubscribeOptions::default()
+            },
+        )
+    }
+
+    /// Subscribes to `topic` under `names` (opening or creating the services with the project's
+    /// QoS), waiting as `options` says. A [`WaitStrategy::Spin`] subscription opens no listener
+    /// on the cycle event; a [`WaitStrategy::Predictive`] one also opens a timer and sets the
+    /// calling thread's timer slack to 1 ns.
+    pub fn with_options(
+        node: &Node<S>,
+        names: &ServiceNames,
+        topic: Topic,
+        options: SubscribeOptions,
+    ) -> Result<Self, IpcError> {
         let service = open_topic::<T, S>(node, names, topic)?;
-        let event = open_cycle_event(node, names)?;
+        let service_name = names.topic(topic).as_str().to_owned();
         let subscriber =
             service
                 .subscriber_builder()
                 .create()
                 .map_err(|source| IpcError::CreateSubscriber {
-                    service: names.topic(topic).as_str().to_owned(),
+                    service: service_name.clone(),
                     source,
                 })?;
         let listener =
-            event
-                .listener_builder()
-                .create()
-                .map_err(|source| IpcError::CreateListener {
-                    service: names.cycle().as_str().to_owned(),
-                    source,
-                })?;
-        let waitset = WaitSetBuilder::new()
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<S>()
-            .map_err(|source| IpcError::CreateWaitSet { source })?;
+            if options.wait.uses_event() {
+                let event = open_cycle_event(node, names)?;
+                Some(event.listener_builder().create().map_err(|source| {
+                    IpcError::CreateListener {
+                        service: names.cycle().as_str().to_owned(),
+                        source,
+                    }
+                })?)
+            } else {
+                None
+            };
+        let timer = if options.wait == WaitStrategy::Predictive {
+            sys::minimise_timer_slack().map_err(|source| IpcError::Timer {
+                what: "prctl(PR_SET_TIMERSLACK, 1)",
+                source,
+            })?;
+            Some(TimerFd::new().map_err(|source| IpcError::Timer {
+                what: "timerfd_create(CLOCK_MONOTONIC)",
+                source,
+            })?)
+        } else {
+            None
+        };
         let publisher_seen = service.dynamic_config().number_of_publishers() > 0;
+        let period_ns = u64::try_from(options.period.as_nanos()).unwrap_or(u64::MAX);
+        let deadline_ns =
+            u64::try_from(options.effective_deadline().as_nanos()).unwrap_or(u64::MAX);
         Ok(Self {
             topic,
+            service_name,
             service,
             subscriber,
             listener,
-            waitset,
-            deadline: period.saturating_mul(DEADLINE_PERIODS),
-            last_fresh: Instant::now(),
+            timer,
+            predictor: Predictor::new(period_ns),
+            wait: options.wait,
+            deadline_ns,
+            last_fresh_ns: sys::monotonic_ns(),
             last_seq: None,
             latest: None,
             publisher_seen,
-            last_dead_check: None,
+            last_dead_check_ns: None,
             stats: SubscriptionStats::default(),
         })
     }
 
-    /// Waits for the next cycle and returns the newest sample, or why there is none.
+    /// Waits for the next sample and returns the newest one, or why there is none.
     pub fn wait(&mut self) -> Result<Update<T>, SubscriptionError> {
         self.wait_with(|_| {})
     }
@@ -152,55 +323,10 @@ where
     /// Like [`Subscription::wait`], and calls `each` for every sample drained, oldest first,
     /// including the one returned (for consumers that need every `seq`).
     pub fn wait_with<F: FnMut(&T)>(&mut self, mut each: F) -> Result<Update<T>, SubscriptionError> {
-        let start = Instant::now();
-        // Samples may already be waiting if the caller was slower than the publisher.
-        if let Some(v) = self.drain(&mut each)? {
-            return Ok(Update::Fresh(v));
-        }
-        loop {
-            let remaining = self.deadline.saturating_sub(start.elapsed());
-            if remaining.is_zero() {
-                return Ok(self.stale_or_terminated());
-            }
-            let mut missed = false;
-            let mut wait_error = None;
-            let result = {
-                let listener = &self.listener;
-                let guard = self
-                    .waitset
-                    .attach_deadline(listener, remaining)
-                    .map_err(SubscriptionError::Attach)?;
-                self.waitset
-                    .wait_and_process_once(|id| {
-                        if id.has_event_from(&guard) {
-                            // The WaitSet is level-triggered: consume every pending notification.
-                            if let Err(e) = listener.try_wait(|_| {}) {
-                                wait_error = Some(e);
-                            }
-                        } else if id.has_missed_deadline(&guard) {
-                            missed = true;
-                        }
-                        CallbackProgression::Continue
-                    })
-                    .map_err(SubscriptionError::Wait)?
-            };
-            if let Some(e) = wait_error {
-                return Err(SubscriptionError::ListenerWait(e));
-            }
-            if let Some(v) = self.drain(&mut each)? {
-                return Ok(Update::Fresh(v));
-            }
-            match result {
-                WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest => {
-                    return Ok(Update::Interrupted);
-                }
-                WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
-            }
-            if missed {
-                return Ok(self.stale_or_terminated());
-            }
-            // An event without a sample: a notification of a cycle already drained, or a late
-            // subscriber whose connection (and history) comes with the publisher's next send.
+        match self.wait {
+            WaitStrategy::Event => self.wait_event(&mut each),
+            WaitStrategy::Spin => self.wait_spin(&mut each),
+            WaitStrategy::Predictive => self.wait_predictive(&mut each),
         }
     }
 
@@ -225,9 +351,31 @@ where
         self.topic
     }
 
-    /// The staleness deadline ([`DEADLINE_PERIODS`] × period).
+    /// The full name of the subscribed service, e.g. `dvrk/PSM1/compensated/measured_cp`.
+    pub fn service_name(&self) -> &str {
+        &self.service_name
+    }
+
+    /// The wait strategy.
+    pub fn wait_strategy(&self) -> WaitStrategy {
+        self.wait
+    }
+
+    /// The staleness deadline.
     pub fn deadline(&self) -> Duration {
-        self.deadline
+        Duration::from_nanos(self.deadline_ns)
+    }
+
+    /// The predictive strategy's current model of the publisher; `None` until it has learnt
+    /// enough samples. (Every strategy learns it; only [`WaitStrategy::Predictive`] uses it.)
+    pub fn prediction(&self) -> Option<Prediction> {
+        let p = &self.predictor;
+        p.ready().then(|| Prediction {
+            period_ns: p.period_ns(),
+            next_arrival_ns: p.next_arrival_ns(),
+            guard_ns: p.guard_ns(),
+            spin_after_ns: p.spin_after_ns(),
+        })
     }
 
     /// Publishers currently registered on the topic's service.
@@ -235,14 +383,167 @@ where
         self.service.dynamic_config().number_of_publishers()
     }
 
-    /// The listener of the cycle event, for applications that run their own WaitSet.
-    pub fn listener(&self) -> &Listener<S> {
-        &self.listener
+    /// The listener of the cycle event, for applications that run their own WaitSet (`None`
+    /// for a [`WaitStrategy::Spin`] subscription, which has none).
+    pub fn listener(&self) -> Option<&Listener<S>> {
+        self.listener.as_ref()
     }
 
     /// The subscriber port, for applications that run their own WaitSet.
     pub fn subscriber(&self) -> &Subscriber<S, T, ()> {
         &self.subscriber
+    }
+
+    // ---- strategies ------------------------------------------------------------------------
+
+    fn wait_event(&mut self, each: &mut dyn FnMut(&T)) -> Result<Update<T>, SubscriptionError> {
+        let stale_at = sys::monotonic_ns().saturating_add(self.deadline_ns);
+        loop {
+            if let Some(v) = self.take_pending(each)? {
+                return Ok(Update::Fresh(v));
+            }
+            match self.sleep_on_event(stale_at)? {
+                Ready::Interrupted => return Ok(Update::Interrupted),
+                Ready::TimedOut => return Ok(self.stale_or_terminated()),
+                Ready::Event | Ready::Timer => {}
+            }
+            // Woken: the sample is there in all but rare cases; take it before anything else.
+            if let Some(v) = self.drain(each)? {
+                return Ok(Update::Fresh(v));
+            }
+            // An event without a sample: a notification of a cycle already drained, or a late
+            // subscriber whose connection (and history) comes with the publisher's next send.
+        }
+    }
+
+    fn wait_spin(&mut self, each: &mut dyn FnMut(&T)) -> Result<Update<T>, SubscriptionError> {
+        let stale_at = sys::monotonic_ns().saturating_add(self.deadline_ns);
+        loop {
+            if let Some(v) = self.drain(each)? {
+                return Ok(Update::Fresh(v));
+            }
+            if sys::monotonic_ns() >= stale_at {
+                return Ok(self.stale_or_terminated());
+            }
+            core::hint::spin_loop();
+        }
+    }
+
+    fn wait_predictive(
+        &mut self,
+        each: &mut dyn FnMut(&T),
+    ) -> Result<Update<T>, SubscriptionError> {
+        let now = sys::monotonic_ns();
+        let stale_at = now.saturating_add(self.deadline_ns);
+        if let Some(v) = self.take_pending(each)? {
+            // The caller came back after the sample landed: nothing to grade.
+            return Ok(Update::Fresh(v));
+        }
+        if !self.predictor.ready() {
+            // Still learning: behave like the event path; arrivals teach the predictor.
+            return self.wait_event(each);
+        }
+        let arrival = self.predictor.next_arrival_ns();
+        let wake_at = arrival.saturating_sub(self.predictor.guard_ns());
+        let spin_until = arrival
+            .saturating_add(self.predictor.spin_after_ns())
+            .min(stale_at);
+        let polling = if wake_at > sys::monotonic_ns() {
+            let timer = self.timer.as_ref().ok_or(SubscriptionError::NoTimer)?;
+            timer.arm_at(wake_at).map_err(SubscriptionError::Timer)?;
+            match self.sleep_on_event_or_timer(stale_at)? {
+                Ready::Interrupted => return Ok(Update::Interrupted),
+                Ready::TimedOut => return Ok(self.stale_or_terminated()),
+                Ready::Timer => Polling::OnTimer(sys::monotonic_ns()),
+                Ready::Event => Polling::Late,
+            }
+        } else {
+            // Called after the wake-up point: poll right away.
+            Polling::OnTimer(sys::monotonic_ns())
+        };
+        // The first look tells whether the sample was already there when polling started.
+        if let Some(v) = self.drain(each)? {
+            self.grade(&v, Polling::Late);
+            return Ok(Update::Fresh(v));
+        }
+        loop {
+            if let Some(v) = self.drain(each)? {
+                self.grade(&v, polling);
+                return Ok(Update::Fresh(v));
+            }
+            if sys::monotonic_ns() >= spin_until {
+                break;
+            }
+            core::hint::spin_loop();
+        }
+        // The sample is later than the spin window allows (a publisher overrun or stall): sleep
+        // on the event for the rest of the deadline. Its arrival still teaches the predictor.
+        self.stats.predicted_missed_total += 1;
+        self.predictor.missed();
+        loop {
+            match self.sleep_on_event(stale_at)? {
+                Ready::Interrupted => return Ok(Update::Interrupted),
+                Ready::TimedOut => return Ok(self.stale_or_terminated()),
+                Ready::Event | Ready::Timer => {}
+            }
+            if let Some(v) = self.drain(each)? {
+                return Ok(Update::Fresh(v));
+            }
+            if let Some(v) = self.take_pending(each)? {
+                return Ok(Update::Fresh(v));
+            }
+        }
+    }
+
+    /// Samples already buffered; otherwise consumes the cycle event's pending notifications and
+    /// looks once more (a sample sent between the two looks is found by the second; one sent
+    /// after it notifies again and wakes the next sleep).
+    fn take_pending(&mut self, each: &mut dyn FnMut(&T)) -> Result<Option<T>, SubscriptionError> {
+        if let Some(v) = self.drain(each)? {
+            return Ok(Some(v));
+        }
+        if let Some(listener) = &self.listener {
+            listener
+                .try_wait(|_| {})
+                .map_err(SubscriptionError::ListenerWait)?;
+            return self.drain(each);
+        }
+        Ok(None)
+    }
+
+    fn listener_fd(&self) -> Result<i32, SubscriptionError> {
+        use iceoryx2::prelude::FileDescriptorBased as _;
+        self.listener
+            .as_ref()
+            // SAFETY: the raw descriptor is only passed to ppoll while the listener (its owner)
+            // is alive, and never closed or duplicated here.
+            .map(|l| unsafe { l.file_descriptor().native_handle() })
+            .ok_or(SubscriptionError::NoListener)
+    }
+
+    fn sleep_on_event(&self, until_ns: u64) -> Result<Ready, SubscriptionError> {
+        sys::wait_readable(self.listener_fd()?, None, until_ns).map_err(SubscriptionError::Poll)
+    }
+
+    fn sleep_on_event_or_timer(&self, until_ns: u64) -> Result<Ready, SubscriptionError> {
+        let timer = self.timer.as_ref().ok_or(SubscriptionError::NoTimer)?;
+        sys::wait_readable(self.listener_fd()?, Some(timer.fd()), until_ns)
+            .map_err(SubscriptionError::Poll)
+    }
+
+    /// Tells the predictor whether it started polling in time for `v`.
+    fn grade(&mut self, v: &T, polling: Polling) {
+        let landed = v.header().publish_t_ns;
+        let on_time = match polling {
+            Polling::OnTimer(started) => landed != 0 && started <= landed,
+            Polling::Late => false,
+        };
+        if on_time {
+            self.stats.predicted_on_time_total += 1;
+        } else {
+            self.stats.predicted_late_total += 1;
+        }
+        self.predictor.graded(on_time);
     }
 
     fn drain(&mut self, each: &mut dyn FnMut(&T)) -> Result<Option<T>, SubscriptionError> {
@@ -254,7 +555,8 @@ where
         {
             let v: T = *sample;
             drop(sample);
-            let seq = v.header().seq;
+            let h = v.header();
+            let seq = h.seq;
             if let Some(prev) = self.last_seq
                 && seq > prev + 1
             {
@@ -269,8 +571,18 @@ where
             newest = Some(v);
         }
         if let Some(v) = newest {
+            let now = sys::monotonic_ns();
+            let h = v.header();
+            // The publisher stamps publish_t_ns on the same CLOCK_MONOTONIC just before it
+            // sends; a publisher that leaves it 0 is learnt from the receive time instead.
+            let landed = if h.publish_t_ns != 0 && h.publish_t_ns <= now {
+                h.publish_t_ns
+            } else {
+                now
+            };
+            self.predictor.observe(h.seq, landed);
             self.latest = Some(v);
-            self.last_fresh = Instant::now();
+            self.last_fresh_ns = now;
             self.publisher_seen = true;
         }
         Ok(newest)
@@ -278,11 +590,13 @@ where
 
     fn stale_or_terminated(&mut self) -> Update<T> {
         // A publisher whose process died still counts until its node is cleaned up.
+        let now = sys::monotonic_ns();
+        let interval = DEAD_PUBLISHER_CHECK_INTERVAL.as_nanos() as u64;
         let due = self
-            .last_dead_check
-            .is_none_or(|t| t.elapsed() >= DEAD_PUBLISHER_CHECK_INTERVAL);
+            .last_dead_check_ns
+            .is_none_or(|t| now.saturating_sub(t) >= interval);
         if due {
-            self.last_dead_check = Some(Instant::now());
+            self.last_dead_check_ns = Some(now);
             self.service.try_cleanup_dead_nodes();
         }
         if self.service.dynamic_config().number_of_publishers() > 0 {
@@ -291,9 +605,8 @@ where
             return Update::Terminated;
         }
         self.stats.stale_total += 1;
-        let since = self.last_fresh.elapsed();
         Update::Stale {
-            since_ns: u64::try_from(since.as_nanos()).unwrap_or(u64::MAX),
+            since_ns: now.saturating_sub(self.last_fresh_ns),
         }
     }
 }

@@ -147,3 +147,87 @@ fn python_subscriber_decodes_the_compensated_pose() {
         );
     }
 }
+
+#[test]
+fn python_subscriber_waits_every_way() {
+    if let Err(reason) = python_with_iceoryx2() {
+        println!("skipped: {reason}");
+        return;
+    }
+    for wait in ["event", "spin", "predictive"] {
+        let d = Domain::new(&format!("python_{wait}"));
+        let node = create_node::<ipc::Service>("py_pub", Some(&d.config)).unwrap();
+        let publisher = ArmPublisher::create(&node, &d.names).unwrap();
+        const COUNT: usize = 100;
+        let mut child = Command::new("python3")
+            .arg(script())
+            .args(["--prefix", d.names.prefix(), "--wait", wait])
+            .args(["--count", &COUNT.to_string(), "--json"])
+            .args(["--domain", &d.domain_prefix, "--root", common::ROOT])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn python3");
+        let mut subscribed = false;
+        let listeners = usize::from(wait != "spin");
+        for _ in 0..20_000 {
+            // The script creates its listener (if any) right after its subscriber.
+            if publisher.number_of_subscribers(Topic::CompensatedMeasuredCp) == 1
+                && publisher.subscriber_counts().cycle_listeners == listeners
+            {
+                subscribed = true;
+                break;
+            }
+            if child.try_wait().unwrap().is_some() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert!(subscribed, "{wait}: the Python subscriber never connected");
+        std::thread::sleep(Duration::from_millis(100));
+        assert_eq!(
+            publisher.subscriber_counts().cycle_listeners,
+            usize::from(wait != "spin"),
+            "{wait}: only the spinning subscriber has no listener"
+        );
+        // Publish on a 1 ms grid with real publish times, as the sidecar does.
+        let t0 = dvrk_ipc::monotonic_ns();
+        let mut seq = 0;
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(seq < 20_000, "{wait}: the Python subscriber did not finish");
+            seq += 1;
+            while dvrk_ipc::monotonic_ns() < t0 + seq * 1_000_000 {
+                std::thread::sleep(Duration::from_micros(200));
+            }
+            let mut cp = pose(seq);
+            cp.header.publish_t_ns = dvrk_ipc::monotonic_ns();
+            let js = JointStateV1 {
+                header: cp.header,
+                ..JointStateV1::default()
+            };
+            let st = CompensationStatusV2 {
+                header: cp.header,
+                ..Default::default()
+            };
+            publisher.publish_cycle(&js, &cp, &js, &cp, &st).unwrap();
+        };
+        assert!(
+            status.success(),
+            "{wait}: subscriber.py exited with {status}"
+        );
+        let seqs: Vec<u64> = BufReader::new(child.stdout.take().unwrap())
+            .lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(&l.unwrap()).unwrap();
+                v["header"]["seq"].as_u64().unwrap()
+            })
+            .collect();
+        assert_eq!(seqs.len(), COUNT, "{wait}");
+        assert!(
+            seqs.windows(2).all(|w| w[0] < w[1]),
+            "{wait}: increasing seq {seqs:?}"
+        );
+    }
+}

@@ -4,7 +4,7 @@ use anyhow::{Context, Result, bail};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
     CompensationStatusV2, Header, JOINT_NAMES, JointStateV1, Message, NOMINAL_PERIOD, PoseV1,
-    ServiceNames, Subscription, Topic,
+    ServiceNames, SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
 };
 use serde_json::{Value, json};
 
@@ -20,6 +20,15 @@ pub struct EchoArgs {
     /// One JSON object per line instead of text.
     #[arg(long)]
     json: bool,
+    /// How to wait for samples: event (sleep until the publisher notifies), spin (poll, one
+    /// whole core) or predictive (sleep until just before the next sample is due, then poll).
+    #[arg(long, default_value = "event", value_parser = parse_wait)]
+    wait: WaitStrategy,
+}
+
+fn parse_wait(s: &str) -> Result<WaitStrategy, String> {
+    s.parse()
+        .map_err(|e: dvrk_ipc::UnknownWaitStrategy| e.to_string())
 }
 
 pub fn run(args: &EchoArgs) -> Result<()> {
@@ -66,10 +75,16 @@ fn echo<T: Message>(
     to_json: fn(&T) -> Value,
     to_text: fn(&T) -> String,
 ) -> Result<()> {
-    let mut sub = Subscription::<T, Service>::new(node, names, topic, NOMINAL_PERIOD)
+    let options = SubscribeOptions {
+        period: NOMINAL_PERIOD,
+        wait: args.wait,
+        deadline: None,
+    };
+    let mut sub = Subscription::<T, Service>::with_options(node, names, topic, options)
         .with_context(|| format!("subscribing to {}", names.topic(topic).as_str()))?;
     let mut printed = 0u64;
     let mut silence = crate::watch::SilenceReporter::default();
+    let mut gone = false;
     let limit = args.count.unwrap_or(u64::MAX);
     while !stop.raised() && printed < limit {
         // Every drained sample is printed, oldest first, so no seq is skipped when this
@@ -86,7 +101,23 @@ fn echo<T: Message>(
                 }
             })
             .context("waiting for samples")?;
-        silence.report(&update, names.topic(topic).as_str());
+        // A publisher that stopped or died is said once, in one line; echo then keeps waiting
+        // for a new one (like `ros2 topic echo`), until Ctrl-C or --count.
+        match update {
+            Update::Terminated if !gone => {
+                eprintln!(
+                    "publisher of {} is gone; waiting for a new one (Ctrl-C to stop)",
+                    sub.service_name()
+                );
+                gone = true;
+            }
+            Update::Terminated => {}
+            Update::Fresh(_) if gone => {
+                eprintln!("a publisher of {} is back", sub.service_name());
+                gone = false;
+            }
+            other => silence.report(&other, names.topic(topic).as_str()),
+        }
     }
     Ok(())
 }
@@ -160,12 +191,14 @@ fn status_json(m: &CompensationStatusV2) -> Value {
             "insertion_m": m.insertion_m, "cycle_period_ns": m.cycle_period_ns,
             "cycle_duration_ns": m.cycle_duration_ns, "cycles_total": m.cycles_total,
             "read_failures_total": m.read_failures_total, "overruns_total": m.overruns_total,
-            "consecutive_read_failures": m.consecutive_read_failures })
+            "consecutive_read_failures": m.consecutive_read_failures,
+            "tau_margin_nm": m.tau_margin_nm, "held_sample_age_ns": m.held_sample_age_ns,
+            "publish_late_ns": m.publish_late_ns, "implausible_total": m.implausible_total })
 }
 
 fn status_text(m: &CompensationStatusV2) -> String {
     format!(
-        "{}\n  tau_ext_nm [{:+.4}, {:+.4}]  delta_rad [{:+.6}, {:+.6}]  insertion_m {:.4}\n  cycle period {:.1} us, duration {:.1} us, read failures {}",
+        "{}\n  tau_ext_nm [{:+.4}, {:+.4}]  delta_rad [{:+.6}, {:+.6}]  insertion_m {:.4}\n  cycle period {:.1} us, duration {:.1} us, started {:.1} us late, read failures {}",
         header_text(&m.header),
         m.tau_ext_nm[0],
         m.tau_ext_nm[1],
@@ -174,6 +207,7 @@ fn status_text(m: &CompensationStatusV2) -> String {
         m.insertion_m,
         m.cycle_period_ns as f64 / 1e3,
         m.cycle_duration_ns as f64 / 1e3,
+        m.publish_late_ns as f64 / 1e3,
         m.read_failures_total
     )
 }

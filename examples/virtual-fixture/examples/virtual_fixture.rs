@@ -4,81 +4,25 @@
 //! disagree while the instrument pushes on something.
 //!
 //! ```text
-//! cargo run --release --example virtual_fixture -- --prefix dvrk/PSM1 \
-//!     --point 0,0,-0.12 --normal 0,0,1 --margin 0.001 --count 3000
+//! cargo run --release -p virtual-fixture --example virtual_fixture -- --prefix dvrk/PSM1 \
+//!     --point 0,0,-0.12 --normal 0,0,1 --margin 0.001 --count 3000 [--wait predictive]
 //! ```
 //! The plane is given in the RCM frame (CRTK local/measured_cp) by a point and a normal pointing
-//! to the allowed side. Depends on dvrk-ipc and iceoryx2 only.
+//! to the allowed side. `--wait event|spin|predictive` chooses how to wait for poses (see
+//! `dvrk_ipc::WaitStrategy`); `--deadline-ms` after how long without a pose the fixture reports
+//! a silence (default: dvrk-ipc's, 10 ms at 1500 Hz). This package depends on dvrk-ipc only.
 
 use std::process::ExitCode;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{NOMINAL_PERIOD, PoseV1, ServiceNames, Subscription, Topic, Update, create_node};
-
-struct Args {
-    prefix: String,
-    point: [f64; 3],
-    normal: [f64; 3],
-    margin: f64,
-    count: Option<u64>,
-}
-
-fn parse_vec3(name: &str, s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("--{name} \"{s}\": expected three comma-separated numbers"))?;
-    <[f64; 3]>::try_from(v).map_err(|_| format!("--{name} \"{s}\": expected three numbers"))
-}
-
-fn parse_args() -> Result<Args, String> {
-    let mut a = Args {
-        prefix: "dvrk/PSM1".into(),
-        point: [0.0, 0.0, -0.12],
-        normal: [0.0, 0.0, 1.0],
-        margin: 0.001,
-        count: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
-        match flag.as_str() {
-            "--prefix" => a.prefix = value()?,
-            "--point" => a.point = parse_vec3("point", &value()?)?,
-            "--normal" => a.normal = parse_vec3("normal", &value()?)?,
-            "--margin" => {
-                let v = value()?;
-                a.margin = v
-                    .parse()
-                    .map_err(|_| format!("--margin \"{v}\" is not a number"))?
-            }
-            "--count" => {
-                let v = value()?;
-                a.count = Some(
-                    v.parse()
-                        .map_err(|_| format!("--count \"{v}\" is not a count"))?,
-                )
-            }
-            other => return Err(format!("unknown option {other}")),
-        }
-    }
-    let n = a.normal;
-    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    if !(len.is_finite() && len > 0.0) {
-        return Err("--normal must be a non-zero vector".into());
-    }
-    a.normal = [n[0] / len, n[1] / len, n[2] / len];
-    Ok(a)
-}
-
-/// Signed distance (m) of `p` to the plane; positive on the allowed side.
-fn signed_distance(a: &Args, p: &[f64; 3]) -> f64 {
-    (0..3).map(|i| a.normal[i] * (p[i] - a.point[i])).sum()
-}
+use dvrk_ipc::{
+    NOMINAL_PERIOD, PoseV1, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
+    WaitStrategy, create_node,
+};
+use virtual_fixture::{Args, parse_args, signed_distance};
 
 fn main() -> ExitCode {
-    let args = match parse_args() {
+    let args = match parse_args(std::env::args().skip(1)) {
         Ok(a) => a,
         Err(e) => {
             eprintln!("error: {e}");
@@ -97,14 +41,29 @@ fn main() -> ExitCode {
 fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     let node = create_node::<Service>("virtual-fixture", None)?;
     let names = ServiceNames::new(&args.prefix)?;
-    let mut tip = Subscription::<PoseV1, Service>::new(
+    let options = SubscribeOptions {
+        period: NOMINAL_PERIOD,
+        wait: args.wait,
+        deadline: args.deadline,
+    };
+    let mut tip = Subscription::<PoseV1, Service>::with_options(
         &node,
         &names,
         Topic::CompensatedMeasuredCp,
-        NOMINAL_PERIOD,
+        options,
     )?;
-    let mut raw =
-        Subscription::<PoseV1, Service>::new(&node, &names, Topic::MeasuredCp, NOMINAL_PERIOD)?;
+    // The raw pose is only looked at when a tip pose came: it never waits, so it needs no
+    // listener (a spinning subscription has none and costs the publisher nothing).
+    let raw_options = SubscribeOptions {
+        wait: WaitStrategy::Spin,
+        ..options
+    };
+    let mut raw = Subscription::<PoseV1, Service>::with_options(
+        &node,
+        &names,
+        Topic::MeasuredCp,
+        raw_options,
+    )?;
     let mut seen = 0u64;
     let mut inside_margin = false;
     // Report a silent publisher once per episode, not at every missed deadline.
@@ -156,7 +115,10 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
             }
             Update::Stale { .. } => {}
             Update::Terminated if !stale_reported => {
-                eprintln!("publisher gone: fixture holds until it comes back");
+                eprintln!(
+                    "publisher of {} is gone: fixture holds until it comes back",
+                    tip.service_name()
+                );
                 stale_reported = true;
             }
             Update::Terminated => {}

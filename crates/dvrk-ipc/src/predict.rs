@@ -1,0 +1,255 @@
+//! The predictive wait's model of the publisher: a period and a phase learnt from the samples'
+//! publish times, and two adaptive margins around the predicted arrival. Pure arithmetic; the
+//! subscription feeds it times and grades.
+//!
+//! The sidecar starts its cycles on an absolute-time grid (period P) and publishes each a
+//! variable time later (its own wake-up lateness, the board read); after a stall longer than a
+//! period it restarts the grid from the end of the late cycle. The model smooths P over the gaps
+//! between consecutive cycles (leaving out stalls) and takes the grid's phase as a low quantile
+//! (`PHASE_QUANTILE_PERCENT`) of the last `WINDOW` arrivals projected onto the next cycle, so
+//! most arrivals come at or after the prediction and a restarted grid is learnt within `WINDOW`
+//! cycles. The subscriber sets its timer `guard` before the prediction, so that its own timer
+//! lateness still leaves it polling before the sample lands, and polls until `spin_after` past
+//! the prediction before it goes back to sleep on the event.
+//!
+//! Both margins are stochastic quantile trackers: a late wake-up raises the guard by
+//! `GUARD_UP_NS`, an on-time one lowers it by `GUARD_DOWN_NS`, so it settles where
+//! P(late) = DOWN / (UP + DOWN), about 3 %. Each is capped at `1 / MAX_MARGIN_DIVISOR` of the
+//! period, which bounds the polling per cycle to a quarter period even for a publisher whose
+//! timing is all over the place (its samples then come by the event, as they would without the
+//! prediction).
+
+/// Samples learnt before the prediction is used.
+pub const LEARN_SAMPLES: u32 = 16;
+/// Starting guard.
+const GUARD_INIT_NS: f64 = 50_000.0;
+/// Least guard.
+const GUARD_MIN_NS: f64 = 5_000.0;
+const GUARD_UP_NS: f64 = 30_000.0;
+const GUARD_DOWN_NS: f64 = 1_000.0;
+/// Least and starting polling time after the predicted arrival.
+const SPIN_AFTER_MIN_NS: f64 = 20_000.0;
+const SPIN_AFTER_UP_NS: f64 = 30_000.0;
+const SPIN_AFTER_DOWN_NS: f64 = 1_000.0;
+/// Guard and spin-after are each at most this fraction of the period.
+const MAX_MARGIN_DIVISOR: f64 = 8.0;
+/// Recent arrivals whose low quantile gives the phase: short, because the publisher restarts
+/// its grid after every stall longer than a period (often, on a loaded PC).
+const WINDOW: usize = 16;
+/// Weight of a new period measurement once learnt.
+const PERIOD_ALPHA: f64 = 1.0 / 64.0;
+/// The quantile (percent) of recent arrivals that is predicted.
+const PHASE_QUANTILE_PERCENT: usize = 10;
+
+#[derive(Debug, Clone)]
+pub struct Predictor {
+    nominal_ns: f64,
+    period_ns: f64,
+    /// The newest samples (seq, ns), a ring of `filled` entries.
+    recent: [(u64, u64); WINDOW],
+    filled: usize,
+    next: usize,
+    /// Predicted arrival of the sample after the newest, ns.
+    prediction_ns: u64,
+    observed: u32,
+    guard_ns: f64,
+    spin_after_ns: f64,
+}
+
+impl Predictor {
+    pub fn new(nominal_period_ns: u64) -> Self {
+        let p = nominal_period_ns.max(1) as f64;
+        Self {
+            nominal_ns: p,
+            period_ns: p,
+            recent: [(0, 0); WINDOW],
+            filled: 0,
+            next: 0,
+            prediction_ns: 0,
+            observed: 0,
+            guard_ns: GUARD_INIT_NS.min(p / MAX_MARGIN_DIVISOR),
+            spin_after_ns: SPIN_AFTER_MIN_NS,
+        }
+    }
+
+    pub fn ready(&self) -> bool {
+        self.observed >= LEARN_SAMPLES
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns as u64
+    }
+
+    pub fn guard_ns(&self) -> u64 {
+        self.guard_ns as u64
+    }
+
+    pub fn spin_after_ns(&self) -> u64 {
+        self.spin_after_ns as u64
+    }
+
+    /// Predicted arrival (ns) of the sample after the newest one observed.
+    pub fn next_arrival_ns(&self) -> u64 {
+        self.prediction_ns
+    }
+
+    fn restart(&mut self) {
+        self.period_ns = self.nominal_ns;
+        self.filled = 0;
+        self.next = 0;
+        self.observed = 0;
+    }
+
+    /// The newest sample `seq` landed (was published) at `t_ns`.
+    pub fn observe(&mut self, seq: u64, t_ns: u64) {
+        if self.observed == 0 {
+            self.restart();
+        } else if let Some(&(last_seq, last_t)) = self.newest()
+            && (seq <= last_seq || t_ns <= last_t)
+        {
+            // A new publisher (seq starts again) or a clock oddity: learn afresh.
+            self.restart();
+        }
+        let late = t_ns as f64 - self.prediction_ns as f64;
+        let newest = self.newest().copied();
+        let graded = self.ready() && newest.is_some_and(|(s, _)| seq == s + 1);
+        if let Some((last_seq, last_t)) = newest
+            && seq == last_seq + 1
+        {
+            // Consecutive cycles are one period apart on the publisher's grid; a longer gap is a
+            // stall after which the publisher restarts its grid, and is left out.
+            // Catch-up cycles after a short stall come back to back: only gaps near the nominal
+            // period measure it (the consumer's nominal period must be right within 20 %).
+            let d = (t_ns - last_t) as f64;
+            let nominal = self.nominal_ns;
+            if (0.8 * nominal..=1.2 * nominal).contains(&d) {
+                self.period_ns += (d - self.period_ns) * PERIOD_ALPHA;
+            }
+        }
+        self.recent[self.next] = (seq, t_ns);
+        self.next = (self.next + 1) % WINDOW;
+        self.filled = (self.filled + 1).min(WINDOW);
+        let target = seq + 1;
+        // Each recent arrival projected onto the next grid point; the prediction is a low
+        // quantile of them (the earliest few are outliers the timer catches anyway).
+        let mut projected = [0.0f64; WINDOW];
+        for (p, &(s, t)) in projected.iter_mut().zip(&self.recent[..self.filled]) {
+            *p = t as f64 + (target - s) as f64 * self.period_ns;
+        }
+        let projected = &mut projected[..self.filled];
+        let k = (self.filled * PHASE_QUANTILE_PERCENT) / 100;
+        let (_, at, _) = projected.select_nth_unstable_by(k, f64::total_cmp);
+        self.prediction_ns = at.max(0.0) as u64;
+        self.observed = self.observed.saturating_add(1);
+        if graded {
+            let cap = self.period_ns / MAX_MARGIN_DIVISOR;
+            if late > self.spin_after_ns {
+                self.spin_after_ns = (self.spin_after_ns + SPIN_AFTER_UP_NS).min(cap);
+            } else {
+                self.spin_after_ns =
+                    (self.spin_after_ns - SPIN_AFTER_DOWN_NS).max(SPIN_AFTER_MIN_NS);
+            }
+        }
+    }
+
+    fn newest(&self) -> Option<&(u64, u64)> {
+        (self.filled > 0).then(|| &self.recent[(self.next + WINDOW - 1) % WINDOW])
+    }
+
+    /// Whether polling had started before the sample landed.
+    pub fn graded(&mut self, on_time: bool) {
+        let max = (self.period_ns / MAX_MARGIN_DIVISOR).max(GUARD_MIN_NS);
+        if on_time {
+            self.guard_ns = (self.guard_ns - GUARD_DOWN_NS).max(GUARD_MIN_NS);
+        } else {
+            self.guard_ns = (self.guard_ns + GUARD_UP_NS).min(max);
+        }
+    }
+
+    /// Polling ended without a sample: allow more time after the prediction.
+    pub fn missed(&mut self) {
+        self.spin_after_ns =
+            (self.spin_after_ns + SPIN_AFTER_UP_NS).min(self.period_ns / MAX_MARGIN_DIVISOR);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const P: u64 = 666_667;
+
+    /// A deterministic spread of publish delays after the grid, 20..=80 µs.
+    fn delay(k: u64) -> u64 {
+        20_000 + (k * 7919 % 61) * 1_000
+    }
+
+    #[test]
+    fn learns_a_period_that_differs_from_the_nominal_one() {
+        let real = 700_000u64; // 5 % slower than the nominal period
+        let mut p = Predictor::new(P);
+        let t0 = 5_000_000_000u64;
+        for k in 0..2000 {
+            p.observe(k + 1, t0 + k * real + delay(k));
+        }
+        // A stall and a burst of catch-up cycles do not disturb it.
+        let t1 = t0 + 2000 * real + 5_000_000;
+        for k in 0..5 {
+            p.observe(2001 + k, t1 + k * 50_000);
+        }
+        assert!(p.ready());
+        let err = (p.period_ns() as f64 - real as f64).abs();
+        assert!(err < 500.0, "period {} vs {real}", p.period_ns());
+    }
+
+    #[test]
+    fn predicts_a_low_quantile_of_the_arrivals_not_their_mean() {
+        let mut p = Predictor::new(P);
+        let t0 = 1_000_000_000u64;
+        for k in 0..3000 {
+            p.observe(k + 1, t0 + k * P + delay(k));
+        }
+        // Next grid point 3000, whose delays are spread 20..=80 µs: the 10 % quantile is 26 µs.
+        let low = t0 + 3000 * P + 26_000;
+        let pred = p.next_arrival_ns() as i64;
+        assert!(
+            (pred - low as i64).abs() < 3_000,
+            "predicted {pred}, 10 % quantile {low}"
+        );
+        // Few samples come before the prediction.
+        let mut early = 0;
+        for k in 3000..3610 {
+            let t = t0 + k * P + delay(k);
+            early += u32::from((t as i64) < p.next_arrival_ns() as i64);
+            p.observe(k + 1, t);
+        }
+        assert!((30..=90).contains(&early), "{early} of 610 early");
+    }
+
+    #[test]
+    fn guard_rises_on_late_wake_ups_and_decays_when_on_time() {
+        let mut p = Predictor::new(P);
+        let g0 = p.guard_ns();
+        p.graded(false);
+        assert!(p.guard_ns() > g0);
+        for _ in 0..10_000 {
+            p.graded(true);
+        }
+        assert_eq!(p.guard_ns(), GUARD_MIN_NS as u64);
+        for _ in 0..10_000 {
+            p.graded(false);
+        }
+        assert_eq!(p.guard_ns(), P / 8, "capped at an eighth of a period");
+    }
+
+    #[test]
+    fn a_restarted_publisher_is_learnt_afresh() {
+        let mut p = Predictor::new(P);
+        for k in 0..100 {
+            p.observe(1000 + k, 1_000_000_000 + k * P);
+        }
+        assert!(p.ready());
+        p.observe(1, 9_000_000_000);
+        assert!(!p.ready(), "seq went back: a new publisher");
+    }
+}
