@@ -42,7 +42,7 @@ pub use instruments::{Generation, Instrument, Wrist, instrument, instruments};
 pub use kinematics::{ArmKind, PsmKinematics};
 pub use model::{ComplianceConfig, Correction, JointModel, ModelKind};
 pub use params::{
-    ComplianceParams, INSERTION_LIMITS_M, JointParams, ParamsError, TorqueOffsetParams,
-    params_to_toml,
+    ComplianceParams, INSERTION_LIMITS_M, JointParams, MAX_BACKLASH_RAD, MAX_TAU_MIN_NM,
+    MIN_INVERSE_COMPLIANCE_NM_PER_RAD, ParamsError, TorqueOffsetParams, params_to_toml,
 };
 pub use torque_offset::TorqueOffsetTable;

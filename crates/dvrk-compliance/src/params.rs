@@ -25,6 +25,14 @@ use crate::torque_offset::TorqueOffsetTable;
 /// Insertion ranges must lie within the Classic PSM's insertion joint limits (reference 1.2).
 pub const INSERTION_LIMITS_M: [f64; 2] = [0.0, 0.24];
 
+/// The smallest plausible `1/K(L)` (N·m/rad) of an instrument shaft (issue 9): the 2017 data
+/// measure 13 to 29 N·m/rad; a cubic that falls below 1 anywhere in its range is a fit error.
+pub const MIN_INVERSE_COMPLIANCE_NM_PER_RAD: f64 = 1.0;
+/// The largest plausible backlash (rad): the 2017 data show a few mrad.
+pub const MAX_BACKLASH_RAD: f64 = 0.02;
+/// The largest plausible dead band (N·m): the paper uses 0.1 and 0.2 N·m.
+pub const MAX_TAU_MIN_NM: f64 = 1.0;
+
 /// A parameter file as parsed, before validation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -93,15 +101,26 @@ pub enum ParamsError {
         "joint {joint}: insertion_range_m = [{min_m}, {max_m}] must satisfy 0 <= min <= max <= 0.24 m"
     )]
     InsertionRange { joint: i64, min_m: f64, max_m: f64 },
-    /// The cubic `1/K(L)` is not positive (or not finite) somewhere in the insertion range.
+    /// The cubic `1/K(L)` is below [`MIN_INVERSE_COMPLIANCE_NM_PER_RAD`] (or not finite)
+    /// somewhere in the insertion range: no instrument shaft is that soft, so the cubic is a
+    /// fit error.
     #[error(
         "joint {joint}: inverse_compliance_nm_per_rad gives 1/K({insertion_m} m) = {value} N·m/rad; \
-         it must be finite and > 0 over insertion_range_m"
+         it must be finite and >= 1 N·m/rad over insertion_range_m (a softer shaft is a fit error)"
     )]
-    NonPositiveStiffness {
+    StiffnessTooLow {
         joint: i64,
         insertion_m: f64,
         value: f64,
+    },
+    /// A backlash or dead band beyond its physical bound ([`MAX_BACKLASH_RAD`],
+    /// [`MAX_TAU_MIN_NM`]).
+    #[error("joint {joint}: {field} = {value} exceeds its physical bound {max}")]
+    AboveBound {
+        joint: i64,
+        field: String,
+        value: f64,
+        max: f64,
     },
     /// `torque_offset.position_rad` and `effort_nm` have different lengths.
     #[error(
@@ -196,9 +215,10 @@ fn toml_array(xs: &[f64]) -> String {
 
 impl ComplianceConfig {
     /// Validates parsed parameters. The checks, each reported with joint, field and value:
-    /// index 1 or 2 and not repeated; every number finite; backlash and dead band >= 0;
-    /// `0 <= min <= max <= 0.24` m; a non-empty torque offset table with equal lengths and
-    /// strictly increasing positions; `1/K(L) > 0` on the whole insertion range.
+    /// index 1 or 2 and not repeated; every number finite; `0 <= backlash <= 0.02` rad and
+    /// `0 <= tau_min <= 1` N·m; `0 <= min <= max <= 0.24` m; a non-empty torque offset table
+    /// with equal lengths and strictly increasing positions; `1/K(L) >= 1` N·m/rad on the whole
+    /// insertion range.
     pub fn from_params(p: ComplianceParams) -> Result<Self, ParamsError> {
         let mut joints: [Option<JointModel>; 2] = [None, None];
         for jp in p.joint {
@@ -303,6 +323,21 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         }
     }
 
+    for (field, value, max) in [
+        ("backlash_rad", backlash_rad, MAX_BACKLASH_RAD),
+        ("tau_min_nm", tau_min_nm, MAX_TAU_MIN_NM),
+    ] {
+        if value > max {
+            let field = field.to_owned();
+            return Err(ParamsError::AboveBound {
+                joint,
+                field,
+                value,
+                max,
+            });
+        }
+    }
+
     let [lim_lo, lim_hi] = INSERTION_LIMITS_M;
     if !(lim_lo <= min_m && min_m <= max_m && max_m <= lim_hi) {
         return Err(ParamsError::InsertionRange {
@@ -338,8 +373,8 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
     }
 
     let (insertion_m, value) = cubic_minimum(&coeffs, [min_m, max_m]);
-    if !(value > 0.0 && value.is_finite()) {
-        return Err(ParamsError::NonPositiveStiffness {
+    if !(value >= MIN_INVERSE_COMPLIANCE_NM_PER_RAD && value.is_finite()) {
+        return Err(ParamsError::StiffnessTooLow {
             joint,
             insertion_m,
             value,
