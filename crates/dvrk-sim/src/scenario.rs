@@ -33,7 +33,7 @@ use serde::Deserialize;
 
 use crate::SimError;
 use crate::measure::NoiseParams;
-use crate::physics::{Environment, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm};
+use crate::physics::{Environment, FrictionParams, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm};
 
 /// Environment section, as written in the file.
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -95,6 +95,33 @@ pub struct ShaftSection {
     pub insertion_range_m: [f64; 2],
 }
 
+/// Optional transmission section (default: no Coulomb friction, the built-in viscous friction):
+/// motor-side friction of joints 1 and 2 (issue 10, "a transmission that rubs").
+///
+/// ```toml
+/// [transmission]
+/// coulomb_nm = [0.03, 0.03]       # Coulomb friction while moving, N·m
+/// stiction_nm = [0.04, 0.04]      # break-away torque, >= coulomb_nm
+/// viscous_nm_s_per_rad = [0.2, 0.2]   # optional; default 0.2
+/// ```
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TransmissionSection {
+    #[serde(default)]
+    pub coulomb_nm: [f64; 2],
+    #[serde(default)]
+    pub stiction_nm: [f64; 2],
+    #[serde(default = "default_viscous")]
+    pub viscous_nm_s_per_rad: [f64; 2],
+}
+
+fn default_viscous() -> [f64; 2] {
+    [
+        PhysicsParams::CLASSIC.viscous[0],
+        PhysicsParams::CLASSIC.viscous[1],
+    ]
+}
+
 /// A scenario file as parsed.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -109,6 +136,8 @@ pub struct ScenarioParams {
     pub noise: NoiseSection,
     #[serde(default)]
     pub shaft: Option<ShaftSection>,
+    #[serde(default)]
+    pub transmission: Option<TransmissionSection>,
 }
 
 /// What the stand-in console commands over time.
@@ -230,6 +259,46 @@ impl Scenario {
                 ));
             }
             physics.shaft = shaft;
+        }
+        if let Some(t) = p.transmission {
+            for j in 0..2 {
+                let c =
+                    check_non_negative(&format!("transmission.coulomb_nm[{j}]"), t.coulomb_nm[j])?;
+                let s = check_non_negative(
+                    &format!("transmission.stiction_nm[{j}]"),
+                    t.stiction_nm[j],
+                )?;
+                let v = check_non_negative(
+                    &format!("transmission.viscous_nm_s_per_rad[{j}]"),
+                    t.viscous_nm_s_per_rad[j],
+                )?;
+                if c > 1.0 {
+                    return Err(invalid(
+                        format!("transmission.coulomb_nm[{j}]"),
+                        c,
+                        "must be at most 1 N·m",
+                    ));
+                }
+                if s < c || s > 1.0 {
+                    return Err(invalid(
+                        format!("transmission.stiction_nm[{j}]"),
+                        s,
+                        "must lie between coulomb_nm and 1 N·m",
+                    ));
+                }
+                if v > 10.0 {
+                    return Err(invalid(
+                        format!("transmission.viscous_nm_s_per_rad[{j}]"),
+                        v,
+                        "must be at most 10 N·m·s/rad",
+                    ));
+                }
+                physics.friction[j] = FrictionParams {
+                    coulomb: c,
+                    stiction: s,
+                };
+                physics.viscous[j] = v;
+            }
         }
         for (j, v) in p.initial_position.iter().enumerate() {
             let field = format!("initial_position[{j}]");
