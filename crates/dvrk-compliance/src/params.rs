@@ -19,6 +19,7 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
+use crate::dynamics::DynamicsParams;
 use crate::model::{ComplianceConfig, JointModel, ModelKind, cubic};
 use crate::torque_offset::TorqueOffsetTable;
 
@@ -30,8 +31,12 @@ pub const INSERTION_LIMITS_M: [f64; 2] = [0.0, 0.24];
 pub const MIN_INVERSE_COMPLIANCE_NM_PER_RAD: f64 = 1.0;
 /// The largest plausible backlash (rad): the 2017 data show a few mrad.
 pub const MAX_BACKLASH_RAD: f64 = 0.02;
-/// The largest plausible dead band (N·m): the paper uses 0.1 and 0.2 N·m.
+/// The largest plausible dead band (N·m): the paper uses 0.1 and 0.2 N·m. Also the bound of a
+/// Coulomb friction and of a residual std in `[joint.dynamics]`.
 pub const MAX_TAU_MIN_NM: f64 = 1.0;
+/// The largest plausible inertia of joint 1 or 2 (kg·m²): a Classic PSM's arm and reflected
+/// motor inertia are well below it.
+pub const MAX_INERTIA_KG_M2: f64 = 1.0;
 
 /// A parameter file as parsed, before validation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,6 +65,40 @@ pub struct JointParams {
     pub insertion_range_m: [f64; 2],
     /// The torque offset table `tau_0(q)`.
     pub torque_offset: TorqueOffsetParams,
+    /// The kind and signed gap of the clamp hysteresis, as `fit` found it; absent = a play.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hysteresis: Option<HysteresisParams>,
+    /// The internal-torque model (`[joint.dynamics]`, see [`crate::dynamics`]); absent =
+    /// `tau_ext = tau_meas - tau_0(q)` as in the paper.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynamics: Option<DynamicsParams>,
+}
+
+/// `hysteresis = { kind = "friction", gap_rad = 0.006 }`.
+///
+/// `gap_rad` is the signed gap between the clamp data's two directions of motion at equal
+/// effort: rising-direction angle minus falling-direction angle. A play gives `+2 delta` as the
+/// shaft lags behind in either direction; a transmission friction gives a negative gap in that
+/// convention (the effort leads the shaft load by the friction in the direction of motion).
+/// At run time a play is corrected with `backlash_rad` as the paper does; a friction hysteresis
+/// is removed from `tau_ext` by the friction of `[joint.dynamics]`, and `backlash_rad` is not
+/// added to the joint.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HysteresisParams {
+    pub kind: HysteresisKind,
+    pub gap_rad: f64,
+}
+
+/// What causes a joint's clamp hysteresis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HysteresisKind {
+    /// A backlash play in the transmission (the paper's `delta`).
+    #[default]
+    Play,
+    /// Friction in the transmission (the 2017 data).
+    Friction,
 }
 
 /// `torque_offset = { position_rad = [..], effort_nm = [..] }`.
@@ -179,6 +218,30 @@ impl ComplianceParams {
                 "insertion_range_m = {}",
                 toml_array(&j.insertion_range_m)
             );
+            if let Some(h) = &j.hysteresis {
+                let kind = match h.kind {
+                    HysteresisKind::Play => "play",
+                    HysteresisKind::Friction => "friction",
+                };
+                let _ = writeln!(
+                    s,
+                    "hysteresis = {{ kind = \"{kind}\", gap_rad = {} }}",
+                    toml_float(h.gap_rad)
+                );
+            }
+            if let Some(d) = &j.dynamics {
+                let _ = writeln!(
+                    s,
+                    "dynamics = {{ inertia_kg_m2 = {}, viscous_nm_s_per_rad = {}, coulomb_nm = {}, \
+                     stick_velocity_rad_per_s = {}, residual_std_nm = {}, gate_sigmas = {} }}",
+                    toml_array(&d.inertia_kg_m2),
+                    toml_float(d.viscous_nm_s_per_rad),
+                    toml_float(d.coulomb_nm),
+                    toml_float(d.stick_velocity_rad_per_s),
+                    toml_float(d.residual_std_nm),
+                    toml_float(d.gate_sigmas)
+                );
+            }
             let _ = writeln!(s, "[joint.torque_offset]");
             let _ = writeln!(
                 s,
@@ -256,6 +319,11 @@ impl ComplianceConfig {
                         position_rad: j.torque_offset.position_rad().to_vec(),
                         effort_nm: j.torque_offset.effort_nm().to_vec(),
                     },
+                    hysteresis: j.hysteresis_gap_rad.map(|gap_rad| HysteresisParams {
+                        kind: j.hysteresis_kind,
+                        gap_rad,
+                    }),
+                    dynamics: j.dynamics,
                 })
             })
             .collect();
@@ -292,6 +360,8 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         inverse_compliance_nm_per_rad: coeffs,
         insertion_range_m: [min_m, max_m],
         torque_offset,
+        hysteresis,
+        dynamics,
         ..
     } = jp;
 
@@ -381,7 +451,65 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         });
     }
 
+    if let Some(h) = &hysteresis {
+        check_finite(joint, "hysteresis.gap_rad", &[h.gap_rad], false)?;
+    }
+    if let Some(d) = &dynamics {
+        check_finite(joint, "dynamics.inertia_kg_m2", &d.inertia_kg_m2, true)?;
+        for (field, value, max) in [
+            (
+                "dynamics.inertia_kg_m2[0]",
+                d.inertia_kg_m2[0],
+                MAX_INERTIA_KG_M2,
+            ),
+            (
+                "dynamics.inertia_kg_m2[1]",
+                d.inertia_kg_m2[1],
+                MAX_INERTIA_KG_M2 / 0.01,
+            ),
+            (
+                "dynamics.viscous_nm_s_per_rad",
+                d.viscous_nm_s_per_rad,
+                10.0,
+            ),
+            ("dynamics.coulomb_nm", d.coulomb_nm, MAX_TAU_MIN_NM),
+            (
+                "dynamics.stick_velocity_rad_per_s",
+                d.stick_velocity_rad_per_s,
+                1.0,
+            ),
+            (
+                "dynamics.residual_std_nm",
+                d.residual_std_nm,
+                MAX_TAU_MIN_NM,
+            ),
+            ("dynamics.gate_sigmas", d.gate_sigmas, 10.0),
+        ] {
+            check_finite(joint, field, &[value], false)?;
+            if value < 0.0 {
+                let field = field.to_owned();
+                return Err(ParamsError::Negative {
+                    joint,
+                    field,
+                    value,
+                });
+            }
+            if value > max {
+                let field = field.to_owned();
+                return Err(ParamsError::AboveBound {
+                    joint,
+                    field,
+                    value,
+                    max,
+                });
+            }
+        }
+    }
+
     Ok(JointModel {
+        hysteresis_kind: hysteresis.map(|h| h.kind).unwrap_or_default(),
+        hysteresis_gap_rad: hysteresis.map(|h| h.gap_rad),
+        dynamics,
         backlash_rad,
         tau_min_nm,
         inverse_compliance_nm_per_rad: coeffs,

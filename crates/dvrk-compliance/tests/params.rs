@@ -9,8 +9,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use dvrk_compliance::{
-    ComplianceConfig, ComplianceParams, JointParams, ModelKind, ParamsError, TorqueOffsetParams,
-    params_to_toml,
+    ComplianceConfig, ComplianceParams, DynamicsParams, HysteresisKind, HysteresisParams,
+    JointParams, ModelKind, ParamsError, TorqueOffsetParams, params_to_toml,
 };
 use proptest::prelude::*;
 
@@ -158,6 +158,8 @@ fn valid_joint(index: i64) -> JointParams {
             position_rad: vec![-1.0, 1.0],
             effort_nm: vec![0.0, 0.0],
         },
+        hysteresis: None,
+        dynamics: None,
     }
 }
 
@@ -419,18 +421,42 @@ fn any_joint() -> impl Strategy<Value = JointParams> {
         prop::array::uniform4(any_f64()),
         prop::array::uniform2(any_f64()),
         prop::collection::vec((any_f64(), any_f64()), 0..6),
+        prop::option::of((any::<bool>(), any_f64())),
+        prop::option::of((
+            prop::array::uniform2(any_f64()),
+            prop::array::uniform4(any_f64()),
+            any_f64(),
+        )),
     )
         .prop_map(
-            |(index, backlash_rad, tau_min_nm, c, range, table)| JointParams {
-                index,
-                backlash_rad,
-                tau_min_nm,
-                inverse_compliance_nm_per_rad: c,
-                insertion_range_m: range,
-                torque_offset: TorqueOffsetParams {
-                    position_rad: table.iter().map(|t| t.0).collect(),
-                    effort_nm: table.iter().map(|t| t.1).collect(),
-                },
+            |(index, backlash_rad, tau_min_nm, c, range, table, hysteresis, dynamics)| {
+                JointParams {
+                    index,
+                    backlash_rad,
+                    tau_min_nm,
+                    inverse_compliance_nm_per_rad: c,
+                    insertion_range_m: range,
+                    torque_offset: TorqueOffsetParams {
+                        position_rad: table.iter().map(|t| t.0).collect(),
+                        effort_nm: table.iter().map(|t| t.1).collect(),
+                    },
+                    hysteresis: hysteresis.map(|(friction, gap_rad)| HysteresisParams {
+                        kind: if friction {
+                            HysteresisKind::Friction
+                        } else {
+                            HysteresisKind::Play
+                        },
+                        gap_rad,
+                    }),
+                    dynamics: dynamics.map(|(inertia, [b, fc, vs, std], k)| DynamicsParams {
+                        inertia_kg_m2: inertia,
+                        viscous_nm_s_per_rad: b,
+                        coulomb_nm: fc,
+                        stick_velocity_rad_per_s: vs,
+                        residual_std_nm: std,
+                        gate_sigmas: k,
+                    }),
+                }
             },
         )
 }

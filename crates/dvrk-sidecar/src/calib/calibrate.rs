@@ -586,6 +586,8 @@ mod tests {
                     position_rad: t0.position_rad,
                     effort_nm: t0.effort_nm,
                 },
+                hysteresis: None,
+                dynamics: None,
             }],
         };
         let cfg = ComplianceConfig::from_params(params).unwrap();

@@ -291,6 +291,8 @@ mod tests {
                     position_rad: vec![0.0],
                     effort_nm: vec![0.1],
                 },
+                hysteresis: None,
+                dynamics: None,
             })
             .collect();
         ComplianceConfig::from_params(ComplianceParams {

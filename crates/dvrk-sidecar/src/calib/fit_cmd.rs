@@ -121,6 +121,8 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
             inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
             insertion_range_m: j.insertion_range_m,
             torque_offset,
+            hysteresis: None,
+            dynamics: None,
         });
     }
     let params = ComplianceParams {

@@ -1,0 +1,312 @@
+//! The internal-torque model (issue 10): what the joint effort holds besides the external torque.
+//!
+//! ```text
+//! tau_ext = tau_meas - tau_0(q) - tau_f(qd, direction memory) - J(L) qdd        (joints 1, 2)
+//! tau_f   = b qd + F_c s,   s = sgn(qd) while |qd| > v_s, else the sign of the last motion
+//! J(L)    = J_0 + J_2 L^2                          (motor and arm, plus the distal mass at L)
+//! ```
+//!
+//! The paper's quasi-static model counts every effort above `tau_0(q)` as external; while the arm
+//! accelerates and its transmission rubs, that gives false corrections. The velocity and
+//! acceleration come from the encoder positions by a causal filter: a least-squares cubic over the
+//! last [`WINDOW`] samples (their own timestamps, so jitter is handled), evaluated two samples
+//! before the newest. That is exact for any cubic motion, has a fixed delay of 2 cycles and no
+//! look-ahead, and averages the encoder quantization over the window.
+//!
+//! In the parameter file the model is an optional table per joint (a file without it behaves as
+//! before: `tau_ext = tau_meas - tau_0(q)`, gating at `tau_min`):
+//!
+//! ```toml
+//! [joint.dynamics]
+//! inertia_kg_m2 = [0.05, 0.0]        # J_0, J_2 of J(L) = J_0 + J_2 L^2 (kg·m², kg)
+//! viscous_nm_s_per_rad = 0.2         # b
+//! coulomb_nm = 0.03                  # F_c
+//! stick_velocity_rad_per_s = 0.002   # v_s: below it the friction keeps its last direction
+//! residual_std_nm = 0.004            # std of tau_ext in free space after the model (the fit's)
+//! gate_sigmas = 4.0                  # correction only where |tau_ext| > tau_min + gate_sigmas * std
+//! ```
+//!
+//! [`InternalTorque`] is the stateful estimator: fixed-size ring buffers, no allocation per step.
+
+use serde::{Deserialize, Serialize};
+
+/// Samples in the filter's window.
+pub const WINDOW: usize = 48;
+/// Delay of the filter's estimate, in samples.
+pub const DELAY_SAMPLES: usize = 2;
+
+fn default_stick_velocity() -> f64 {
+    0.002
+}
+
+fn default_gate_sigmas() -> f64 {
+    4.0
+}
+
+/// `[joint.dynamics]` of a parameter file (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicsParams {
+    /// `[J_0, J_2]` of `J(L) = J_0 + J_2 L^2` (kg·m², kg).
+    pub inertia_kg_m2: [f64; 2],
+    /// Viscous friction `b` (N·m·s/rad).
+    pub viscous_nm_s_per_rad: f64,
+    /// Coulomb friction `F_c` (N·m).
+    pub coulomb_nm: f64,
+    /// Speed below which the friction keeps the direction of the last motion (rad/s).
+    #[serde(default = "default_stick_velocity")]
+    pub stick_velocity_rad_per_s: f64,
+    /// Standard deviation of the model's torque residual in free space (N·m).
+    pub residual_std_nm: f64,
+    /// The gate: a correction needs `|tau_ext| > tau_min + gate_sigmas * residual_std_nm`.
+    #[serde(default = "default_gate_sigmas")]
+    pub gate_sigmas: f64,
+}
+
+impl DynamicsParams {
+    /// `J(L)` in kg·m².
+    #[inline]
+    pub fn inertia(&self, insertion_m: f64) -> f64 {
+        self.inertia_kg_m2[0] + self.inertia_kg_m2[1] * insertion_m * insertion_m
+    }
+
+    /// The friction torque `b qd + F_c s` for velocity `qd` and direction memory `s`.
+    #[inline]
+    pub fn friction(&self, velocity: f64, direction: f64) -> f64 {
+        self.viscous_nm_s_per_rad * velocity + self.coulomb_nm * direction
+    }
+
+    /// The part of the dead band the residual adds: `gate_sigmas * residual_std_nm` (N·m).
+    #[inline]
+    pub fn gate_nm(&self) -> f64 {
+        self.gate_sigmas * self.residual_std_nm
+    }
+}
+
+/// Velocity and acceleration of one joint by the causal least-squares cubic (module docs).
+#[derive(Clone, Debug)]
+pub struct DerivativeFilter {
+    t: [f64; WINDOW],
+    q: [f64; WINDOW],
+    /// Next slot to write.
+    head: usize,
+    len: usize,
+}
+
+impl Default for DerivativeFilter {
+    fn default() -> Self {
+        Self {
+            t: [0.0; WINDOW],
+            q: [0.0; WINDOW],
+            head: 0,
+            len: 0,
+        }
+    }
+}
+
+impl DerivativeFilter {
+    /// Forgets the history (after a gap in the samples).
+    pub fn reset(&mut self) {
+        self.head = 0;
+        self.len = 0;
+    }
+
+    /// Adds a sample at time `t_s` and returns `(velocity, acceleration)` at the sample
+    /// [`DELAY_SAMPLES`] before it; zeros until the window holds enough samples for a cubic.
+    /// Non-finite inputs reset the filter.
+    pub fn push(&mut self, t_s: f64, q: f64) -> (f64, f64) {
+        if !(t_s.is_finite() && q.is_finite()) {
+            self.reset();
+            return (0.0, 0.0);
+        }
+        self.t[self.head] = t_s;
+        self.q[self.head] = q;
+        self.head = (self.head + 1) % WINDOW;
+        self.len = (self.len + 1).min(WINDOW);
+        if self.len < 8 {
+            return (0.0, 0.0);
+        }
+        // The evaluation point: DELAY_SAMPLES before the newest sample; times relative to it,
+        // scaled by the window span so the normal equations stay well conditioned.
+        let newest = (self.head + WINDOW - 1) % WINDOW;
+        let at = (self.head + WINDOW - 1 - DELAY_SAMPLES) % WINDOW;
+        let oldest = (self.head + WINDOW - self.len) % WINDOW;
+        let (t0, q0) = (self.t[at], self.q[at]);
+        let span = self.t[newest] - self.t[oldest];
+        if !(span > 0.0) {
+            return (0.0, 0.0);
+        }
+        let mut m = [[0.0f64; 4]; 4];
+        let mut r = [0.0f64; 4];
+        for k in 0..self.len {
+            let i = (oldest + k) % WINDOW;
+            let x = (self.t[i] - t0) / span;
+            let y = self.q[i] - q0;
+            let p = [1.0, x, x * x, x * x * x];
+            for a in 0..4 {
+                r[a] += p[a] * y;
+                for b in 0..4 {
+                    m[a][b] += p[a] * p[b];
+                }
+            }
+        }
+        match solve4(m, r) {
+            // q(x) = c0 + c1 x + c2 x^2 + c3 x^3 with x = (t - t0) / span, at x = 0.
+            Some(c) => (c[1] / span, 2.0 * c[2] / (span * span)),
+            None => (0.0, 0.0),
+        }
+    }
+}
+
+/// Solves the symmetric 4x4 system by Gaussian elimination with partial pivoting.
+fn solve4(mut m: [[f64; 4]; 4], mut r: [f64; 4]) -> Option<[f64; 4]> {
+    for col in 0..4 {
+        let mut piv = col;
+        for row in col + 1..4 {
+            if m[row][col].abs() > m[piv][col].abs() {
+                piv = row;
+            }
+        }
+        if !(m[piv][col].abs() > 1e-300) {
+            return None;
+        }
+        m.swap(col, piv);
+        r.swap(col, piv);
+        for row in col + 1..4 {
+            let f = m[row][col] / m[col][col];
+            for k in col..4 {
+                m[row][k] -= f * m[col][k];
+            }
+            r[row] -= f * r[col];
+        }
+    }
+    let mut x = [0.0; 4];
+    for row in (0..4).rev() {
+        let mut s = r[row];
+        for k in row + 1..4 {
+            s -= m[row][k] * x[k];
+        }
+        x[row] = s / m[row][row];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// The estimator state of one joint: its filter and its friction direction memory.
+#[derive(Clone, Debug, Default)]
+pub struct JointDynamicsState {
+    filter: DerivativeFilter,
+    direction: f64,
+    velocity: f64,
+    acceleration: f64,
+}
+
+impl JointDynamicsState {
+    /// Feeds one sample; returns the torque `tau_f + J qdd` the model attributes to the motion
+    /// (N·m).
+    pub fn update(&mut self, p: &DynamicsParams, t_s: f64, q: f64, insertion_m: f64) -> f64 {
+        let (v, a) = self.filter.push(t_s, q);
+        self.velocity = v;
+        self.acceleration = a;
+        if v > p.stick_velocity_rad_per_s {
+            self.direction = 1.0;
+        } else if v < -p.stick_velocity_rad_per_s {
+            self.direction = -1.0;
+        }
+        p.friction(v, self.direction) + p.inertia(insertion_m) * a
+    }
+
+    /// The filtered velocity (rad/s) of the last update.
+    pub fn velocity(&self) -> f64 {
+        self.velocity
+    }
+
+    /// The filtered acceleration (rad/s²) of the last update.
+    pub fn acceleration(&self) -> f64 {
+        self.acceleration
+    }
+
+    /// The friction's direction memory: +1, -1, or 0 before any motion.
+    pub fn direction(&self) -> f64 {
+        self.direction
+    }
+
+    /// Forgets the history (after invalid samples).
+    pub fn reset(&mut self) {
+        self.filter.reset();
+        self.velocity = 0.0;
+        self.acceleration = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cubic_motion_is_differentiated_exactly_two_samples_back() {
+        let mut f = DerivativeFilter::default();
+        let dt = 1.0 / 1500.0;
+        let q = |t: f64| 0.1 + 0.5 * t - 2.0 * t * t + 3.0 * t * t * t;
+        let mut out = (0.0, 0.0);
+        for i in 0..100 {
+            let t = 1.0 + f64::from(i) * dt;
+            out = f.push(t, q(t));
+        }
+        let t = 1.0 + 97.0 * dt;
+        let v = 0.5 - 4.0 * t + 9.0 * t * t;
+        let a = -4.0 + 18.0 * t;
+        assert!((out.0 - v).abs() < 1e-6, "{out:?} {v}");
+        assert!((out.1 - a).abs() < 1e-3, "{out:?} {a}");
+    }
+
+    #[test]
+    fn quantized_rest_gives_small_estimates_and_nan_resets() {
+        let mut f = DerivativeFilter::default();
+        let dt = 1.0 / 1500.0;
+        let count = 7.7e-6;
+        let mut worst: (f64, f64) = (0.0, 0.0);
+        for i in 0..3000 {
+            let t = f64::from(i) * dt;
+            // A slow drift through the encoder's steps.
+            let q = ((0.001 * t) / count).round() * count;
+            let (v, a) = f.push(t, q);
+            if i > WINDOW as i32 {
+                worst = (worst.0.max((v - 0.001).abs()), worst.1.max(a.abs()));
+            }
+        }
+        assert!(worst.0 < 0.01 && worst.1 < 2.0, "{worst:?}");
+        assert_eq!(f.push(f64::NAN, 0.0), (0.0, 0.0));
+        assert_eq!(f.push(1.0, 0.0), (0.0, 0.0));
+    }
+
+    #[test]
+    fn friction_remembers_the_last_direction() {
+        let p = DynamicsParams {
+            inertia_kg_m2: [0.0, 0.0],
+            viscous_nm_s_per_rad: 0.0,
+            coulomb_nm: 0.05,
+            stick_velocity_rad_per_s: 0.002,
+            residual_std_nm: 0.0,
+            gate_sigmas: 0.0,
+        };
+        let mut s = JointDynamicsState::default();
+        let dt = 1e-3;
+        let mut q = 0.0;
+        let mut tau = 0.0;
+        for i in 0..200 {
+            q += 0.01 * dt;
+            tau = s.update(&p, f64::from(i) * dt, q, 0.1);
+        }
+        assert_eq!(tau, 0.05);
+        // Stopped: the friction keeps the sign of the last motion.
+        for i in 200..400 {
+            tau = s.update(&p, f64::from(i) * dt, q, 0.1);
+        }
+        assert_eq!(tau, 0.05);
+        for i in 400..600 {
+            q -= 0.01 * dt;
+            tau = s.update(&p, f64::from(i) * dt, q, 0.1);
+        }
+        assert_eq!(tau, -0.05);
+    }
+}
