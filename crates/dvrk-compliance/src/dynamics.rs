@@ -310,3 +310,209 @@ mod tests {
         assert_eq!(tau, -0.05);
     }
 }
+
+/// One sample of a free-space excitation (`calibrate dynamics`, or recorded from a live robot).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DynamicsSample {
+    /// Time (s), increasing.
+    pub t_s: f64,
+    /// Joints 1-3 (rad, rad, m).
+    pub position: [f64; 3],
+    /// Efforts of joints 1 and 2 (N·m).
+    pub effort_nm: [f64; 2],
+}
+
+/// The identified model of one joint and how much of the effort it explains.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DynamicsFit {
+    /// 1 = yaw, 2 = pitch.
+    pub joint: u8,
+    pub params: DynamicsParams,
+    /// RMS of `tau_meas - tau_0(q)` over the samples used (N·m): the paper's `tau_ext` in free
+    /// space, all of it false.
+    pub rms_before_nm: f64,
+    /// RMS of the model's `tau_ext` over the same samples (N·m).
+    pub rms_after_nm: f64,
+    /// Samples used (after the filter's window filled).
+    pub samples: usize,
+}
+
+/// Why a dynamics fit failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DynamicsFitError {
+    /// Too few samples, or a time that does not increase.
+    #[error("joint {joint}: {reason}")]
+    Data { joint: u8, reason: &'static str },
+    /// The excitation does not separate inertia, viscous and Coulomb friction.
+    #[error(
+        "joint {joint}: the excitation does not separate inertia and friction (singular system); \
+         move the joint over its range at several speeds and depths"
+    )]
+    Singular { joint: u8 },
+}
+
+/// Identifies `J_0, J_2, b, F_c` of joint `joint` (1 or 2) by linear least squares of
+/// `tau_meas - tau_0(q) = J_0 qdd + J_2 L^2 qdd + b qd + F_c s` over free-space samples, with the
+/// same filter and direction memory as at run time; `tau_0` is the parameter file's own table.
+/// Negative estimates (not physical) are set to 0 and the rest refitted. `gate_sigmas` goes into
+/// the result unchanged.
+pub fn fit_dynamics(
+    joint: u8,
+    samples: &[DynamicsSample],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+) -> Result<DynamicsFit, DynamicsFitError> {
+    let j = usize::from(joint.clamp(1, 2) - 1);
+    if samples.len() < 4 * WINDOW {
+        return Err(DynamicsFitError::Data {
+            joint,
+            reason: "too few samples for a dynamics fit (need a few seconds of motion)",
+        });
+    }
+    if samples.windows(2).any(|w| !(w[1].t_s > w[0].t_s)) {
+        return Err(DynamicsFitError::Data {
+            joint,
+            reason: "sample times must increase",
+        });
+    }
+    // Regressors [qdd, L^2 qdd, qd, s] and target y, aligned with the filter's delay: the
+    // estimate of sample i refers to sample i - DELAY_SAMPLES.
+    let stick = default_stick_velocity();
+    let mut filter = DerivativeFilter::default();
+    let mut direction = 0.0;
+    let mut rows: Vec<([f64; 4], f64)> = Vec::with_capacity(samples.len());
+    for (i, s) in samples.iter().enumerate() {
+        let (v, a) = filter.push(s.t_s, s.position[j]);
+        if i < WINDOW {
+            continue;
+        }
+        if v > stick {
+            direction = 1.0;
+        } else if v < -stick {
+            direction = -1.0;
+        }
+        let at = &samples[i - DELAY_SAMPLES];
+        let l = at.position[2];
+        let y = at.effort_nm[j] - tau_0(at.position[j]);
+        if y.is_finite() && v.is_finite() && a.is_finite() {
+            rows.push(([a, l * l * a, v, direction], y));
+        }
+    }
+    let mut active = [true; 4];
+    let mut coef = [0.0; 4];
+    for _ in 0..4 {
+        let mut m = [[0.0; 4]; 4];
+        let mut r = [0.0; 4];
+        for (x, y) in &rows {
+            for a in 0..4 {
+                if !active[a] {
+                    continue;
+                }
+                r[a] += x[a] * y;
+                for b in 0..4 {
+                    if active[b] {
+                        m[a][b] += x[a] * x[b];
+                    }
+                }
+            }
+        }
+        for a in 0..4 {
+            if !active[a] {
+                m[a] = [0.0; 4];
+                m[a][a] = 1.0;
+                r[a] = 0.0;
+            }
+        }
+        coef = solve4(m, r).ok_or(DynamicsFitError::Singular { joint })?;
+        let mut changed = false;
+        for a in 0..4 {
+            if active[a] && coef[a] < 0.0 {
+                active[a] = false;
+                coef[a] = 0.0;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    let n = rows.len().max(1) as f64;
+    let (mut before, mut after, mut mean_after) = (0.0, 0.0, 0.0);
+    for (x, y) in &rows {
+        let e = y - (coef[0] * x[0] + coef[1] * x[1] + coef[2] * x[2] + coef[3] * x[3]);
+        before += y * y;
+        after += e * e;
+        mean_after += e;
+    }
+    mean_after /= n;
+    let var = (after / n - mean_after * mean_after).max(0.0);
+    Ok(DynamicsFit {
+        joint,
+        params: DynamicsParams {
+            inertia_kg_m2: [coef[0], coef[1]],
+            viscous_nm_s_per_rad: coef[2],
+            coulomb_nm: coef[3],
+            stick_velocity_rad_per_s: stick,
+            residual_std_nm: var.sqrt(),
+            gate_sigmas,
+        },
+        rms_before_nm: (before / n).sqrt(),
+        rms_after_nm: (after / n).sqrt(),
+        samples: rows.len(),
+    })
+}
+
+#[cfg(test)]
+mod fit_tests {
+    use super::*;
+
+    #[test]
+    fn recovers_inertia_and_friction_of_a_multisine() {
+        let truth = DynamicsParams {
+            inertia_kg_m2: [0.05, 0.4],
+            viscous_nm_s_per_rad: 0.2,
+            coulomb_nm: 0.03,
+            stick_velocity_rad_per_s: 0.002,
+            residual_std_nm: 0.0,
+            gate_sigmas: 4.0,
+        };
+        let dt = 1.0 / 1500.0;
+        let mut samples = Vec::new();
+        let mut dir = 0.0;
+        for (d, l) in [0.1, 0.15, 0.2].into_iter().enumerate() {
+            for i in 0..15_000 {
+                let t = (d * 15_000 + i) as f64 * dt;
+                let w = [2.0, 3.7, 5.3];
+                let amp = [0.2, 0.08, 0.03];
+                let (mut q, mut v, mut a) = (0.0, 0.0, 0.0);
+                for k in 0..3 {
+                    q += amp[k] * (w[k] * t).sin();
+                    v += amp[k] * w[k] * (w[k] * t).cos();
+                    a -= amp[k] * w[k] * w[k] * (w[k] * t).sin();
+                }
+                if v > 0.002 {
+                    dir = 1.0;
+                } else if v < -0.002 {
+                    dir = -1.0;
+                }
+                let tau = 0.1 + truth.inertia(l) * a + truth.friction(v, dir);
+                samples.push(DynamicsSample {
+                    t_s: t,
+                    position: [q, q, l],
+                    effort_nm: [tau, tau],
+                });
+            }
+        }
+        let fit = fit_dynamics(1, &samples, |_| 0.1, 4.0).unwrap();
+        let p = fit.params;
+        assert!((p.inertia_kg_m2[0] - 0.05).abs() < 2e-3, "{fit:?}");
+        assert!((p.inertia_kg_m2[1] - 0.4).abs() < 0.1, "{fit:?}");
+        assert!((p.viscous_nm_s_per_rad - 0.2).abs() < 0.01, "{fit:?}");
+        assert!((p.coulomb_nm - 0.03).abs() < 0.005, "{fit:?}");
+        assert!(fit.rms_after_nm < 0.1 * fit.rms_before_nm, "{fit:?}");
+        // Too little data is an error naming the joint.
+        let e = fit_dynamics(2, &samples[..10], |_| 0.0, 4.0).unwrap_err();
+        assert!(e.to_string().starts_with("joint 2"), "{e}");
+    }
+}

@@ -4,6 +4,7 @@
 pub mod calibrate;
 pub mod data;
 pub mod evaluate;
+pub mod evaluate_motion;
 pub mod fit_cmd;
 pub mod plots;
 
