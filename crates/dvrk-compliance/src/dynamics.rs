@@ -111,6 +111,11 @@ impl DerivativeFilter {
         self.len = 0;
     }
 
+    /// Whether the window is full, so the estimates are the filter's own (not start-up zeros).
+    pub fn ready(&self) -> bool {
+        self.len == WINDOW
+    }
+
     /// Adds a sample at time `t_s` and returns `(velocity, acceleration)` at the sample
     /// [`DELAY_SAMPLES`] before it; zeros until the window holds enough samples for a cubic.
     /// Non-finite inputs reset the filter.
@@ -213,6 +218,11 @@ impl JointDynamicsState {
             self.direction = -1.0;
         }
         p.friction(v, self.direction) + p.inertia(insertion_m) * a
+    }
+
+    /// Whether the filter has a full window: until then the motion's torque is unknown.
+    pub fn ready(&self) -> bool {
+        self.filter.ready()
     }
 
     /// The filtered velocity (rad/s) of the last update.
@@ -363,6 +373,19 @@ pub fn fit_dynamics(
     tau_0: impl Fn(f64) -> f64,
     gate_sigmas: f64,
 ) -> Result<DynamicsFit, DynamicsFitError> {
+    fit_dynamics_segmented(joint, samples, &[0], tau_0, gate_sigmas)
+}
+
+/// [`fit_dynamics`] over samples made of segments (one excitation per depth) starting at the
+/// indices `starts`: the filter and the direction memory restart at each, and only samples with
+/// a full window inside their segment are used.
+pub fn fit_dynamics_segmented(
+    joint: u8,
+    samples: &[DynamicsSample],
+    starts: &[usize],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+) -> Result<DynamicsFit, DynamicsFitError> {
     let j = usize::from(joint.clamp(1, 2) - 1);
     if samples.len() < 4 * WINDOW {
         return Err(DynamicsFitError::Data {
@@ -382,9 +405,16 @@ pub fn fit_dynamics(
     let mut filter = DerivativeFilter::default();
     let mut direction = 0.0;
     let mut rows: Vec<([f64; 4], f64)> = Vec::with_capacity(samples.len());
+    let mut in_segment = 0;
     for (i, s) in samples.iter().enumerate() {
+        if starts.contains(&i) {
+            filter.reset();
+            direction = 0.0;
+            in_segment = 0;
+        }
+        in_segment += 1;
         let (v, a) = filter.push(s.t_s, s.position[j]);
-        if i < WINDOW {
+        if in_segment <= WINDOW {
             continue;
         }
         if v > stick {
@@ -399,7 +429,42 @@ pub fn fit_dynamics(
             rows.push(([a, l * l * a, v, direction], y));
         }
     }
-    let mut active = [true; 4];
+    // J_2 needs depths that differ: with less than 2 cm of spread the L^2 column is a multiple
+    // of the J_0 column, so it is left out (J_0 then holds the inertia at that depth).
+    let (l_lo, l_hi) = samples
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+            (lo.min(s.position[2]), hi.max(s.position[2]))
+        });
+    let mut active = [true, l_hi - l_lo >= 0.02, true, true];
+    // Columns scaled to unit rms, so the normal equations are well conditioned.
+    let mut scale = [0.0f64; 4];
+    for (x, _) in &rows {
+        for a in 0..4 {
+            scale[a] += x[a] * x[a];
+        }
+    }
+    for (a, sc) in scale.iter_mut().enumerate() {
+        *sc = (*sc / rows.len().max(1) as f64).sqrt();
+        if !(*sc > 0.0) {
+            active[a] = false;
+            *sc = 1.0;
+        }
+    }
+    let rows: Vec<([f64; 4], f64)> = rows
+        .into_iter()
+        .map(|(x, y)| {
+            (
+                [
+                    x[0] / scale[0],
+                    x[1] / scale[1],
+                    x[2] / scale[2],
+                    x[3] / scale[3],
+                ],
+                y,
+            )
+        })
+        .collect();
     let mut coef = [0.0; 4];
     for _ in 0..4 {
         let mut m = [[0.0; 4]; 4];
@@ -447,6 +512,9 @@ pub fn fit_dynamics(
     }
     mean_after /= n;
     let var = (after / n - mean_after * mean_after).max(0.0);
+    for a in 0..4 {
+        coef[a] /= scale[a];
+    }
     Ok(DynamicsFit {
         joint,
         params: DynamicsParams {

@@ -39,7 +39,10 @@ pub mod model;
 pub mod params;
 pub mod torque_offset;
 
-pub use dynamics::{DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, fit_dynamics};
+pub use dynamics::{
+    DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, fit_dynamics,
+    fit_dynamics_segmented,
+};
 pub use instruments::{Generation, Instrument, Wrist, instrument, instruments};
 pub use kinematics::{ArmKind, PsmKinematics};
 pub use model::{Compensator, ComplianceConfig, Correction, JointModel, ModelKind};

@@ -285,7 +285,9 @@ impl Compensator {
     }
 
     /// One sample at time `t_s` (s, monotonic): `tau_ext = tau_meas - tau_0(q) - tau_f - J qdd`
-    /// for joints with a dynamics model, then the gate and the correction.
+    /// for joints with a dynamics model, then the gate and the correction. Until the filter's
+    /// window is full (48 samples after start or [`Compensator::reset`]) such a joint reports
+    /// `tau_ext = 0` and is not corrected.
     pub fn correct(
         &mut self,
         config: &ComplianceConfig,
@@ -300,6 +302,11 @@ impl Compensator {
             if let Some(d) = &joint.dynamics {
                 let (l, _) = joint.clamp_insertion(position[2]);
                 tau -= self.joints[j].update(d, t_s, position[j], l);
+                if !self.joints[j].ready() {
+                    // The first WINDOW samples (after start or a reset): the motion's torque is
+                    // not known yet, so nothing is taken for contact.
+                    tau = 0.0;
+                }
             }
             tau_ext[j] = tau;
         }

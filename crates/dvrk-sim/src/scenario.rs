@@ -153,6 +153,34 @@ pub enum Motion {
         amplitude: [f64; NUM_JOINTS],
         period_s: [f64; NUM_JOINTS],
     },
+    /// Identification excitation of joints 1 and 2 (`calibrate dynamics`): per joint a sum of
+    /// three sines around the anchor, faded in over the first second (`sin^2`) so the setpoint
+    /// starts still. Set programmatically; not a file kind.
+    MultiSine {
+        amplitude: [[f64; 3]; 2],
+        angular_frequency: [[f64; 3]; 2],
+    },
+}
+
+/// The position offset and velocity of a [`Motion::MultiSine`] joint at time `t` (s).
+pub fn multi_sine(amplitude: &[f64; 3], angular_frequency: &[f64; 3], t: f64) -> (f64, f64) {
+    use core::f64::consts::PI;
+    let (fade, dfade) = if t < 0.0 {
+        (0.0, 0.0)
+    } else if t < 1.0 {
+        // sin^2(pi t / 2): 0 at t = 0, 1 at t = 1, flat at both ends.
+        let s = (0.5 * PI * t).sin();
+        (s * s, 0.5 * PI * (PI * t).sin())
+    } else {
+        (1.0, 0.0)
+    };
+    let (mut q, mut v) = (0.0, 0.0);
+    for k in 0..3 {
+        let (s, c) = (angular_frequency[k] * t).sin_cos();
+        q += amplitude[k] * s;
+        v += amplitude[k] * angular_frequency[k] * c;
+    }
+    (fade * q, fade * v + dfade * q)
 }
 
 /// A validated scenario.
@@ -515,6 +543,15 @@ impl MotionDriver {
                 }
                 if let Some(k) = self.plate_stiffness_n_per_m {
                     psm.set_setpoint(2, l + insertion_force_n / k);
+                }
+            }
+            Motion::MultiSine {
+                amplitude,
+                angular_frequency,
+            } => {
+                for j in 0..2 {
+                    let (q, v) = multi_sine(&amplitude[j], &angular_frequency[j], t_s);
+                    psm.set_setpoint_with_velocity(j, self.anchor[j] + q, v);
                 }
             }
             Motion::Trajectory {

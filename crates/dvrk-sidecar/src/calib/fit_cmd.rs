@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use dvrk_compliance::fit::{self, DataRow, FitOptions, JointFit, TorqueOffsetFit};
 use dvrk_compliance::{
-    ComplianceConfig, ComplianceParams, JointParams, ModelKind, TorqueOffsetParams, params_to_toml,
+    ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, JointParams, ModelKind,
+    TorqueOffsetParams, fit_dynamics_segmented, params_to_toml,
 };
 use serde::Serialize;
 
@@ -49,6 +50,15 @@ pub struct FitArgs {
     /// TTF font for the figure text.
     #[arg(long, default_value = super::plots::DEFAULT_FONT)]
     pub font: PathBuf,
+    /// Free-space excitation rows (`calibrate dynamics`): identify the internal-torque model
+    /// (inertia, viscous and Coulomb friction) under the written tau_0 table and write it as
+    /// `[joint.dynamics]`.
+    #[arg(long)]
+    pub dynamics: Option<PathBuf>,
+    /// The gate in residual standard deviations: a correction needs |tau_ext| > tau_min +
+    /// this * the dynamics fit's residual std.
+    #[arg(long, default_value_t = 4.0, requires = "dynamics")]
+    pub gate_sigmas: f64,
 }
 
 /// Everything one `fit` run computed (nothing is written unless all of it succeeded).
@@ -58,6 +68,8 @@ pub struct FitOutcome {
     pub joints: Vec<JointFit>,
     pub offsets: Vec<TorqueOffsetFit>,
     pub params: ComplianceParams,
+    /// The internal-torque model per joint (with `--dynamics`).
+    pub dynamics: Vec<DynamicsFit>,
 }
 
 /// Reads the files and fits everything; writes nothing.
@@ -132,15 +144,101 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         },
         joint: joint_params,
     };
-    ComplianceConfig::from_params(params.clone())
+    let mut params = params;
+    let config = ComplianceConfig::from_params(params.clone())
         .context("the fitted parameters do not validate; nothing written")?;
+    let mut dynamics = Vec::new();
+    if let Some(path) = &args.dynamics {
+        if !(args.gate_sigmas.is_finite() && (0.0..=10.0).contains(&args.gate_sigmas)) {
+            bail!("--gate-sigmas {}: must be within 0..=10", args.gate_sigmas);
+        }
+        let rows = super::dynamics_cmd::read(path)?;
+        let segments = super::dynamics_cmd::segments(&rows);
+        for jp in &mut params.joint {
+            let j0 = (jp.index - 1) as usize;
+            let Some(model) = config.joint(j0) else {
+                continue;
+            };
+            let table = model.torque_offset();
+            let joint = jp.index as u8;
+            let fit = fit_segments(joint, &segments, |q| table.lookup(q), args.gate_sigmas)
+                .with_context(|| format!("{}: fitting the dynamics", path.display()))?;
+            jp.dynamics = Some(fit.params);
+            dynamics.push(fit);
+        }
+        ComplianceConfig::from_params(params.clone())
+            .context("the fitted dynamics do not validate; nothing written")?;
+    }
     Ok(FitOutcome {
         clamp_rows,
         sweep_rows,
         joints,
         offsets,
         params,
+        dynamics,
     })
+}
+
+/// Fits the dynamics over every segment (one per depth) at once, so that the `L^2` term is
+/// identified across depths; the filter restarts at each segment.
+fn fit_segments(
+    joint: u8,
+    segments: &[&[DynamicsSample]],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+) -> anyhow::Result<DynamicsFit> {
+    let mut all = Vec::new();
+    let mut starts = Vec::new();
+    for seg in segments {
+        starts.push(all.len());
+        all.extend_from_slice(seg);
+    }
+    Ok(fit_dynamics_segmented(
+        joint,
+        &all,
+        &starts,
+        tau_0,
+        gate_sigmas,
+    )?)
+}
+
+#[derive(Serialize)]
+struct JsonDynamics {
+    index: u8,
+    samples: usize,
+    torque_residual_rms_nm: JsonRms,
+    inertia_kg_m2: [f64; 2],
+    viscous_nm_s_per_rad: f64,
+    coulomb_nm: f64,
+    residual_std_nm: f64,
+    gate_sigmas: f64,
+}
+
+#[derive(Serialize)]
+struct JsonRms {
+    before: f64,
+    after: f64,
+}
+
+/// The `dynamics` part of the `--json` document (empty without `--dynamics`).
+pub fn dynamics_json(fits: &[DynamicsFit]) -> serde_json::Value {
+    let v: Vec<JsonDynamics> = fits
+        .iter()
+        .map(|f| JsonDynamics {
+            index: f.joint,
+            samples: f.samples,
+            torque_residual_rms_nm: JsonRms {
+                before: f.rms_before_nm,
+                after: f.rms_after_nm,
+            },
+            inertia_kg_m2: f.params.inertia_kg_m2,
+            viscous_nm_s_per_rad: f.params.viscous_nm_s_per_rad,
+            coulomb_nm: f.params.coulomb_nm,
+            residual_std_nm: f.params.residual_std_nm,
+            gate_sigmas: f.params.gate_sigmas,
+        })
+        .collect();
+    serde_json::to_value(v).unwrap_or(serde_json::Value::Null)
 }
 
 #[derive(Serialize)]
@@ -270,7 +368,12 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
     let outcome = compute(args)?;
     let mut text = String::new();
     text.push_str("# Fitted by `dvrk-sidecar fit` from:\n");
-    for p in args.clamp.iter().chain(args.torque_offset.iter()) {
+    for p in args
+        .clamp
+        .iter()
+        .chain(args.torque_offset.iter())
+        .chain(args.dynamics.iter())
+    {
         text.push_str(&format!("#   {}\n", p.display()));
     }
     for j in &outcome.joints {
@@ -282,6 +385,12 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
             j.backlash_rad * 1e3
         ));
     }
+    for d in &outcome.dynamics {
+        text.push_str(&format!(
+            "# joint {} dynamics: torque residual rms {:.4} N·m before, {:.4} N·m after the model\n",
+            d.joint, d.rms_before_nm, d.rms_after_nm
+        ));
+    }
     text.push_str(&params_to_toml(&outcome.params));
     // Figures first: a figure that cannot be drawn (no font) fails the command before any
     // parameter file is written.
@@ -291,7 +400,13 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
     data::write_atomically(&args.out, text.as_bytes())?;
     // Written with error handling (not `println!`), so a closed pipe is an error, not a panic.
     let text = if args.json {
-        format!("{}\n", to_json(&outcome.joints)?)
+        let mut doc: serde_json::Value = serde_json::from_str(&to_json(&outcome.joints)?)?;
+        if !outcome.dynamics.is_empty()
+            && let Some(obj) = doc.as_object_mut()
+        {
+            obj.insert("dynamics".into(), dynamics_json(&outcome.dynamics));
+        }
+        format!("{doc}\n")
     } else {
         format!("{}wrote {}\n", report(&outcome), args.out.display())
     };
@@ -331,6 +446,8 @@ mod tests {
             model: ModelArg::Paper,
             tau_min_nm: vec![0.1, 0.2],
             font: PathBuf::from(super::super::plots::DEFAULT_FONT),
+            dynamics: None,
+            gate_sigmas: 4.0,
         }
     }
 
