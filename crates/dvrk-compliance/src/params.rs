@@ -76,10 +76,10 @@ pub struct JointParams {
 
 /// `hysteresis = { kind = "friction", gap_rad = 0.006 }`.
 ///
-/// `gap_rad` is the signed gap between the clamp data's two directions of motion at equal
-/// effort: rising-direction angle minus falling-direction angle. A play gives `+2 delta` as the
-/// shaft lags behind in either direction; a transmission friction gives a negative gap in that
-/// convention (the effort leads the shaft load by the friction in the direction of motion).
+/// `gap_rad` is `fit`'s signed gap between the clamp data's two lines, `zero(-) - zero(+)`
+/// (where each crosses `tau_ext = 0`): a play gives `-2 delta`, a friction in the
+/// transmission a positive gap (the effort leads the motion by the friction); the 2017 data
+/// show +3 to +10 mrad.
 /// At run time a play is corrected with `backlash_rad` as the paper does; a friction hysteresis
 /// is removed from `tau_ext` by the friction of `[joint.dynamics]`, and `backlash_rad` is not
 /// added to the joint.

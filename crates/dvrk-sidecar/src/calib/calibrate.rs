@@ -217,7 +217,7 @@ fn runner_config(sc: &Scenario, args: &SimArgs) -> RunnerConfig {
 }
 
 /// tau_0(q) by linear interpolation in a fitted table, constant beyond its ends.
-fn lookup(table: &fit::TorqueOffsetFit, q: f64) -> f64 {
+pub(crate) fn lookup(table: &fit::TorqueOffsetFit, q: f64) -> f64 {
     let (xs, ys) = (&table.position_rad, &table.effort_nm);
     let i = xs.partition_point(|&x| x <= q);
     match (i.checked_sub(1), xs.get(i)) {

@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use dvrk_compliance::fit::{self, DataRow, FitOptions, JointFit, TorqueOffsetFit};
 use dvrk_compliance::{
-    ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, JointParams, ModelKind,
-    TorqueOffsetParams, fit_dynamics_segmented, params_to_toml,
+    ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, HysteresisKind,
+    HysteresisParams, JointParams, ModelKind, TorqueOffsetParams, fit_dynamics_segmented,
+    params_to_toml,
 };
 use serde::Serialize;
 
@@ -84,7 +85,6 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         );
     }
     let opts = FitOptions::default();
-    let joints = fit::fit_clamp(&clamp_rows, &opts).context("fitting the clamp data")?;
     let mut sweep_joints: Vec<u8> = sweep_rows.iter().map(|r| r.joint).collect();
     sweep_joints.sort_unstable();
     sweep_joints.dedup();
@@ -93,6 +93,16 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         .map(|&j| fit::fit_torque_offset(&sweep_rows, j, &opts))
         .collect::<Result<Vec<_>, _>>()
         .context("fitting the torque-offset sweep")?;
+    // One tau_0 (issue 10): K and delta are fitted under the table this file will carry, not
+    // under the clamp file's own torque-offset column (on the 2017 data the two differ by up to
+    // 0.14 N·m, enough to move delta by 160%).
+    let mut clamp_rows = clamp_rows;
+    for r in &mut clamp_rows {
+        if let Some(o) = offsets.iter().find(|o| o.joint == r.joint) {
+            r.torque_offset_nm = super::calibrate::lookup(o, r.position_rad);
+        }
+    }
+    let joints = fit::fit_clamp(&clamp_rows, &opts).context("fitting the clamp data")?;
     for o in &offsets {
         if !joints.iter().any(|j| j.joint == o.joint) {
             tracing::warn!(
@@ -133,7 +143,7 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
             inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
             insertion_range_m: j.insertion_range_m,
             torque_offset,
-            hysteresis: None,
+            hysteresis: Some(hysteresis_of(j)),
             dynamics: None,
         });
     }
@@ -241,6 +251,22 @@ pub fn dynamics_json(fits: &[DynamicsFit]) -> serde_json::Value {
     serde_json::to_value(v).unwrap_or(serde_json::Value::Null)
 }
 
+/// The kind and signed gap of a joint's clamp hysteresis: the mean over depths of the fit's
+/// signed gap `zero(-) - zero(+)`; a play makes it negative (-2 delta), a friction in the
+/// transmission positive (the effort leads the motion).
+pub fn hysteresis_of(j: &JointFit) -> HysteresisParams {
+    let n = j.depths.len().max(1) as f64;
+    let gap_rad = j.depths.iter().map(|d| d.hysteresis_gap_rad).sum::<f64>() / n;
+    HysteresisParams {
+        kind: if gap_rad > 0.0 {
+            HysteresisKind::Friction
+        } else {
+            HysteresisKind::Play
+        },
+        gap_rad,
+    }
+}
+
 #[derive(Serialize)]
 struct JsonDepth {
     insertion_m: f64,
@@ -257,6 +283,8 @@ struct JsonJoint {
     inverse_compliance_nm_per_rad: [f64; 4],
     backlash_rad: f64,
     r_squared: f64,
+    hysteresis_kind: &'static str,
+    hysteresis_gap_rad: f64,
 }
 
 #[derive(Serialize)]
@@ -287,6 +315,11 @@ pub fn to_json(joints: &[JointFit]) -> anyhow::Result<String> {
                 inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
                 backlash_rad: j.backlash_rad,
                 r_squared: j.r_squared,
+                hysteresis_kind: match hysteresis_of(j).kind {
+                    HysteresisKind::Play => "play",
+                    HysteresisKind::Friction => "friction",
+                },
+                hysteresis_gap_rad: hysteresis_of(j).gap_rad,
             })
             .collect(),
     };
@@ -483,8 +516,16 @@ mod tests {
             "{}",
             j.backlash_rad
         );
-        // the sweep: 14 depths, tau_0 hardly depends on depth (paper Fig. 4)
+        // One tau_0 (issue 10): the clamp rows were refitted under the written table.
         let t = &o.offsets[0];
+        for r in &o.clamp_rows {
+            let want = super::super::calibrate::lookup(t, r.position_rad);
+            assert_eq!(r.torque_offset_nm, want);
+        }
+        let h = o.params.joint[0].hysteresis.unwrap();
+        assert_eq!(h.kind, dvrk_compliance::HysteresisKind::Friction);
+        assert!(h.gap_rad > 0.002 && h.gap_rad < 0.02, "{h:?}");
+        // the sweep: 14 depths, tau_0 hardly depends on depth (paper Fig. 4)
         assert_eq!(t.depths, 14);
         assert!(t.mean_depth_spread_nm < 0.02, "{}", t.mean_depth_spread_nm);
         // and the parameter file validates with the fitted torque-offset table
@@ -525,12 +566,17 @@ mod tests {
             [
                 "backlash_rad",
                 "depths",
+                "hysteresis_gap_rad",
+                "hysteresis_kind",
                 "index",
                 "inverse_compliance_nm_per_rad",
                 "r_squared"
             ]
         );
         assert_eq!(j["index"], 1);
+        // Issue 10: the 2017 clamp hysteresis has the sign of friction.
+        assert_eq!(j["hysteresis_kind"], "friction");
+        assert!(j["hysteresis_gap_rad"].as_f64().unwrap() > 0.0, "{j}");
         assert_eq!(
             j["inverse_compliance_nm_per_rad"].as_array().unwrap().len(),
             4
