@@ -36,6 +36,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod convert;
+pub mod plausibility;
 pub mod port;
 pub mod wire;
 
