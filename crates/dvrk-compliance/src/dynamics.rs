@@ -138,7 +138,7 @@ impl DerivativeFilter {
         let oldest = (self.head + WINDOW - self.len) % WINDOW;
         let (t0, q0) = (self.t[at], self.q[at]);
         let span = self.t[newest] - self.t[oldest];
-        if !(span > 0.0) {
+        if span.is_nan() || span <= 0.0 {
             return (0.0, 0.0);
         }
         let mut m = [[0.0f64; 4]; 4];
@@ -164,6 +164,7 @@ impl DerivativeFilter {
 }
 
 /// Solves the symmetric 4x4 system by Gaussian elimination with partial pivoting.
+#[allow(clippy::needless_range_loop)] // matrix indices read clearer than iterator chains
 fn solve4(mut m: [[f64; 4]; 4], mut r: [f64; 4]) -> Option<[f64; 4]> {
     for col in 0..4 {
         let mut piv = col;
@@ -172,7 +173,7 @@ fn solve4(mut m: [[f64; 4]; 4], mut r: [f64; 4]) -> Option<[f64; 4]> {
                 piv = row;
             }
         }
-        if !(m[piv][col].abs() > 1e-300) {
+        if m[piv][col].is_nan() || m[piv][col].abs() <= 1e-300 {
             return None;
         }
         m.swap(col, piv);
@@ -379,6 +380,7 @@ pub fn fit_dynamics(
 /// [`fit_dynamics`] over samples made of segments (one excitation per depth) starting at the
 /// indices `starts`: the filter and the direction memory restart at each, and only samples with
 /// a full window inside their segment are used.
+#[allow(clippy::needless_range_loop)] // the four regressors index parallel arrays
 pub fn fit_dynamics_segmented(
     joint: u8,
     samples: &[DynamicsSample],
@@ -393,7 +395,10 @@ pub fn fit_dynamics_segmented(
             reason: "too few samples for a dynamics fit (need a few seconds of motion)",
         });
     }
-    if samples.windows(2).any(|w| !(w[1].t_s > w[0].t_s)) {
+    if samples
+        .windows(2)
+        .any(|w| w[1].t_s.is_nan() || w[1].t_s <= w[0].t_s)
+    {
         return Err(DynamicsFitError::Data {
             joint,
             reason: "sample times must increase",
@@ -446,7 +451,7 @@ pub fn fit_dynamics_segmented(
     }
     for (a, sc) in scale.iter_mut().enumerate() {
         *sc = (*sc / rows.len().max(1) as f64).sqrt();
-        if !(*sc > 0.0) {
+        if sc.is_nan() || *sc <= 0.0 {
             active[a] = false;
             *sc = 1.0;
         }

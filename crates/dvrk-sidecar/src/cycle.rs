@@ -127,11 +127,9 @@ fn finish(
     if correction.active[1] {
         f |= flags::CORRECTION_ACTIVE_J2;
     }
-    let tau_margin_nm = core::array::from_fn(|j| {
-        model
-            .joint(j)
-            .map_or(0.0, |m| correction.tau_ext_nm[j].abs() - m.tau_min_nm())
-    });
+    // |tau_ext| minus the gate (tau_min, plus gate_sigmas * residual std with a dynamics
+    // model); 0 for a joint without parameters.
+    let tau_margin_nm = correction.tau_margin_nm;
     CycleResult {
         raw_pose: kin.forward(&raw_q6),
         correction,
@@ -204,6 +202,7 @@ pub fn held(last: Option<&Held>, current: &ArmSample, reason: u32) -> (ArmSample
                     active: [false; 2],
                     insertion_m: f64::NAN,
                     insertion_clamped: false,
+                    tau_margin_nm: [0.0; 2],
                 },
                 compensated_position: [f64::NAN; 7],
                 compensated_pose: nan_pose,

@@ -1090,7 +1090,7 @@ mod tests {
         let f_up = rising.effort[0] - tau0 - shaft_up;
         let f_down = falling.effort[0] - tau0 - shaft_down;
         assert!(f_up > 0.02 && f_up <= 0.06 + 1e-6, "{f_up}");
-        assert!(f_down < -0.02 && f_down >= -0.06 - 1e-6, "{f_down}");
+        assert!((-0.06 - 1e-6..-0.02).contains(&f_down), "{f_down}");
     }
 
     #[test]

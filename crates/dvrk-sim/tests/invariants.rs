@@ -4,7 +4,8 @@
 //! - the true shaft deflection is bounded by the play plus compliance times transmitted torque;
 //! - no torque is transmitted without contact;
 //! - the tip stays in the workspace (joints within their hard stops, tip within reach);
-//! and without input (amplifiers off, no internal torque) the mechanical energy never grows.
+//!
+//! Without input (amplifiers off, no internal torque) the mechanical energy never grows.
 //!
 //! Each case runs a few simulated seconds at 10 kHz; dvrk-sim is built at opt-level 3 in the test
 //! profile, so the whole file takes seconds.
