@@ -7,9 +7,12 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use dvrk_compliance::{ArmKind, ComplianceConfig, ModelKind, PsmKinematics, instrument};
+use dvrk_compliance::{
+    ArmKind, Compensator, ComplianceConfig, ModelKind, PsmKinematics, instrument,
+};
 
 const PAPER_PSM: &str = include_str!("../config/compliance/paper-psm.toml");
+const SIM_PSM: &str = include_str!("../config/compliance/sim-psm.toml");
 const SAMPLES: usize = 256;
 
 /// Seeded inputs inside the Classic PSM's joint limits (xorshift64*, no extra dependency), so
@@ -63,6 +66,25 @@ fn compensation(c: &mut Criterion) {
             let (q, e) = &inputs[i % SAMPLES];
             i += 1;
             black_box(continuous.correct(black_box(&[q[0], q[1], q[2]]), black_box(e)))
+        })
+    });
+    // The internal-torque estimator in front of the correction (issue 10): the shipped
+    // simulator file has [joint.dynamics] on both joints, so each call runs two 48-sample
+    // least-squares filters.
+    let dynamic = dvrk_sidecar::formats::compliance_from_toml(SIM_PSM).expect("sim-psm.toml loads");
+    let mut compensator = Compensator::new();
+    let mut t = 0.0;
+    group.bench_function("compensator_j1_j2_dynamics", |b| {
+        b.iter(|| {
+            let (q, e) = &inputs[i % SAMPLES];
+            i += 1;
+            t += 1.0 / 1500.0;
+            black_box(compensator.correct(
+                &dynamic,
+                black_box(t),
+                black_box(&[q[0], q[1], q[2]]),
+                black_box(e),
+            ))
         })
     });
     group.bench_function("fk_6dof", |b| {

@@ -24,6 +24,22 @@ fn run(args: &[&str]) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
+/// Both joints' `insertion_range_m` of a written parameter file, in file order (read from the
+/// lines the writer produces, `insertion_range_m = [a, b]`).
+fn p_toml_range(path: &std::path::Path) -> Vec<f64> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.strip_prefix("insertion_range_m = ["))
+        .flat_map(|rest| {
+            rest.trim_end_matches(']')
+                .split(',')
+                .map(|x| x.trim().parse::<f64>().unwrap())
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
 fn cubic(c: &[f64], l: f64) -> f64 {
     ((c[0] * l + c[1]) * l + c[2]) * l + c[3]
 }
@@ -101,6 +117,59 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
             "joint {index}: 1/K worst error {:.2}%, backlash {delta:.5} (truth {truth})",
             worst * 100.0
         );
+    }
+
+    // Issue 10: the fitted insertion range is the depths measured, and the simulator's play is
+    // reported as a play (negative signed gap).
+    for j in joints {
+        let r: Vec<f64> = p_toml_range(&dir.join("params.toml"));
+        assert_eq!(r, [0.09, 0.22, 0.09, 0.22], "insertion ranges as measured");
+        assert_eq!(j["hysteresis_kind"], "play", "{j}");
+        assert!(j["hysteresis_gap_rad"].as_f64().unwrap() < 0.0, "{j}");
+    }
+
+    // Issue 10: the internal-torque model identified from `calibrate dynamics` on a simulator
+    // whose transmission rubs (Coulomb 0.03 / 0.04 N·m, stiction above it).
+    let with_friction = std::fs::read_to_string(repo().join("config/sim/clamp.toml"))
+        .unwrap()
+        .replace(
+            "[noise]",
+            "[transmission]\ncoulomb_nm = [0.03, 0.04]\nstiction_nm = [0.04, 0.05]\n\n[noise]",
+        );
+    std::fs::write(dir.join("clamp-friction.toml"), with_friction).unwrap();
+    run(&[
+        "calibrate",
+        "dynamics",
+        "--config",
+        &p("clamp-friction.toml"),
+        "--out",
+        &p("dynamics.csv"),
+    ]);
+    let dfit: Value = serde_json::from_str(&run(&[
+        "fit",
+        "--clamp",
+        &p("clamp.csv"),
+        "--torque-offset",
+        &p("sweep.csv"),
+        "--dynamics",
+        &p("dynamics.csv"),
+        "--out",
+        &p("params-dynamics.toml"),
+        "--json",
+    ]))
+    .unwrap();
+    let dynamics = dfit["dynamics"].as_array().unwrap();
+    assert_eq!(dynamics.len(), 2, "{dfit}");
+    for (d, coulomb) in dynamics.iter().zip([0.03, 0.04]) {
+        let inertia = d["inertia_kg_m2"][0].as_f64().unwrap();
+        let viscous = d["viscous_nm_s_per_rad"].as_f64().unwrap();
+        let fc = d["coulomb_nm"].as_f64().unwrap();
+        let before = d["torque_residual_rms_nm"]["before"].as_f64().unwrap();
+        let after = d["torque_residual_rms_nm"]["after"].as_f64().unwrap();
+        assert!((inertia / 0.05 - 1.0).abs() < 0.05, "{d}");
+        assert!((viscous / 0.2 - 1.0).abs() < 0.05, "{d}");
+        assert!((fc / coulomb - 1.0).abs() < 0.15, "{d}");
+        assert!(after < 0.2 * before, "{d}");
     }
 
     // The fitted file is a valid parameter file for serve, and the correction works on a divot push.

@@ -865,9 +865,13 @@ pub fn fit_joint(rows: &[DataRow], joint: u8, opts: &FitOptions) -> Result<Joint
     let l: Vec<f64> = depths.iter().map(|d| d.insertion_m).collect();
     let k: Vec<f64> = depths.iter().map(|d| d.stiffness_nm_per_rad).collect();
     let (c, r_squared) = fit_inverse_compliance(joint, &l, &k)?;
+    // The range as the depths measured, to 0.1 mm (issue 10): an averaged encoder reading of
+    // 0.09000026854724652 m is the depth 0.09 m, and written as such it does not flag the
+    // nominal depth as clamped.
+    let to_tenth_mm = |x: f64| (x * 1e4).round() / 1e4;
     let range = [
-        l.iter().copied().fold(f64::INFINITY, f64::min),
-        l.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        to_tenth_mm(l.iter().copied().fold(f64::INFINITY, f64::min)),
+        to_tenth_mm(l.iter().copied().fold(f64::NEG_INFINITY, f64::max)),
     ];
     let (at, value) = cubic_min_on(&c, range);
     if value.is_nan() || value <= 0.0 {

@@ -31,6 +31,7 @@
 //! ```
 
 pub mod calibration;
+pub mod dynamics;
 pub mod fit;
 pub mod instruments;
 pub mod kinematics;
@@ -38,11 +39,16 @@ pub mod model;
 pub mod params;
 pub mod torque_offset;
 
+pub use dynamics::{
+    DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, fit_dynamics,
+    fit_dynamics_segmented,
+};
 pub use instruments::{Generation, Instrument, Wrist, instrument, instruments};
 pub use kinematics::{ArmKind, PsmKinematics};
-pub use model::{ComplianceConfig, Correction, JointModel, ModelKind};
+pub use model::{Compensator, ComplianceConfig, Correction, JointModel, ModelKind};
 pub use params::{
-    ComplianceParams, INSERTION_LIMITS_M, JointParams, ParamsError, TorqueOffsetParams,
-    params_to_toml,
+    ComplianceParams, HysteresisKind, HysteresisParams, INSERTION_LIMITS_M, JointParams,
+    MAX_BACKLASH_RAD, MAX_INERTIA_KG_M2, MAX_TAU_MIN_NM, MIN_INVERSE_COMPLIANCE_NM_PER_RAD,
+    ParamsError, TorqueOffsetParams, params_to_toml,
 };
 pub use torque_offset::TorqueOffsetTable;

@@ -16,6 +16,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::dynamics::{DynamicsParams, JointDynamicsState};
+use crate::params::HysteresisKind;
 use crate::torque_offset::TorqueOffsetTable;
 
 /// Which correction formula to apply.
@@ -27,9 +29,11 @@ pub enum ModelKind {
     #[default]
     Paper,
     /// For feedback loops: `(delta + K |tau_ext|) * clamp(tau_ext / tau_min, -1, 1)`. Equal to
-    /// the paper's formula wherever `|tau_ext| >= tau_min`, continuous everywhere (the paper
-    /// notes the dead band makes `q_hat` discontinuous). With `tau_min = 0` it reduces to the
-    /// paper's formula, whose backlash term steps at `tau_ext = 0`.
+    /// the paper's formula wherever `|tau_ext| > tau_min` (at exactly `tau_min` the paper gives
+    /// 0 and this gives the full correction), continuous everywhere (the paper notes the dead
+    /// band makes `q_hat` discontinuous). With `tau_min = 0` it reduces to the paper's formula,
+    /// whose backlash term steps at `tau_ext = 0`. With a dynamics model, `tau_min` here means
+    /// the whole gate `tau_min + gate_sigmas * residual_std`.
     Continuous,
 }
 
@@ -51,6 +55,10 @@ pub struct Correction {
     pub insertion_m: f64,
     /// Whether the measured insertion lay outside a configured joint's insertion range.
     pub insertion_clamped: bool,
+    /// `|tau_ext| - (tau_min + gate_sigmas * residual_std)` for joints 1 and 2 (N·m): how far
+    /// the external torque is past the gate (negative: inside it); 0 for a joint without
+    /// parameters. The status message carries it as `tau_margin_nm`.
+    pub tau_margin_nm: [f64; 2],
 }
 
 /// The validated model of one joint: backlash, dead band, inverse compliance cubic, insertion
@@ -63,9 +71,37 @@ pub struct JointModel {
     pub(crate) inverse_compliance_nm_per_rad: [f64; 4],
     pub(crate) insertion_range_m: [f64; 2],
     pub(crate) torque_offset: TorqueOffsetTable,
+    pub(crate) hysteresis_kind: HysteresisKind,
+    pub(crate) hysteresis_gap_rad: Option<f64>,
+    pub(crate) dynamics: Option<DynamicsParams>,
 }
 
 impl JointModel {
+    /// The kind of the clamp hysteresis (a play unless the file says friction).
+    pub fn hysteresis_kind(&self) -> HysteresisKind {
+        self.hysteresis_kind
+    }
+
+    /// The internal-torque model, if the file has one.
+    pub fn dynamics(&self) -> Option<&DynamicsParams> {
+        self.dynamics.as_ref()
+    }
+
+    /// The gate: `tau_min + gate_sigmas * residual_std` (N·m); `tau_min` without a dynamics
+    /// model.
+    pub fn threshold_nm(&self) -> f64 {
+        self.tau_min_nm + self.dynamics.map_or(0.0, |d| d.gate_nm())
+    }
+
+    /// The backlash added to the joint: `delta` for a play, 0 for a friction hysteresis (it is
+    /// removed from `tau_ext` by the friction model instead).
+    fn play_rad(&self) -> f64 {
+        match self.hysteresis_kind {
+            HysteresisKind::Play => self.backlash_rad,
+            HysteresisKind::Friction => 0.0,
+        }
+    }
+
     /// Backlash `delta` (rad).
     pub fn backlash_rad(&self) -> f64 {
         self.backlash_rad
@@ -118,18 +154,20 @@ impl JointModel {
         clamped_insertion_m: f64,
     ) -> f64 {
         let k = 1.0 / cubic(&self.inverse_compliance_nm_per_rad, clamped_insertion_m);
+        let threshold = self.threshold_nm();
+        let play = self.play_rad();
         match model {
             ModelKind::Paper => {
-                if tau_ext_nm.abs() > self.tau_min_nm {
+                if tau_ext_nm.abs() > threshold {
                     // tau_ext != 0 here, so signum is the paper's sgn.
-                    self.backlash_rad * tau_ext_nm.signum() + k * tau_ext_nm
+                    play * tau_ext_nm.signum() + k * tau_ext_nm
                 } else {
                     0.0
                 }
             }
             ModelKind::Continuous => {
-                let ramp = if self.tau_min_nm > 0.0 {
-                    (tau_ext_nm / self.tau_min_nm).clamp(-1.0, 1.0)
+                let ramp = if threshold > 0.0 {
+                    (tau_ext_nm / threshold).clamp(-1.0, 1.0)
                 } else if tau_ext_nm > 0.0 {
                     1.0
                 } else if tau_ext_nm < 0.0 {
@@ -137,7 +175,7 @@ impl JointModel {
                 } else {
                     0.0
                 };
-                (self.backlash_rad + k * tau_ext_nm.abs()) * ramp
+                (play + k * tau_ext_nm.abs()) * ramp
             }
         }
     }
@@ -181,6 +219,18 @@ impl ComplianceConfig {
     /// inputs never panic; a NaN effort leaves the joint unchanged in paper mode and gives NaN in
     /// continuous mode, a NaN insertion gives NaN for the corrected joints.
     pub fn correct(&self, position: &[f64; 3], effort: &[f64; 3]) -> Correction {
+        let mut tau_ext = [0.0; 2];
+        for (j, joint) in self.joints.iter().enumerate() {
+            if let Some(joint) = joint {
+                tau_ext[j] = effort[j] - joint.torque_offset.lookup(position[j]);
+            }
+        }
+        self.correct_external(position, &tau_ext)
+    }
+
+    /// Applies the model with external torques already estimated (by [`Compensator`], which
+    /// removes friction and inertia): the gate and Eq. 1. Allocates nothing.
+    pub fn correct_external(&self, position: &[f64; 3], tau_ext_nm: &[f64; 2]) -> Correction {
         let raw_insertion_m = position[2];
         let mut out = Correction {
             position: *position,
@@ -189,6 +239,7 @@ impl ComplianceConfig {
             active: [false; 2],
             insertion_m: raw_insertion_m,
             insertion_clamped: false,
+            tau_margin_nm: [0.0; 2],
         };
         let mut insertion_reported = false;
         for (j, joint) in self.joints.iter().enumerate() {
@@ -199,13 +250,71 @@ impl ComplianceConfig {
                 insertion_reported = true;
             }
             out.insertion_clamped |= clamped;
-            let tau_ext = effort[j] - joint.torque_offset.lookup(position[j]);
+            let tau_ext = tau_ext_nm[j];
             let delta = joint.deflection_rad(self.model, tau_ext, insertion_m);
             out.tau_ext_nm[j] = tau_ext;
+            out.tau_margin_nm[j] = tau_ext.abs() - joint.threshold_nm();
             out.delta_rad[j] = delta;
             out.active[j] = delta != 0.0;
             out.position[j] = position[j] - delta;
         }
         out
+    }
+}
+
+/// The model with its state: the internal-torque estimator of [`crate::dynamics`] in front of
+/// the paper's correction. For joints whose parameters have no `[joint.dynamics]` it is exactly
+/// [`ComplianceConfig::correct`]. Fixed-size state, no allocation per sample.
+#[derive(Clone, Debug, Default)]
+pub struct Compensator {
+    joints: [JointDynamicsState; 2],
+}
+
+impl Compensator {
+    /// A fresh estimator (no history).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Forgets the filter history (after invalid samples or a gap); keeps the friction's
+    /// direction memory.
+    pub fn reset(&mut self) {
+        for j in &mut self.joints {
+            j.reset();
+        }
+    }
+
+    /// One sample at time `t_s` (s, monotonic): `tau_ext = tau_meas - tau_0(q) - tau_f - J qdd`
+    /// for joints with a dynamics model, then the gate and the correction. Until the filter's
+    /// window is full (48 samples after start or [`Compensator::reset`]) such a joint reports
+    /// `tau_ext = 0` and is not corrected.
+    pub fn correct(
+        &mut self,
+        config: &ComplianceConfig,
+        t_s: f64,
+        position: &[f64; 3],
+        effort: &[f64; 3],
+    ) -> Correction {
+        let mut tau_ext = [0.0; 2];
+        for (j, joint) in config.joints.iter().enumerate() {
+            let Some(joint) = joint else { continue };
+            let mut tau = effort[j] - joint.torque_offset.lookup(position[j]);
+            if let Some(d) = &joint.dynamics {
+                let (l, _) = joint.clamp_insertion(position[2]);
+                tau -= self.joints[j].update(d, t_s, position[j], l);
+                if !self.joints[j].ready() {
+                    // The first WINDOW samples (after start or a reset): the motion's torque is
+                    // not known yet, so nothing is taken for contact.
+                    tau = 0.0;
+                }
+            }
+            tau_ext[j] = tau;
+        }
+        config.correct_external(position, &tau_ext)
+    }
+
+    /// The estimator state of joint `joint_index0` (0 = yaw, 1 = pitch).
+    pub fn joint_state(&self, joint_index0: usize) -> Option<&JointDynamicsState> {
+        self.joints.get(joint_index0)
     }
 }

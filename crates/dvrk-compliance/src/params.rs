@@ -19,11 +19,24 @@ use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
+use crate::dynamics::DynamicsParams;
 use crate::model::{ComplianceConfig, JointModel, ModelKind, cubic};
 use crate::torque_offset::TorqueOffsetTable;
 
 /// Insertion ranges must lie within the Classic PSM's insertion joint limits (reference 1.2).
 pub const INSERTION_LIMITS_M: [f64; 2] = [0.0, 0.24];
+
+/// The smallest plausible `1/K(L)` (N·m/rad) of an instrument shaft (issue 9): the 2017 data
+/// measure 13 to 29 N·m/rad; a cubic that falls below 1 anywhere in its range is a fit error.
+pub const MIN_INVERSE_COMPLIANCE_NM_PER_RAD: f64 = 1.0;
+/// The largest plausible backlash (rad): the 2017 data show a few mrad.
+pub const MAX_BACKLASH_RAD: f64 = 0.02;
+/// The largest plausible dead band (N·m): the paper uses 0.1 and 0.2 N·m. Also the bound of a
+/// Coulomb friction and of a residual std in `[joint.dynamics]`.
+pub const MAX_TAU_MIN_NM: f64 = 1.0;
+/// The largest plausible inertia of joint 1 or 2 (kg·m²): a Classic PSM's arm and reflected
+/// motor inertia are well below it.
+pub const MAX_INERTIA_KG_M2: f64 = 1.0;
 
 /// A parameter file as parsed, before validation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -52,6 +65,40 @@ pub struct JointParams {
     pub insertion_range_m: [f64; 2],
     /// The torque offset table `tau_0(q)`.
     pub torque_offset: TorqueOffsetParams,
+    /// The kind and signed gap of the clamp hysteresis, as `fit` found it; absent = a play.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hysteresis: Option<HysteresisParams>,
+    /// The internal-torque model (`[joint.dynamics]`, see [`crate::dynamics`]); absent =
+    /// `tau_ext = tau_meas - tau_0(q)` as in the paper.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynamics: Option<DynamicsParams>,
+}
+
+/// `hysteresis = { kind = "friction", gap_rad = 0.006 }`.
+///
+/// `gap_rad` is `fit`'s signed gap between the clamp data's two lines, `zero(-) - zero(+)`
+/// (where each crosses `tau_ext = 0`): a play gives `-2 delta`, a friction in the
+/// transmission a positive gap (the effort leads the motion by the friction); the 2017 data
+/// show +3 to +10 mrad.
+/// At run time a play is corrected with `backlash_rad` as the paper does; a friction hysteresis
+/// is removed from `tau_ext` by the friction of `[joint.dynamics]`, and `backlash_rad` is not
+/// added to the joint.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HysteresisParams {
+    pub kind: HysteresisKind,
+    pub gap_rad: f64,
+}
+
+/// What causes a joint's clamp hysteresis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HysteresisKind {
+    /// A backlash play in the transmission (the paper's `delta`).
+    #[default]
+    Play,
+    /// Friction in the transmission (the 2017 data).
+    Friction,
 }
 
 /// `torque_offset = { position_rad = [..], effort_nm = [..] }`.
@@ -93,15 +140,26 @@ pub enum ParamsError {
         "joint {joint}: insertion_range_m = [{min_m}, {max_m}] must satisfy 0 <= min <= max <= 0.24 m"
     )]
     InsertionRange { joint: i64, min_m: f64, max_m: f64 },
-    /// The cubic `1/K(L)` is not positive (or not finite) somewhere in the insertion range.
+    /// The cubic `1/K(L)` is below [`MIN_INVERSE_COMPLIANCE_NM_PER_RAD`] (or not finite)
+    /// somewhere in the insertion range: no instrument shaft is that soft, so the cubic is a
+    /// fit error.
     #[error(
         "joint {joint}: inverse_compliance_nm_per_rad gives 1/K({insertion_m} m) = {value} N·m/rad; \
-         it must be finite and > 0 over insertion_range_m"
+         it must be finite and >= 1 N·m/rad over insertion_range_m (a softer shaft is a fit error)"
     )]
-    NonPositiveStiffness {
+    StiffnessTooLow {
         joint: i64,
         insertion_m: f64,
         value: f64,
+    },
+    /// A backlash or dead band beyond its physical bound ([`MAX_BACKLASH_RAD`],
+    /// [`MAX_TAU_MIN_NM`]).
+    #[error("joint {joint}: {field} = {value} exceeds its physical bound {max}")]
+    AboveBound {
+        joint: i64,
+        field: String,
+        value: f64,
+        max: f64,
     },
     /// `torque_offset.position_rad` and `effort_nm` have different lengths.
     #[error(
@@ -160,6 +218,30 @@ impl ComplianceParams {
                 "insertion_range_m = {}",
                 toml_array(&j.insertion_range_m)
             );
+            if let Some(h) = &j.hysteresis {
+                let kind = match h.kind {
+                    HysteresisKind::Play => "play",
+                    HysteresisKind::Friction => "friction",
+                };
+                let _ = writeln!(
+                    s,
+                    "hysteresis = {{ kind = \"{kind}\", gap_rad = {} }}",
+                    toml_float(h.gap_rad)
+                );
+            }
+            if let Some(d) = &j.dynamics {
+                let _ = writeln!(
+                    s,
+                    "dynamics = {{ inertia_kg_m2 = {}, viscous_nm_s_per_rad = {}, coulomb_nm = {}, \
+                     stick_velocity_rad_per_s = {}, residual_std_nm = {}, gate_sigmas = {} }}",
+                    toml_array(&d.inertia_kg_m2),
+                    toml_float(d.viscous_nm_s_per_rad),
+                    toml_float(d.coulomb_nm),
+                    toml_float(d.stick_velocity_rad_per_s),
+                    toml_float(d.residual_std_nm),
+                    toml_float(d.gate_sigmas)
+                );
+            }
             let _ = writeln!(s, "[joint.torque_offset]");
             let _ = writeln!(
                 s,
@@ -196,9 +278,10 @@ fn toml_array(xs: &[f64]) -> String {
 
 impl ComplianceConfig {
     /// Validates parsed parameters. The checks, each reported with joint, field and value:
-    /// index 1 or 2 and not repeated; every number finite; backlash and dead band >= 0;
-    /// `0 <= min <= max <= 0.24` m; a non-empty torque offset table with equal lengths and
-    /// strictly increasing positions; `1/K(L) > 0` on the whole insertion range.
+    /// index 1 or 2 and not repeated; every number finite; `0 <= backlash <= 0.02` rad and
+    /// `0 <= tau_min <= 1` N·m; `0 <= min <= max <= 0.24` m; a non-empty torque offset table
+    /// with equal lengths and strictly increasing positions; `1/K(L) >= 1` N·m/rad on the whole
+    /// insertion range.
     pub fn from_params(p: ComplianceParams) -> Result<Self, ParamsError> {
         let mut joints: [Option<JointModel>; 2] = [None, None];
         for jp in p.joint {
@@ -236,6 +319,11 @@ impl ComplianceConfig {
                         position_rad: j.torque_offset.position_rad().to_vec(),
                         effort_nm: j.torque_offset.effort_nm().to_vec(),
                     },
+                    hysteresis: j.hysteresis_gap_rad.map(|gap_rad| HysteresisParams {
+                        kind: j.hysteresis_kind,
+                        gap_rad,
+                    }),
+                    dynamics: j.dynamics,
                 })
             })
             .collect();
@@ -272,6 +360,8 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         inverse_compliance_nm_per_rad: coeffs,
         insertion_range_m: [min_m, max_m],
         torque_offset,
+        hysteresis,
+        dynamics,
         ..
     } = jp;
 
@@ -299,6 +389,21 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
                 joint,
                 field,
                 value,
+            });
+        }
+    }
+
+    for (field, value, max) in [
+        ("backlash_rad", backlash_rad, MAX_BACKLASH_RAD),
+        ("tau_min_nm", tau_min_nm, MAX_TAU_MIN_NM),
+    ] {
+        if value > max {
+            let field = field.to_owned();
+            return Err(ParamsError::AboveBound {
+                joint,
+                field,
+                value,
+                max,
             });
         }
     }
@@ -338,15 +443,73 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
     }
 
     let (insertion_m, value) = cubic_minimum(&coeffs, [min_m, max_m]);
-    if !(value > 0.0 && value.is_finite()) {
-        return Err(ParamsError::NonPositiveStiffness {
+    if !(value >= MIN_INVERSE_COMPLIANCE_NM_PER_RAD && value.is_finite()) {
+        return Err(ParamsError::StiffnessTooLow {
             joint,
             insertion_m,
             value,
         });
     }
 
+    if let Some(h) = &hysteresis {
+        check_finite(joint, "hysteresis.gap_rad", &[h.gap_rad], false)?;
+    }
+    if let Some(d) = &dynamics {
+        check_finite(joint, "dynamics.inertia_kg_m2", &d.inertia_kg_m2, true)?;
+        for (field, value, max) in [
+            (
+                "dynamics.inertia_kg_m2[0]",
+                d.inertia_kg_m2[0],
+                MAX_INERTIA_KG_M2,
+            ),
+            (
+                "dynamics.inertia_kg_m2[1]",
+                d.inertia_kg_m2[1],
+                MAX_INERTIA_KG_M2 / 0.01,
+            ),
+            (
+                "dynamics.viscous_nm_s_per_rad",
+                d.viscous_nm_s_per_rad,
+                10.0,
+            ),
+            ("dynamics.coulomb_nm", d.coulomb_nm, MAX_TAU_MIN_NM),
+            (
+                "dynamics.stick_velocity_rad_per_s",
+                d.stick_velocity_rad_per_s,
+                1.0,
+            ),
+            (
+                "dynamics.residual_std_nm",
+                d.residual_std_nm,
+                MAX_TAU_MIN_NM,
+            ),
+            ("dynamics.gate_sigmas", d.gate_sigmas, 10.0),
+        ] {
+            check_finite(joint, field, &[value], false)?;
+            if value < 0.0 {
+                let field = field.to_owned();
+                return Err(ParamsError::Negative {
+                    joint,
+                    field,
+                    value,
+                });
+            }
+            if value > max {
+                let field = field.to_owned();
+                return Err(ParamsError::AboveBound {
+                    joint,
+                    field,
+                    value,
+                    max,
+                });
+            }
+        }
+    }
+
     Ok(JointModel {
+        hysteresis_kind: hysteresis.map(|h| h.kind).unwrap_or_default(),
+        hysteresis_gap_rad: hysteresis.map(|h| h.gap_rad),
+        dynamics,
         backlash_rad,
         tau_min_nm,
         inverse_compliance_nm_per_rad: coeffs,

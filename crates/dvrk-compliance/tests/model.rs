@@ -183,6 +183,7 @@ fn joints_without_parameters_pass_through() {
             active: [false; 2],
             insertion_m: 0.3,
             insertion_clamped: false,
+            tau_margin_nm: [0.0; 2],
         }
     );
 }

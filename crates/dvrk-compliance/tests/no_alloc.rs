@@ -10,7 +10,8 @@ use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use dvrk_compliance::{
-    ArmKind, ComplianceConfig, ModelKind, PsmKinematics, instrument, instruments,
+    ArmKind, Compensator, ComplianceConfig, DynamicsParams, ModelKind, PsmKinematics, instrument,
+    instruments,
 };
 
 struct Counting;
@@ -62,7 +63,19 @@ fn correct_and_forward_do_not_allocate() {
     params.joint[0].torque_offset.position_rad =
         (0..37).map(|k| -1.6 + 0.09 * f64::from(k)).collect();
     params.joint[0].torque_offset.effort_nm = vec![0.1; 37];
-    let continuous = ComplianceConfig::from_params(params).unwrap();
+    let continuous = ComplianceConfig::from_params(params.clone()).unwrap();
+    for j in &mut params.joint {
+        j.dynamics = Some(DynamicsParams {
+            inertia_kg_m2: [0.05, 0.5],
+            viscous_nm_s_per_rad: 0.2,
+            coulomb_nm: 0.03,
+            stick_velocity_rad_per_s: 0.002,
+            residual_std_nm: 0.005,
+            gate_sigmas: 4.0,
+        });
+    }
+    let dynamic = ComplianceConfig::from_params(params).unwrap();
+    let mut compensator = Compensator::new();
     let kinematics: Vec<PsmKinematics> = instruments()
         .iter()
         .map(|i| PsmKinematics::new(ArmKind::Classic, i))
@@ -82,6 +95,8 @@ fn correct_and_forward_do_not_allocate() {
                 let c = config.correct(&q, &e);
                 sum += c.delta_rad[0] + c.delta_rad[1];
             }
+            let c = compensator.correct(&dynamic, x, &q, &e);
+            sum += c.delta_rad[0] + c.tau_margin_nm[1];
             for fk in &kinematics {
                 let t = fk.forward(&[q[0], q[1], q[2], x, -x, 0.5 * x]);
                 sum += t.translation.z;

@@ -9,8 +9,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use dvrk_compliance::{
-    ComplianceConfig, ComplianceParams, JointParams, ModelKind, ParamsError, TorqueOffsetParams,
-    params_to_toml,
+    ComplianceConfig, ComplianceParams, DynamicsParams, HysteresisKind, HysteresisParams,
+    JointParams, ModelKind, ParamsError, TorqueOffsetParams, params_to_toml,
 };
 use proptest::prelude::*;
 
@@ -95,7 +95,8 @@ fn every_bad_file_fails_with_its_expected_error() {
         "NonFinite",
         "Negative",
         "InsertionRange",
-        "NonPositiveStiffness",
+        "StiffnessTooLow",
+        "AboveBound",
         "TorqueOffsetLength",
         "TorqueOffsetEmpty",
         "TorqueOffsetNotIncreasing",
@@ -157,6 +158,8 @@ fn valid_joint(index: i64) -> JointParams {
             position_rad: vec![-1.0, 1.0],
             effort_nm: vec![0.0, 0.0],
         },
+        hysteresis: None,
+        dynamics: None,
     }
 }
 
@@ -237,7 +240,7 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
     let e = config_error(vec![j]);
     assert_eq!(
         e,
-        ParamsError::NonPositiveStiffness {
+        ParamsError::StiffnessTooLow {
             joint: 2,
             insertion_m: 0.0,
             value: -6.0
@@ -248,7 +251,7 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
     let mut j = valid_joint(1);
     j.inverse_compliance_nm_per_rad = [0.0, 1000.0, -310.0, 24.024];
     let e = config_error(vec![j]);
-    let ParamsError::NonPositiveStiffness {
+    let ParamsError::StiffnessTooLow {
         joint: 1,
         insertion_m,
         value,
@@ -263,13 +266,14 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
     j.inverse_compliance_nm_per_rad = [0.0, 0.0, 100.0, -9.0];
     assert!(matches!(
         config_error(vec![j]),
-        ParamsError::NonPositiveStiffness { joint: 1, .. }
+        ParamsError::StiffnessTooLow { joint: 1, .. }
     ));
 
     // A true cubic with an interior local minimum: 1000 (u^3 - 0.0025 u) + c, u = L - 0.15,
     // i.e. 1000 L^3 - 450 L^2 + 65 L - 3 + c. Its minimum on [0.12, 0.22] is at
     // u = sqrt(0.0025 / 3) = 0.02887 (L = 0.17887), value c - 0.04811; the ends give c + 0.048
-    // and c + 0.168. With c = 0.06 it stays positive, with c = 0.04 it dips below zero inside.
+    // and c + 0.168. With c = 1.06 it stays above the 1 N·m/rad bound, with c = 1.04 it dips
+    // below it inside.
     let with_c0 = |c0: f64| {
         let mut j = valid_joint(1);
         j.inverse_compliance_nm_per_rad = [1000.0, -450.0, 65.0, c0];
@@ -279,9 +283,9 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
             joint: vec![j],
         })
     };
-    assert!(with_c0(-3.0 + 0.06).is_ok());
-    let e = with_c0(-3.0 + 0.04).unwrap_err();
-    let ParamsError::NonPositiveStiffness {
+    assert!(with_c0(-3.0 + 1.06).is_ok());
+    let e = with_c0(-3.0 + 1.04).unwrap_err();
+    let ParamsError::StiffnessTooLow {
         joint: 1,
         insertion_m,
         value,
@@ -293,7 +297,87 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
         (insertion_m - (0.15 + (0.0025f64 / 3.0).sqrt())).abs() < 1e-9,
         "{insertion_m}"
     );
-    assert!((value - (0.04 - 0.048_112_5)).abs() < 1e-6, "{value}");
+    assert!((value - (1.04 - 0.048_112_5)).abs() < 1e-6, "{value}");
+}
+
+#[test]
+fn physical_bounds_name_joint_field_and_value() {
+    // Issue 9: a cubic softer than 1 N·m/rad anywhere in the range is a fit error, not a shaft.
+    // 0.5 N·m/rad everywhere (a positive constant, accepted before the bound existed).
+    let mut j = valid_joint(2);
+    j.inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, 0.5];
+    let e = config_error(vec![j]);
+    assert_eq!(
+        e,
+        ParamsError::StiffnessTooLow {
+            joint: 2,
+            insertion_m: 0.09,
+            value: 0.5
+        }
+    );
+    assert!(
+        e.to_string().contains("joint 2") && e.to_string().contains("0.5"),
+        "{e}"
+    );
+    // Exactly 1 N·m/rad is the bound itself and passes.
+    let mut j = valid_joint(1);
+    j.inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, 1.0];
+    assert!(
+        ComplianceConfig::from_params(ComplianceParams {
+            model: ModelKind::Paper,
+            joint: vec![j],
+        })
+        .is_ok()
+    );
+    // The issue's cubic [0, 0, 0, 1e-12] gave 1e12 rad corrections.
+    let mut j = valid_joint(1);
+    j.inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, 1e-12];
+    assert!(matches!(
+        config_error(vec![j]),
+        ParamsError::StiffnessTooLow { joint: 1, value, .. } if value == 1e-12
+    ));
+
+    // Backlash above 0.02 rad (the issue's 10.0), and the bound itself passes.
+    let mut j = valid_joint(1);
+    j.backlash_rad = 10.0;
+    let e = config_error(vec![j]);
+    assert_eq!(
+        e,
+        ParamsError::AboveBound {
+            joint: 1,
+            field: "backlash_rad".to_owned(),
+            value: 10.0,
+            max: 0.02
+        }
+    );
+    let text = e.to_string();
+    assert!(
+        text.contains("joint 1") && text.contains("backlash_rad") && text.contains("10"),
+        "{text}"
+    );
+    let mut j = valid_joint(1);
+    j.backlash_rad = 0.02;
+    j.tau_min_nm = 1.0;
+    assert!(
+        ComplianceConfig::from_params(ComplianceParams {
+            model: ModelKind::Paper,
+            joint: vec![j],
+        })
+        .is_ok()
+    );
+
+    // Dead band above 1 N·m.
+    let mut j = valid_joint(2);
+    j.tau_min_nm = 1.5;
+    assert_eq!(
+        config_error(vec![valid_joint(1), j]),
+        ParamsError::AboveBound {
+            joint: 2,
+            field: "tau_min_nm".to_owned(),
+            value: 1.5,
+            max: 1.0
+        }
+    );
 }
 
 #[test]
@@ -337,18 +421,42 @@ fn any_joint() -> impl Strategy<Value = JointParams> {
         prop::array::uniform4(any_f64()),
         prop::array::uniform2(any_f64()),
         prop::collection::vec((any_f64(), any_f64()), 0..6),
+        prop::option::of((any::<bool>(), any_f64())),
+        prop::option::of((
+            prop::array::uniform2(any_f64()),
+            prop::array::uniform4(any_f64()),
+            any_f64(),
+        )),
     )
         .prop_map(
-            |(index, backlash_rad, tau_min_nm, c, range, table)| JointParams {
-                index,
-                backlash_rad,
-                tau_min_nm,
-                inverse_compliance_nm_per_rad: c,
-                insertion_range_m: range,
-                torque_offset: TorqueOffsetParams {
-                    position_rad: table.iter().map(|t| t.0).collect(),
-                    effort_nm: table.iter().map(|t| t.1).collect(),
-                },
+            |(index, backlash_rad, tau_min_nm, c, range, table, hysteresis, dynamics)| {
+                JointParams {
+                    index,
+                    backlash_rad,
+                    tau_min_nm,
+                    inverse_compliance_nm_per_rad: c,
+                    insertion_range_m: range,
+                    torque_offset: TorqueOffsetParams {
+                        position_rad: table.iter().map(|t| t.0).collect(),
+                        effort_nm: table.iter().map(|t| t.1).collect(),
+                    },
+                    hysteresis: hysteresis.map(|(friction, gap_rad)| HysteresisParams {
+                        kind: if friction {
+                            HysteresisKind::Friction
+                        } else {
+                            HysteresisKind::Play
+                        },
+                        gap_rad,
+                    }),
+                    dynamics: dynamics.map(|(inertia, [b, fc, vs, std], k)| DynamicsParams {
+                        inertia_kg_m2: inertia,
+                        viscous_nm_s_per_rad: b,
+                        coulomb_nm: fc,
+                        stick_velocity_rad_per_s: vs,
+                        residual_std_nm: std,
+                        gate_sigmas: k,
+                    }),
+                }
             },
         )
 }

@@ -1,7 +1,7 @@
 //! The pure glue of one cycle: an [`ArmSample`] from dvrk-io in, the compliance model and the
 //! kinematics applied, the five messages of dvrk-ipc out. No clock, no I/O, no allocation.
 
-use dvrk_compliance::{ComplianceConfig, Correction, PsmKinematics};
+use dvrk_compliance::{Compensator, ComplianceConfig, Correction, PsmKinematics};
 use dvrk_io::ArmSample;
 use dvrk_ipc::{CompensationStatusV2, Header, JointStateV1, PoseV1, flags};
 use nalgebra::Isometry3;
@@ -82,6 +82,37 @@ pub fn compute(
     let q3 = [s.position[0], s.position[1], s.position[2]];
     let tau3 = [s.effort[0], s.effort[1], s.effort[2]];
     let correction = model.correct(&q3, &tau3);
+    finish(kin, s, outcome, correction)
+}
+
+/// [`compute`] with the internal-torque estimator (issue 10): friction and inertia are removed
+/// from `tau_ext` before the gate, using the sample's own time. Invalid samples reset the
+/// estimator's filter and are corrected without it. With a parameter file that has no
+/// `[joint.dynamics]` the result equals [`compute`]'s.
+pub fn compute_dynamic(
+    model: &ComplianceConfig,
+    compensator: &mut Compensator,
+    kin: &PsmKinematics,
+    s: &ArmSample,
+    outcome: ReadOutcome,
+) -> CycleResult {
+    let q3 = [s.position[0], s.position[1], s.position[2]];
+    let tau3 = [s.effort[0], s.effort[1], s.effort[2]];
+    let correction = if outcome == ReadOutcome::Ok && s.valid {
+        compensator.correct(model, s.t_ns as f64 * 1e-9, &q3, &tau3)
+    } else {
+        compensator.reset();
+        model.correct(&q3, &tau3)
+    };
+    finish(kin, s, outcome, correction)
+}
+
+fn finish(
+    kin: &PsmKinematics,
+    s: &ArmSample,
+    outcome: ReadOutcome,
+    correction: Correction,
+) -> CycleResult {
     let mut compensated_position = s.position;
     compensated_position[..3].copy_from_slice(&correction.position);
     let raw_q6 = first6(&s.position);
@@ -96,11 +127,9 @@ pub fn compute(
     if correction.active[1] {
         f |= flags::CORRECTION_ACTIVE_J2;
     }
-    let tau_margin_nm = core::array::from_fn(|j| {
-        model
-            .joint(j)
-            .map_or(0.0, |m| correction.tau_ext_nm[j].abs() - m.tau_min_nm())
-    });
+    // |tau_ext| minus the gate (tau_min, plus gate_sigmas * residual std with a dynamics
+    // model); 0 for a joint without parameters.
+    let tau_margin_nm = correction.tau_margin_nm;
     CycleResult {
         raw_pose: kin.forward(&raw_q6),
         correction,
@@ -173,6 +202,7 @@ pub fn held(last: Option<&Held>, current: &ArmSample, reason: u32) -> (ArmSample
                     active: [false; 2],
                     insertion_m: f64::NAN,
                     insertion_clamped: false,
+                    tau_margin_nm: [0.0; 2],
                 },
                 compensated_position: [f64::NAN; 7],
                 compensated_pose: nan_pose,

@@ -24,7 +24,9 @@ pub mod server;
 pub use emulator::{ActuatorMap, ActuatorSlot, Emulator, EmulatorCounters};
 pub use link::{SimLink, SimPort, sim_port};
 pub use measure::{ActuatorScales, NoiseParams};
-pub use physics::{Environment, JointState, PhysicsParams, ShaftParams, SimPsm, Truth};
+pub use physics::{
+    Environment, FrictionParams, JointState, PhysicsParams, ShaftParams, SimPsm, Truth,
+};
 pub use rng::SimRng;
 pub use scenario::{Motion, MotionDriver, Scenario, ScenarioParams};
 

@@ -158,6 +158,27 @@ impl TorqueOffsetParams {
     }
 }
 
+/// Motor-side Coulomb friction with stiction of one dynamic joint (N·m, or N for insertion).
+///
+/// Moving, the friction is `coulomb * sgn(velocity)` against the motion; stuck, it holds
+/// whatever net torque is below `stiction` and the joint stays stuck. The sign of the last motion
+/// is what a stuck joint "remembers": the controller's effort settles on the side it came from,
+/// which is the friction-type hysteresis of the 2017 clamp data.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrictionParams {
+    pub coulomb: f64,
+    /// Break-away torque, >= `coulomb`.
+    pub stiction: f64,
+}
+
+impl FrictionParams {
+    /// No friction.
+    pub const NONE: FrictionParams = FrictionParams {
+        coulomb: 0.0,
+        stiction: 0.0,
+    };
+}
+
 /// Position PID of one dynamic joint.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PidGains {
@@ -180,6 +201,9 @@ pub struct PhysicsParams {
     pub inertia: [f64; NUM_DYNAMIC],
     /// N·m·s/rad (N·s/m).
     pub viscous: [f64; NUM_DYNAMIC],
+    /// Motor-side friction of the transmission (Coulomb with stiction); zero in
+    /// [`PhysicsParams::CLASSIC`], so scenarios without a `[transmission]` section run as before.
+    pub friction: [FrictionParams; NUM_DYNAMIC],
     pub pid: [PidGains; NUM_DYNAMIC],
     /// Joint limits (rad, m), all seven joints; setpoints are clamped into them.
     pub position_min: [f64; NUM_JOINTS],
@@ -198,6 +222,7 @@ impl PhysicsParams {
     pub const CLASSIC: PhysicsParams = PhysicsParams {
         inertia: [0.05, 0.05, 0.5],
         viscous: [0.2, 0.2, 5.0],
+        friction: [FrictionParams::NONE; NUM_DYNAMIC],
         pid: [
             PidGains {
                 kp: 150.0,
@@ -336,10 +361,6 @@ pub struct SimPsm {
     env_holding: bool,
     amps_enabled: bool,
 }
-
-/// Regularization of the quasi-static shaft solve for the compliant surface, N·m/rad: the shaft
-/// settles within a few steps and lags by this fraction of the spring force.
-const SHAFT_REGULARIZATION: f64 = 1e-4;
 
 impl SimPsm {
     /// An arm at rest at `initial` (clamped into the limits), in free space, amplifiers on, the
@@ -507,16 +528,49 @@ impl SimPsm {
         }
     }
 
-    /// Kinetic energy of joints 1-3 plus the energy stored in the shaft springs, J.
+    /// Kinetic energy of joints 1-3 plus the energy stored in the shaft springs, the hard stops
+    /// and the environment's springs (compliant plane, divot plate), J. Without input (amplifiers
+    /// off, no internal torque) it can only fall: viscous and Coulomb friction dissipate.
     pub fn mechanical_energy_j(&self) -> f64 {
         let mut e = 0.0;
         for j in 0..NUM_DYNAMIC {
             e += 0.5 * self.p.inertia[j] * self.qd[j] * self.qd[j];
+            let over = if self.q[j] > self.p.position_max[j] {
+                self.q[j] - self.p.position_max[j]
+            } else if self.q[j] < self.p.position_min[j] {
+                self.q[j] - self.p.position_min[j]
+            } else {
+                0.0
+            };
+            e += 0.5 * self.p.hard_stop_stiffness[j] * over * over;
         }
         for j in 0..2 {
             let k = self.p.shaft.stiffness_nm_per_rad(j, self.q[2]);
             let tau = self.tau_shaft[j];
             e += 0.5 * tau * tau / k;
+        }
+        match self.env {
+            EnvState::Surface {
+                point,
+                normal,
+                stiffness,
+            } => {
+                let (_, _, pen) = surface_force(point, normal, stiffness, self.q_shaft, self.q[2]);
+                if pen > 0.0 {
+                    e += 0.5 * stiffness * pen * pen;
+                }
+            }
+            EnvState::Divot {
+                plate_l_m,
+                stiffness,
+                ..
+            } => {
+                let pen = self.q[2] - plate_l_m;
+                if pen > 0.0 {
+                    e += 0.5 * stiffness * pen * pen;
+                }
+            }
+            EnvState::Free | EnvState::Clamp { .. } => {}
         }
         e
     }
@@ -529,11 +583,6 @@ impl SimPsm {
         }
         let p = self.p;
         let tau0 = p.torque_offset.eval(&self.q);
-        let l = self.q[2];
-        let k_shaft = [
-            p.shaft.stiffness_nm_per_rad(0, l),
-            p.shaft.stiffness_nm_per_rad(1, l),
-        ];
 
         // Controller (the console's PID) on the motor-side positions.
         for j in 0..NUM_DYNAMIC {
@@ -554,13 +603,8 @@ impl SimPsm {
         }
 
         // Loads: shaft springs (joints 1, 2), environment along the shaft (insertion), hard stops.
-        let mut load = [0.0; NUM_DYNAMIC];
-        for j in 0..2 {
-            self.tau_shaft[j] =
-                p.shaft
-                    .transmitted_torque_nm(j, self.q[j] - self.q_shaft[j], k_shaft[j]);
-            load[j] = self.tau_shaft[j];
-        }
+        // The shaft torques were solved with the shaft at the end of the last step.
+        let mut load = [self.tau_shaft[0], self.tau_shaft[1], 0.0];
         load[2] = -self.axial_force();
         for (j, lj) in load.iter_mut().enumerate() {
             let (lo, hi) = (p.position_min[j], p.position_max[j]);
@@ -573,9 +617,21 @@ impl SimPsm {
         }
 
         for j in 0..NUM_DYNAMIC {
-            let acc =
-                (self.effort[j] - tau0[j] - p.viscous[j] * self.qd[j] - load[j]) / p.inertia[j];
-            self.qd[j] += acc * dt_s;
+            let net = self.effort[j] - tau0[j] - p.viscous[j] * self.qd[j] - load[j];
+            let fr = p.friction[j];
+            if fr.coulomb <= 0.0 && fr.stiction <= 0.0 {
+                self.qd[j] += net / p.inertia[j] * dt_s;
+            } else if self.qd[j] == 0.0 {
+                // Stuck: break away only when the net torque beats the stiction.
+                if net.abs() > fr.stiction {
+                    self.qd[j] = (net - fr.coulomb.copysign(net)) / p.inertia[j] * dt_s;
+                }
+            } else {
+                let v = self.qd[j];
+                let next = v + (net - fr.coulomb.copysign(v)) / p.inertia[j] * dt_s;
+                // Friction cannot reverse the motion: crossing zero within a step sticks.
+                self.qd[j] = if next * v < 0.0 { 0.0 } else { next };
+            }
             self.q[j] += self.qd[j] * dt_s;
         }
 
@@ -705,56 +761,110 @@ impl SimPsm {
                 stiffness,
             } => {
                 self.env_holding = false;
-                let l = self.q[2];
-                let k = [
-                    self.p.shaft.stiffness_nm_per_rad(0, l),
-                    self.p.shaft.stiffness_nm_per_rad(1, l),
-                ];
-                // Start from the free-play answer; if the tip then penetrates, solve the balance
-                // f(q - q_shaft) + J^T F(q_shaft) = 0 by a few regularized Newton steps.
                 for j in 0..2 {
                     self.q_shaft[j] = play(self.q[j], self.q_shaft[j], delta[j]);
                 }
-                for _ in 0..4 {
-                    let (f, a, pen) = surface_force(point, normal, stiffness, self.q_shaft, l);
-                    if pen <= 0.0 {
-                        break;
-                    }
-                    let g = [a[0] * f_mag(f, normal), a[1] * f_mag(f, normal)];
-                    let mut r = [0.0; 2];
-                    let mut diag = [SHAFT_REGULARIZATION; 2];
-                    for j in 0..2 {
-                        let x = self.q[j] - self.q_shaft[j];
-                        r[j] = self.p.shaft.transmitted_torque_nm(j, x, k[j]) + g[j];
-                        if x.abs() > delta[j] {
-                            diag[j] += k[j];
-                        }
-                    }
-                    // A = diag + stiffness * a a^T (2x2, symmetric positive definite).
-                    let a00 = diag[0] + stiffness * a[0] * a[0];
-                    let a11 = diag[1] + stiffness * a[1] * a[1];
-                    let a01 = stiffness * a[0] * a[1];
-                    let det = a00 * a11 - a01 * a01;
-                    if !(det > 0.0 && det.is_finite()) {
-                        break;
-                    }
-                    let d0 = (a11 * r[0] - a01 * r[1]) / det;
-                    let d1 = (a00 * r[1] - a01 * r[0]) / det;
-                    self.q_shaft[0] += d0;
-                    self.q_shaft[1] += d1;
-                    if d0.abs() < 1e-12 && d1.abs() < 1e-12 {
-                        break;
-                    }
-                }
+                self.q_shaft = self.surface_balance(point, normal, stiffness);
             }
         }
+        // The torque the shaft transmits and the force on the tip, from the state just solved,
+        // so that the truth of an instant is one consistent picture.
+        let l = self.q[2];
+        for j in 0..2 {
+            let k = self.p.shaft.stiffness_nm_per_rad(j, l);
+            self.tau_shaft[j] =
+                self.p
+                    .shaft
+                    .transmitted_torque_nm(j, self.q[j] - self.q_shaft[j], k);
+        }
+        let _ = self.axial_force();
     }
-}
 
-/// Signed magnitude of a force along the surface normal.
-#[inline]
-fn f_mag(f: [f64; 3], n: [f64; 3]) -> f64 {
-    f[0] * n[0] + f[1] * n[1] + f[2] * n[2]
+    /// Shaft angles in balance against a compliant plane, starting from the free-play angles in
+    /// `self.q_shaft`.
+    ///
+    /// The unknown is the scalar contact force `F >= 0` along the normal. For a given F each
+    /// shaft joint transmits `T_j = -a_j F` (a_j: lever arm of the normal about joint j), which
+    /// fixes its twist through the play and spring, hence the shaft angles, hence the
+    /// penetration. The balance `F = k * pen(F)` has exactly one root because the penetration
+    /// falls as F grows (`d pen / dF = -sum a_j^2 K_j < 0`), so a bracketing search finds it
+    /// without the overshoot of a Newton step across the play (issue 10: 0.82 rad of twist with
+    /// no contact). The lever arms are refreshed at the solution a few times (they change
+    /// with the shaft angle by second order).
+    fn surface_balance(&self, point: [f64; 3], normal: [f64; 3], stiffness: f64) -> [f64; 2] {
+        let l = self.q[2];
+        let q = [self.q[0], self.q[1]];
+        let free = self.q_shaft;
+        let (_, _, pen_free) = surface_force(point, normal, stiffness, free, l);
+        if pen_free <= 0.0 {
+            return free;
+        }
+        let delta = self.p.shaft.backlash_rad;
+        let k = [
+            self.p.shaft.stiffness_nm_per_rad(0, l),
+            self.p.shaft.stiffness_nm_per_rad(1, l),
+        ];
+        let mut qs = free;
+        for _ in 0..3 {
+            let (_, a, _) = surface_force(point, normal, stiffness, qs, l);
+            // Shaft angles for force f > 0: twist x_j = T_j / K_j + delta_j sgn(T_j) with
+            // T_j = -a_j f; a joint without lever (a_j = 0) keeps its free-play angle.
+            let angles = |f: f64| -> [f64; 2] {
+                let mut out = free;
+                for j in 0..2 {
+                    let t = -a[j] * f;
+                    if t != 0.0 {
+                        let x = t / k[j] + delta[j].copysign(t);
+                        out[j] = q[j] - x;
+                    }
+                }
+                out
+            };
+            let pen_at = |f: f64| surface_force(point, normal, stiffness, angles(f), l).2;
+            // Through the play with no force: the shaft slides until it just touches.
+            let pen_edge = pen_at(f64::MIN_POSITIVE);
+            if pen_edge <= 0.0 {
+                let edge = angles(f64::MIN_POSITIVE);
+                let s = pen_free / (pen_free - pen_edge);
+                return [
+                    free[0] + s * (edge[0] - free[0]),
+                    free[1] + s * (edge[1] - free[1]),
+                ];
+            }
+            // phi(f) = f - k pen(f): negative at 0+, and >= 0 at k pen_edge unless the
+            // kinematics' curvature breaks monotonicity (then the bracket's end is kept).
+            let (mut lo, mut hi) = (0.0, stiffness * pen_edge);
+            let mut phi_lo = -stiffness * pen_edge;
+            let mut phi_hi = hi - stiffness * pen_at(hi);
+            if phi_hi <= 0.0 {
+                qs = angles(hi);
+                continue;
+            }
+            // Illinois (regula falsi with halving of the stale end).
+            let mut f = hi;
+            for _ in 0..60 {
+                f = (lo * phi_hi - hi * phi_lo) / (phi_hi - phi_lo);
+                if !(f > lo && f < hi) {
+                    f = 0.5 * (lo + hi);
+                }
+                let phi = f - stiffness * pen_at(f);
+                if phi.abs() <= 1e-12 * (1.0 + f) || hi - lo <= 1e-15 * hi {
+                    break;
+                }
+                if phi < 0.0 {
+                    lo = f;
+                    phi_lo = phi;
+                    phi_hi *= 0.5;
+                } else {
+                    hi = f;
+                    phi_hi = phi;
+                    phi_lo *= 0.5;
+                }
+            }
+            qs = angles(f);
+        }
+        qs
+    }
 }
 
 /// Force of a compliant plane on the tip at shaft angles `qs` and insertion `l`; also the
@@ -941,6 +1051,46 @@ mod tests {
         let rising = psm.truth().tau_ext_nm[0];
         let k = psm.params().shaft.stiffness_nm_per_rad(0, start()[2]);
         assert!((rising - k * (0.01 - 0.003)).abs() < 1e-6, "{rising}");
+    }
+
+    #[test]
+    fn clamp_with_friction_shows_friction_hysteresis() {
+        // With Coulomb friction and no play, the same motor angle approached from below needs
+        // more effort than from above (the friction opposes the approach): at a given effort,
+        // the rising branch lies at smaller angles, the sign the 2017 clamp data show.
+        let mut p = PhysicsParams::CLASSIC;
+        p.shaft.backlash_rad = [0.0, 0.0];
+        p.friction[0] = FrictionParams {
+            coulomb: 0.05,
+            stiction: 0.06,
+        };
+        let mut psm = SimPsm::new(p, start());
+        psm.set_environment(Environment::Clamp);
+        let q0 = start()[0];
+        let ramp = |psm: &mut SimPsm, from: f64, to: f64| {
+            let n = 20_000;
+            for i in 0..=n {
+                let x = from + (to - from) * f64::from(i) / f64::from(n);
+                psm.set_setpoint_with_velocity(0, x, (to - from) / (f64::from(n) * DT));
+                psm.step(DT);
+            }
+            psm.set_setpoint(0, to);
+            settle(psm, 0.5);
+        };
+        ramp(&mut psm, q0, q0 + 0.01);
+        let rising = psm.joint_state();
+        ramp(&mut psm, q0 + 0.01, q0 + 0.02);
+        ramp(&mut psm, q0 + 0.02, q0 + 0.01);
+        let falling = psm.joint_state();
+        let tau0 = p.torque_offset.eval(&rising.position)[0];
+        let k = p.shaft.stiffness_nm_per_rad(0, start()[2]);
+        let shaft_up = k * (rising.position[0] - q0);
+        let shaft_down = k * (falling.position[0] - q0);
+        // Effort = tau_0 + shaft torque + friction on the side of the last motion.
+        let f_up = rising.effort[0] - tau0 - shaft_up;
+        let f_down = falling.effort[0] - tau0 - shaft_down;
+        assert!(f_up > 0.02 && f_up <= 0.06 + 1e-6, "{f_up}");
+        assert!((-0.06 - 1e-6..-0.02).contains(&f_down), "{f_down}");
     }
 
     #[test]

@@ -33,7 +33,7 @@ use serde::Deserialize;
 
 use crate::SimError;
 use crate::measure::NoiseParams;
-use crate::physics::{Environment, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm};
+use crate::physics::{Environment, FrictionParams, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm};
 
 /// Environment section, as written in the file.
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -95,6 +95,33 @@ pub struct ShaftSection {
     pub insertion_range_m: [f64; 2],
 }
 
+/// Optional transmission section (default: no Coulomb friction, the built-in viscous friction):
+/// motor-side friction of joints 1 and 2 (issue 10, "a transmission that rubs").
+///
+/// ```toml
+/// [transmission]
+/// coulomb_nm = [0.03, 0.03]       # Coulomb friction while moving, N·m
+/// stiction_nm = [0.04, 0.04]      # break-away torque, >= coulomb_nm
+/// viscous_nm_s_per_rad = [0.2, 0.2]   # optional; default 0.2
+/// ```
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TransmissionSection {
+    #[serde(default)]
+    pub coulomb_nm: [f64; 2],
+    #[serde(default)]
+    pub stiction_nm: [f64; 2],
+    #[serde(default = "default_viscous")]
+    pub viscous_nm_s_per_rad: [f64; 2],
+}
+
+fn default_viscous() -> [f64; 2] {
+    [
+        PhysicsParams::CLASSIC.viscous[0],
+        PhysicsParams::CLASSIC.viscous[1],
+    ]
+}
+
 /// A scenario file as parsed.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -109,6 +136,8 @@ pub struct ScenarioParams {
     pub noise: NoiseSection,
     #[serde(default)]
     pub shaft: Option<ShaftSection>,
+    #[serde(default)]
+    pub transmission: Option<TransmissionSection>,
 }
 
 /// What the stand-in console commands over time.
@@ -124,6 +153,34 @@ pub enum Motion {
         amplitude: [f64; NUM_JOINTS],
         period_s: [f64; NUM_JOINTS],
     },
+    /// Identification excitation of joints 1 and 2 (`calibrate dynamics`): per joint a sum of
+    /// three sines around the anchor, faded in over the first second (`sin^2`) so the setpoint
+    /// starts still. Set programmatically; not a file kind.
+    MultiSine {
+        amplitude: [[f64; 3]; 2],
+        angular_frequency: [[f64; 3]; 2],
+    },
+}
+
+/// The position offset and velocity of a [`Motion::MultiSine`] joint at time `t` (s).
+pub fn multi_sine(amplitude: &[f64; 3], angular_frequency: &[f64; 3], t: f64) -> (f64, f64) {
+    use core::f64::consts::PI;
+    let (fade, dfade) = if t < 0.0 {
+        (0.0, 0.0)
+    } else if t < 1.0 {
+        // sin^2(pi t / 2): 0 at t = 0, 1 at t = 1, flat at both ends.
+        let s = (0.5 * PI * t).sin();
+        (s * s, 0.5 * PI * (PI * t).sin())
+    } else {
+        (1.0, 0.0)
+    };
+    let (mut q, mut v) = (0.0, 0.0);
+    for k in 0..3 {
+        let (s, c) = (angular_frequency[k] * t).sin_cos();
+        q += amplitude[k] * s;
+        v += amplitude[k] * angular_frequency[k] * c;
+    }
+    (fade * q, fade * v + dfade * q)
 }
 
 /// A validated scenario.
@@ -230,6 +287,46 @@ impl Scenario {
                 ));
             }
             physics.shaft = shaft;
+        }
+        if let Some(t) = p.transmission {
+            for j in 0..2 {
+                let c =
+                    check_non_negative(&format!("transmission.coulomb_nm[{j}]"), t.coulomb_nm[j])?;
+                let s = check_non_negative(
+                    &format!("transmission.stiction_nm[{j}]"),
+                    t.stiction_nm[j],
+                )?;
+                let v = check_non_negative(
+                    &format!("transmission.viscous_nm_s_per_rad[{j}]"),
+                    t.viscous_nm_s_per_rad[j],
+                )?;
+                if c > 1.0 {
+                    return Err(invalid(
+                        format!("transmission.coulomb_nm[{j}]"),
+                        c,
+                        "must be at most 1 N·m",
+                    ));
+                }
+                if s < c || s > 1.0 {
+                    return Err(invalid(
+                        format!("transmission.stiction_nm[{j}]"),
+                        s,
+                        "must lie between coulomb_nm and 1 N·m",
+                    ));
+                }
+                if v > 10.0 {
+                    return Err(invalid(
+                        format!("transmission.viscous_nm_s_per_rad[{j}]"),
+                        v,
+                        "must be at most 10 N·m·s/rad",
+                    ));
+                }
+                physics.friction[j] = FrictionParams {
+                    coulomb: c,
+                    stiction: s,
+                };
+                physics.viscous[j] = v;
+            }
         }
         for (j, v) in p.initial_position.iter().enumerate() {
             let field = format!("initial_position[{j}]");
@@ -446,6 +543,15 @@ impl MotionDriver {
                 }
                 if let Some(k) = self.plate_stiffness_n_per_m {
                     psm.set_setpoint(2, l + insertion_force_n / k);
+                }
+            }
+            Motion::MultiSine {
+                amplitude,
+                angular_frequency,
+            } => {
+                for j in 0..2 {
+                    let (q, v) = multi_sine(&amplitude[j], &angular_frequency[j], t_s);
+                    psm.set_setpoint_with_velocity(j, self.anchor[j] + q, v);
                 }
             }
             Motion::Trajectory {

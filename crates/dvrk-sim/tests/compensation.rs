@@ -46,6 +46,8 @@ fn true_model(psm: &SimPsm) -> ComplianceConfig {
                     position_rad,
                     effort_nm,
                 },
+                hysteresis: None,
+                dynamics: None,
             }
         })
         .collect();

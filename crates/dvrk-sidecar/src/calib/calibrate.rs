@@ -47,6 +47,9 @@ pub enum Procedure {
     Clamp(SimArgs),
     /// Tip in a divot, each joint pushed both ways (evaluation data).
     Divot(SimArgs),
+    /// Free-space multi-sine excitation of joints 1 and 2 at a few depths (about a minute): the
+    /// rows `fit --dynamics` identifies the internal-torque model from (issue 10).
+    Dynamics(super::dynamics_cmd::DynamicsArgs),
     /// Real robot: record averaged rows from the running sidecar's measured_js while the dVRK's
     /// own tools move the arm (one row per still step), for the same fitting.
     Record(RecordArgs),
@@ -214,7 +217,7 @@ fn runner_config(sc: &Scenario, args: &SimArgs) -> RunnerConfig {
 }
 
 /// tau_0(q) by linear interpolation in a fitted table, constant beyond its ends.
-fn lookup(table: &fit::TorqueOffsetFit, q: f64) -> f64 {
+pub(crate) fn lookup(table: &fit::TorqueOffsetFit, q: f64) -> f64 {
     let (xs, ys) = (&table.position_rad, &table.effort_nm);
     let i = xs.partition_point(|&x| x <= q);
     match (i.checked_sub(1), xs.get(i)) {
@@ -412,6 +415,7 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
         Procedure::Clamp(a) => run_sim_procedure(SimKind::Clamp, a, stop),
         Procedure::Divot(a) => run_sim_procedure(SimKind::Divot, a, stop),
         Procedure::Record(r) => run_record(r, stop),
+        Procedure::Dynamics(a) => super::dynamics_cmd::run(a, stop),
     }
 }
 
@@ -586,6 +590,8 @@ mod tests {
                     position_rad: t0.position_rad,
                     effort_nm: t0.effort_nm,
                 },
+                hysteresis: None,
+                dynamics: None,
             }],
         };
         let cfg = ComplianceConfig::from_params(params).unwrap();

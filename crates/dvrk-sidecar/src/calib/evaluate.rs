@@ -22,15 +22,33 @@ pub enum ArmArg {
     Si,
 }
 
-/// `evaluate --params P --data divot.csv [--plots DIR] [--json]`
+/// `evaluate --params P --data divot.csv [--plots DIR] [--json]`, or
+/// `evaluate --params P --scenario S.toml --seconds N [--plots DIR] [--json]`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct EvaluateArgs {
     /// Compliance parameter file (TOML).
     #[arg(long)]
     pub params: PathBuf,
     /// Divot-push data file (from `calibrate divot`, or recorded).
+    #[arg(
+        long,
+        required_unless_present = "scenario",
+        conflicts_with = "scenario"
+    )]
+    pub data: Option<PathBuf>,
+    /// Simulator scenario (config/sim/*.toml) to run through emulator, reader, model and
+    /// kinematics, judged against the simulator's truth.
     #[arg(long)]
-    pub data: PathBuf,
+    pub scenario: Option<PathBuf>,
+    /// Simulated seconds of the scenario.
+    #[arg(long, default_value_t = 30.0, requires = "scenario")]
+    pub seconds: f64,
+    /// Cycle rate of the evaluation (Hz), as `serve` would read the boards.
+    #[arg(long, default_value_t = 1500.0, requires = "scenario")]
+    pub rate_hz: f64,
+    /// Board conversion config used by the emulator and the reader (with --scenario).
+    #[arg(long, default_value = "config/io/psm-classic.toml")]
+    pub io: PathBuf,
     /// Directory for the figures (SVG and PNG).
     #[arg(long)]
     pub plots: Option<PathBuf>,
@@ -225,18 +243,11 @@ pub fn divot_figures(
 /// Runs `evaluate`.
 pub fn run_evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     let cfg = crate::config::load_compliance(&args.params)?;
-    let rows = data::read_divot(&args.data)?;
-    let tool = instrument(&args.tool).with_context(|| {
-        format!(
-            "--tool {}: unknown instrument; use a dVRK name such as LARGE_NEEDLE_DRIVER_400006",
-            args.tool
-        )
-    })?;
-    let arm = match args.arm {
-        ArmArg::Classic => ArmKind::Classic,
-        ArmArg::Si => ArmKind::Si,
+    let fk = kinematics(args)?;
+    let Some(data_path) = &args.data else {
+        return run_evaluate_scenario(args, &cfg, &fk);
     };
-    let fk = PsmKinematics::new(arm, tool);
+    let rows = data::read_divot(data_path)?;
     let result = evaluate(&cfg, &fk, &rows);
     if let Some(dir) = &args.plots {
         divot_figures(dir, &args.font, &cfg, &rows)?;
@@ -273,6 +284,62 @@ pub fn run_evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `evaluate --scenario`: see [`super::evaluate_motion`].
+fn run_evaluate_scenario(
+    args: &EvaluateArgs,
+    cfg: &ComplianceConfig,
+    fk: &PsmKinematics,
+) -> anyhow::Result<()> {
+    let Some(path) = &args.scenario else {
+        anyhow::bail!("give --data FILE or --scenario FILE");
+    };
+    let sc = crate::config::load_scenario(path)?;
+    let io = crate::config::load_io(&args.io)?;
+    let (result, traces) =
+        super::evaluate_motion::evaluate_scenario(cfg, fk, &sc, io, args.seconds, args.rate_hz)?;
+    if let Some(dir) = &args.plots {
+        super::evaluate_motion::tip_error_figure(dir, &args.font, &traces)?;
+    }
+    let text = if args.json {
+        let mut t = serde_json::to_string(&result)?;
+        t.push('\n');
+        t
+    } else {
+        let e = &result.tip_error_mm;
+        format!(
+            "tip error (mm): raw mean {:.3}, p95 {:.3}, max {:.3}; compensated mean {:.3}, p95 {:.3}, max {:.3}\n\
+             correction active: joint 1 {:.1}%, joint 2 {:.1}%; false activation: joint 1 {:.2}%, joint 2 {:.2}%\n",
+            e.raw.mean,
+            e.raw.p95,
+            e.raw.max,
+            e.compensated.mean,
+            e.compensated.p95,
+            e.compensated.max,
+            100.0 * result.correction_active_fraction[0],
+            100.0 * result.correction_active_fraction[1],
+            100.0 * result.false_activation_fraction[0],
+            100.0 * result.false_activation_fraction[1],
+        )
+    };
+    std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
+        .context("writing to stdout")?;
+    Ok(())
+}
+
+fn kinematics(args: &EvaluateArgs) -> anyhow::Result<PsmKinematics> {
+    let tool = instrument(&args.tool).with_context(|| {
+        format!(
+            "--tool {}: unknown instrument; use a dVRK name such as LARGE_NEEDLE_DRIVER_400006",
+            args.tool
+        )
+    })?;
+    let arm = match args.arm {
+        ArmArg::Classic => ArmKind::Classic,
+        ArmArg::Si => ArmKind::Si,
+    };
+    Ok(PsmKinematics::new(arm, tool))
+}
+
 #[cfg(test)]
 mod tests {
     use super::data::DivotTruth;
@@ -291,6 +358,8 @@ mod tests {
                     position_rad: vec![0.0],
                     effort_nm: vec![0.1],
                 },
+                hysteresis: None,
+                dynamics: None,
             })
             .collect();
         ComplianceConfig::from_params(ComplianceParams {

@@ -5,7 +5,9 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use dvrk_compliance::fit::{self, DataRow, FitOptions, JointFit, TorqueOffsetFit};
 use dvrk_compliance::{
-    ComplianceConfig, ComplianceParams, JointParams, ModelKind, TorqueOffsetParams, params_to_toml,
+    ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, HysteresisKind,
+    HysteresisParams, JointParams, ModelKind, TorqueOffsetParams, fit_dynamics_segmented,
+    params_to_toml,
 };
 use serde::Serialize;
 
@@ -49,6 +51,15 @@ pub struct FitArgs {
     /// TTF font for the figure text.
     #[arg(long, default_value = super::plots::DEFAULT_FONT)]
     pub font: PathBuf,
+    /// Free-space excitation rows (`calibrate dynamics`): identify the internal-torque model
+    /// (inertia, viscous and Coulomb friction) under the written tau_0 table and write it as
+    /// `[joint.dynamics]`.
+    #[arg(long)]
+    pub dynamics: Option<PathBuf>,
+    /// The gate in residual standard deviations: a correction needs |tau_ext| > tau_min +
+    /// this * the dynamics fit's residual std.
+    #[arg(long, default_value_t = 4.0, requires = "dynamics")]
+    pub gate_sigmas: f64,
 }
 
 /// Everything one `fit` run computed (nothing is written unless all of it succeeded).
@@ -58,6 +69,8 @@ pub struct FitOutcome {
     pub joints: Vec<JointFit>,
     pub offsets: Vec<TorqueOffsetFit>,
     pub params: ComplianceParams,
+    /// The internal-torque model per joint (with `--dynamics`).
+    pub dynamics: Vec<DynamicsFit>,
 }
 
 /// Reads the files and fits everything; writes nothing.
@@ -72,7 +85,6 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         );
     }
     let opts = FitOptions::default();
-    let joints = fit::fit_clamp(&clamp_rows, &opts).context("fitting the clamp data")?;
     let mut sweep_joints: Vec<u8> = sweep_rows.iter().map(|r| r.joint).collect();
     sweep_joints.sort_unstable();
     sweep_joints.dedup();
@@ -81,6 +93,16 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         .map(|&j| fit::fit_torque_offset(&sweep_rows, j, &opts))
         .collect::<Result<Vec<_>, _>>()
         .context("fitting the torque-offset sweep")?;
+    // One tau_0 (issue 10): K and delta are fitted under the table this file will carry, not
+    // under the clamp file's own torque-offset column (on the 2017 data the two differ by up to
+    // 0.14 N·m, enough to move delta by 160%).
+    let mut clamp_rows = clamp_rows;
+    for r in &mut clamp_rows {
+        if let Some(o) = offsets.iter().find(|o| o.joint == r.joint) {
+            r.torque_offset_nm = super::calibrate::lookup(o, r.position_rad);
+        }
+    }
+    let joints = fit::fit_clamp(&clamp_rows, &opts).context("fitting the clamp data")?;
     for o in &offsets {
         if !joints.iter().any(|j| j.joint == o.joint) {
             tracing::warn!(
@@ -121,6 +143,8 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
             inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
             insertion_range_m: j.insertion_range_m,
             torque_offset,
+            hysteresis: Some(hysteresis_of(j)),
+            dynamics: None,
         });
     }
     let params = ComplianceParams {
@@ -130,15 +154,117 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         },
         joint: joint_params,
     };
-    ComplianceConfig::from_params(params.clone())
+    let mut params = params;
+    let config = ComplianceConfig::from_params(params.clone())
         .context("the fitted parameters do not validate; nothing written")?;
+    let mut dynamics = Vec::new();
+    if let Some(path) = &args.dynamics {
+        if !(args.gate_sigmas.is_finite() && (0.0..=10.0).contains(&args.gate_sigmas)) {
+            bail!("--gate-sigmas {}: must be within 0..=10", args.gate_sigmas);
+        }
+        let rows = super::dynamics_cmd::read(path)?;
+        let segments = super::dynamics_cmd::segments(&rows);
+        for jp in &mut params.joint {
+            let j0 = (jp.index - 1) as usize;
+            let Some(model) = config.joint(j0) else {
+                continue;
+            };
+            let table = model.torque_offset();
+            let joint = jp.index as u8;
+            let fit = fit_segments(joint, &segments, |q| table.lookup(q), args.gate_sigmas)
+                .with_context(|| format!("{}: fitting the dynamics", path.display()))?;
+            jp.dynamics = Some(fit.params);
+            dynamics.push(fit);
+        }
+        ComplianceConfig::from_params(params.clone())
+            .context("the fitted dynamics do not validate; nothing written")?;
+    }
     Ok(FitOutcome {
         clamp_rows,
         sweep_rows,
         joints,
         offsets,
         params,
+        dynamics,
     })
+}
+
+/// Fits the dynamics over every segment (one per depth) at once, so that the `L^2` term is
+/// identified across depths; the filter restarts at each segment.
+fn fit_segments(
+    joint: u8,
+    segments: &[&[DynamicsSample]],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+) -> anyhow::Result<DynamicsFit> {
+    let mut all = Vec::new();
+    let mut starts = Vec::new();
+    for seg in segments {
+        starts.push(all.len());
+        all.extend_from_slice(seg);
+    }
+    Ok(fit_dynamics_segmented(
+        joint,
+        &all,
+        &starts,
+        tau_0,
+        gate_sigmas,
+    )?)
+}
+
+#[derive(Serialize)]
+struct JsonDynamics {
+    index: u8,
+    samples: usize,
+    torque_residual_rms_nm: JsonRms,
+    inertia_kg_m2: [f64; 2],
+    viscous_nm_s_per_rad: f64,
+    coulomb_nm: f64,
+    residual_std_nm: f64,
+    gate_sigmas: f64,
+}
+
+#[derive(Serialize)]
+struct JsonRms {
+    before: f64,
+    after: f64,
+}
+
+/// The `dynamics` part of the `--json` document (empty without `--dynamics`).
+pub fn dynamics_json(fits: &[DynamicsFit]) -> serde_json::Value {
+    let v: Vec<JsonDynamics> = fits
+        .iter()
+        .map(|f| JsonDynamics {
+            index: f.joint,
+            samples: f.samples,
+            torque_residual_rms_nm: JsonRms {
+                before: f.rms_before_nm,
+                after: f.rms_after_nm,
+            },
+            inertia_kg_m2: f.params.inertia_kg_m2,
+            viscous_nm_s_per_rad: f.params.viscous_nm_s_per_rad,
+            coulomb_nm: f.params.coulomb_nm,
+            residual_std_nm: f.params.residual_std_nm,
+            gate_sigmas: f.params.gate_sigmas,
+        })
+        .collect();
+    serde_json::to_value(v).unwrap_or(serde_json::Value::Null)
+}
+
+/// The kind and signed gap of a joint's clamp hysteresis: the mean over depths of the fit's
+/// signed gap `zero(-) - zero(+)`; a play makes it negative (-2 delta), a friction in the
+/// transmission positive (the effort leads the motion).
+pub fn hysteresis_of(j: &JointFit) -> HysteresisParams {
+    let n = j.depths.len().max(1) as f64;
+    let gap_rad = j.depths.iter().map(|d| d.hysteresis_gap_rad).sum::<f64>() / n;
+    HysteresisParams {
+        kind: if gap_rad > 0.0 {
+            HysteresisKind::Friction
+        } else {
+            HysteresisKind::Play
+        },
+        gap_rad,
+    }
 }
 
 #[derive(Serialize)]
@@ -157,6 +283,8 @@ struct JsonJoint {
     inverse_compliance_nm_per_rad: [f64; 4],
     backlash_rad: f64,
     r_squared: f64,
+    hysteresis_kind: &'static str,
+    hysteresis_gap_rad: f64,
 }
 
 #[derive(Serialize)]
@@ -187,6 +315,11 @@ pub fn to_json(joints: &[JointFit]) -> anyhow::Result<String> {
                 inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
                 backlash_rad: j.backlash_rad,
                 r_squared: j.r_squared,
+                hysteresis_kind: match hysteresis_of(j).kind {
+                    HysteresisKind::Play => "play",
+                    HysteresisKind::Friction => "friction",
+                },
+                hysteresis_gap_rad: hysteresis_of(j).gap_rad,
             })
             .collect(),
     };
@@ -268,7 +401,12 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
     let outcome = compute(args)?;
     let mut text = String::new();
     text.push_str("# Fitted by `dvrk-sidecar fit` from:\n");
-    for p in args.clamp.iter().chain(args.torque_offset.iter()) {
+    for p in args
+        .clamp
+        .iter()
+        .chain(args.torque_offset.iter())
+        .chain(args.dynamics.iter())
+    {
         text.push_str(&format!("#   {}\n", p.display()));
     }
     for j in &outcome.joints {
@@ -280,6 +418,12 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
             j.backlash_rad * 1e3
         ));
     }
+    for d in &outcome.dynamics {
+        text.push_str(&format!(
+            "# joint {} dynamics: torque residual rms {:.4} N·m before, {:.4} N·m after the model\n",
+            d.joint, d.rms_before_nm, d.rms_after_nm
+        ));
+    }
     text.push_str(&params_to_toml(&outcome.params));
     // Figures first: a figure that cannot be drawn (no font) fails the command before any
     // parameter file is written.
@@ -289,7 +433,13 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
     data::write_atomically(&args.out, text.as_bytes())?;
     // Written with error handling (not `println!`), so a closed pipe is an error, not a panic.
     let text = if args.json {
-        format!("{}\n", to_json(&outcome.joints)?)
+        let mut doc: serde_json::Value = serde_json::from_str(&to_json(&outcome.joints)?)?;
+        if !outcome.dynamics.is_empty()
+            && let Some(obj) = doc.as_object_mut()
+        {
+            obj.insert("dynamics".into(), dynamics_json(&outcome.dynamics));
+        }
+        format!("{doc}\n")
     } else {
         format!("{}wrote {}\n", report(&outcome), args.out.display())
     };
@@ -329,6 +479,8 @@ mod tests {
             model: ModelArg::Paper,
             tau_min_nm: vec![0.1, 0.2],
             font: PathBuf::from(super::super::plots::DEFAULT_FONT),
+            dynamics: None,
+            gate_sigmas: 4.0,
         }
     }
 
@@ -364,8 +516,16 @@ mod tests {
             "{}",
             j.backlash_rad
         );
-        // the sweep: 14 depths, tau_0 hardly depends on depth (paper Fig. 4)
+        // One tau_0 (issue 10): the clamp rows were refitted under the written table.
         let t = &o.offsets[0];
+        for r in &o.clamp_rows {
+            let want = super::super::calibrate::lookup(t, r.position_rad);
+            assert_eq!(r.torque_offset_nm, want);
+        }
+        let h = o.params.joint[0].hysteresis.unwrap();
+        assert_eq!(h.kind, dvrk_compliance::HysteresisKind::Friction);
+        assert!(h.gap_rad > 0.002 && h.gap_rad < 0.02, "{h:?}");
+        // the sweep: 14 depths, tau_0 hardly depends on depth (paper Fig. 4)
         assert_eq!(t.depths, 14);
         assert!(t.mean_depth_spread_nm < 0.02, "{}", t.mean_depth_spread_nm);
         // and the parameter file validates with the fitted torque-offset table
@@ -406,12 +566,17 @@ mod tests {
             [
                 "backlash_rad",
                 "depths",
+                "hysteresis_gap_rad",
+                "hysteresis_kind",
                 "index",
                 "inverse_compliance_nm_per_rad",
                 "r_squared"
             ]
         );
         assert_eq!(j["index"], 1);
+        // Issue 10: the 2017 clamp hysteresis has the sign of friction.
+        assert_eq!(j["hysteresis_kind"], "friction");
+        assert!(j["hysteresis_gap_rad"].as_f64().unwrap() > 0.0, "{j}");
         assert_eq!(
             j["inverse_compliance_nm_per_rad"].as_array().unwrap().len(),
             4

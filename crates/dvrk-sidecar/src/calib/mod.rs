@@ -3,7 +3,9 @@
 
 pub mod calibrate;
 pub mod data;
+pub mod dynamics_cmd;
 pub mod evaluate;
+pub mod evaluate_motion;
 pub mod fit_cmd;
 pub mod plots;
 

@@ -1,0 +1,591 @@
+//! The internal-torque model (issue 10): what the joint effort holds besides the external torque.
+//!
+//! ```text
+//! tau_ext = tau_meas - tau_0(q) - tau_f(qd, direction memory) - J(L) qdd        (joints 1, 2)
+//! tau_f   = b qd + F_c s,   s = sgn(qd) while |qd| > v_s, else the sign of the last motion
+//! J(L)    = J_0 + J_2 L^2                          (motor and arm, plus the distal mass at L)
+//! ```
+//!
+//! The paper's quasi-static model counts every effort above `tau_0(q)` as external; while the arm
+//! accelerates and its transmission rubs, that gives false corrections. The velocity and
+//! acceleration come from the encoder positions by a causal filter: a least-squares cubic over the
+//! last [`WINDOW`] samples (their own timestamps, so jitter is handled), evaluated two samples
+//! before the newest. That is exact for any cubic motion, has a fixed delay of 2 cycles and no
+//! look-ahead, and averages the encoder quantization over the window.
+//!
+//! In the parameter file the model is an optional table per joint (a file without it behaves as
+//! before: `tau_ext = tau_meas - tau_0(q)`, gating at `tau_min`):
+//!
+//! ```toml
+//! [joint.dynamics]
+//! inertia_kg_m2 = [0.05, 0.0]        # J_0, J_2 of J(L) = J_0 + J_2 L^2 (kg·m², kg)
+//! viscous_nm_s_per_rad = 0.2         # b
+//! coulomb_nm = 0.03                  # F_c
+//! stick_velocity_rad_per_s = 0.002   # v_s: below it the friction keeps its last direction
+//! residual_std_nm = 0.004            # std of tau_ext in free space after the model (the fit's)
+//! gate_sigmas = 4.0                  # correction only where |tau_ext| > tau_min + gate_sigmas * std
+//! ```
+//!
+//! [`InternalTorque`] is the stateful estimator: fixed-size ring buffers, no allocation per step.
+
+use serde::{Deserialize, Serialize};
+
+/// Samples in the filter's window.
+pub const WINDOW: usize = 48;
+/// Delay of the filter's estimate, in samples.
+pub const DELAY_SAMPLES: usize = 2;
+
+fn default_stick_velocity() -> f64 {
+    0.002
+}
+
+fn default_gate_sigmas() -> f64 {
+    4.0
+}
+
+/// `[joint.dynamics]` of a parameter file (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicsParams {
+    /// `[J_0, J_2]` of `J(L) = J_0 + J_2 L^2` (kg·m², kg).
+    pub inertia_kg_m2: [f64; 2],
+    /// Viscous friction `b` (N·m·s/rad).
+    pub viscous_nm_s_per_rad: f64,
+    /// Coulomb friction `F_c` (N·m).
+    pub coulomb_nm: f64,
+    /// Speed below which the friction keeps the direction of the last motion (rad/s).
+    #[serde(default = "default_stick_velocity")]
+    pub stick_velocity_rad_per_s: f64,
+    /// Standard deviation of the model's torque residual in free space (N·m).
+    pub residual_std_nm: f64,
+    /// The gate: a correction needs `|tau_ext| > tau_min + gate_sigmas * residual_std_nm`.
+    #[serde(default = "default_gate_sigmas")]
+    pub gate_sigmas: f64,
+}
+
+impl DynamicsParams {
+    /// `J(L)` in kg·m².
+    #[inline]
+    pub fn inertia(&self, insertion_m: f64) -> f64 {
+        self.inertia_kg_m2[0] + self.inertia_kg_m2[1] * insertion_m * insertion_m
+    }
+
+    /// The friction torque `b qd + F_c s` for velocity `qd` and direction memory `s`.
+    #[inline]
+    pub fn friction(&self, velocity: f64, direction: f64) -> f64 {
+        self.viscous_nm_s_per_rad * velocity + self.coulomb_nm * direction
+    }
+
+    /// The part of the dead band the residual adds: `gate_sigmas * residual_std_nm` (N·m).
+    #[inline]
+    pub fn gate_nm(&self) -> f64 {
+        self.gate_sigmas * self.residual_std_nm
+    }
+}
+
+/// Velocity and acceleration of one joint by the causal least-squares cubic (module docs).
+#[derive(Clone, Debug)]
+pub struct DerivativeFilter {
+    t: [f64; WINDOW],
+    q: [f64; WINDOW],
+    /// Next slot to write.
+    head: usize,
+    len: usize,
+}
+
+impl Default for DerivativeFilter {
+    fn default() -> Self {
+        Self {
+            t: [0.0; WINDOW],
+            q: [0.0; WINDOW],
+            head: 0,
+            len: 0,
+        }
+    }
+}
+
+impl DerivativeFilter {
+    /// Forgets the history (after a gap in the samples).
+    pub fn reset(&mut self) {
+        self.head = 0;
+        self.len = 0;
+    }
+
+    /// Whether the window is full, so the estimates are the filter's own (not start-up zeros).
+    pub fn ready(&self) -> bool {
+        self.len == WINDOW
+    }
+
+    /// Adds a sample at time `t_s` and returns `(velocity, acceleration)` at the sample
+    /// [`DELAY_SAMPLES`] before it; zeros until the window holds enough samples for a cubic.
+    /// Non-finite inputs reset the filter.
+    pub fn push(&mut self, t_s: f64, q: f64) -> (f64, f64) {
+        if !(t_s.is_finite() && q.is_finite()) {
+            self.reset();
+            return (0.0, 0.0);
+        }
+        self.t[self.head] = t_s;
+        self.q[self.head] = q;
+        self.head = (self.head + 1) % WINDOW;
+        self.len = (self.len + 1).min(WINDOW);
+        if self.len < 8 {
+            return (0.0, 0.0);
+        }
+        // The evaluation point: DELAY_SAMPLES before the newest sample; times relative to it,
+        // scaled by the window span so the normal equations stay well conditioned.
+        let newest = (self.head + WINDOW - 1) % WINDOW;
+        let at = (self.head + WINDOW - 1 - DELAY_SAMPLES) % WINDOW;
+        let oldest = (self.head + WINDOW - self.len) % WINDOW;
+        let (t0, q0) = (self.t[at], self.q[at]);
+        let span = self.t[newest] - self.t[oldest];
+        if span.is_nan() || span <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let mut m = [[0.0f64; 4]; 4];
+        let mut r = [0.0f64; 4];
+        for k in 0..self.len {
+            let i = (oldest + k) % WINDOW;
+            let x = (self.t[i] - t0) / span;
+            let y = self.q[i] - q0;
+            let p = [1.0, x, x * x, x * x * x];
+            for a in 0..4 {
+                r[a] += p[a] * y;
+                for b in 0..4 {
+                    m[a][b] += p[a] * p[b];
+                }
+            }
+        }
+        match solve4(m, r) {
+            // q(x) = c0 + c1 x + c2 x^2 + c3 x^3 with x = (t - t0) / span, at x = 0.
+            Some(c) => (c[1] / span, 2.0 * c[2] / (span * span)),
+            None => (0.0, 0.0),
+        }
+    }
+}
+
+/// Solves the symmetric 4x4 system by Gaussian elimination with partial pivoting.
+#[allow(clippy::needless_range_loop)] // matrix indices read clearer than iterator chains
+fn solve4(mut m: [[f64; 4]; 4], mut r: [f64; 4]) -> Option<[f64; 4]> {
+    for col in 0..4 {
+        let mut piv = col;
+        for row in col + 1..4 {
+            if m[row][col].abs() > m[piv][col].abs() {
+                piv = row;
+            }
+        }
+        if m[piv][col].is_nan() || m[piv][col].abs() <= 1e-300 {
+            return None;
+        }
+        m.swap(col, piv);
+        r.swap(col, piv);
+        for row in col + 1..4 {
+            let f = m[row][col] / m[col][col];
+            for k in col..4 {
+                m[row][k] -= f * m[col][k];
+            }
+            r[row] -= f * r[col];
+        }
+    }
+    let mut x = [0.0; 4];
+    for row in (0..4).rev() {
+        let mut s = r[row];
+        for k in row + 1..4 {
+            s -= m[row][k] * x[k];
+        }
+        x[row] = s / m[row][row];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// The estimator state of one joint: its filter and its friction direction memory.
+#[derive(Clone, Debug, Default)]
+pub struct JointDynamicsState {
+    filter: DerivativeFilter,
+    direction: f64,
+    velocity: f64,
+    acceleration: f64,
+}
+
+impl JointDynamicsState {
+    /// Feeds one sample; returns the torque `tau_f + J qdd` the model attributes to the motion
+    /// (N·m).
+    pub fn update(&mut self, p: &DynamicsParams, t_s: f64, q: f64, insertion_m: f64) -> f64 {
+        let (v, a) = self.filter.push(t_s, q);
+        self.velocity = v;
+        self.acceleration = a;
+        if v > p.stick_velocity_rad_per_s {
+            self.direction = 1.0;
+        } else if v < -p.stick_velocity_rad_per_s {
+            self.direction = -1.0;
+        }
+        p.friction(v, self.direction) + p.inertia(insertion_m) * a
+    }
+
+    /// Whether the filter has a full window: until then the motion's torque is unknown.
+    pub fn ready(&self) -> bool {
+        self.filter.ready()
+    }
+
+    /// The filtered velocity (rad/s) of the last update.
+    pub fn velocity(&self) -> f64 {
+        self.velocity
+    }
+
+    /// The filtered acceleration (rad/s²) of the last update.
+    pub fn acceleration(&self) -> f64 {
+        self.acceleration
+    }
+
+    /// The friction's direction memory: +1, -1, or 0 before any motion.
+    pub fn direction(&self) -> f64 {
+        self.direction
+    }
+
+    /// Forgets the history (after invalid samples).
+    pub fn reset(&mut self) {
+        self.filter.reset();
+        self.velocity = 0.0;
+        self.acceleration = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cubic_motion_is_differentiated_exactly_two_samples_back() {
+        let mut f = DerivativeFilter::default();
+        let dt = 1.0 / 1500.0;
+        let q = |t: f64| 0.1 + 0.5 * t - 2.0 * t * t + 3.0 * t * t * t;
+        let mut out = (0.0, 0.0);
+        for i in 0..100 {
+            let t = 1.0 + f64::from(i) * dt;
+            out = f.push(t, q(t));
+        }
+        let t = 1.0 + 97.0 * dt;
+        let v = 0.5 - 4.0 * t + 9.0 * t * t;
+        let a = -4.0 + 18.0 * t;
+        assert!((out.0 - v).abs() < 1e-6, "{out:?} {v}");
+        assert!((out.1 - a).abs() < 1e-3, "{out:?} {a}");
+    }
+
+    #[test]
+    fn quantized_rest_gives_small_estimates_and_nan_resets() {
+        let mut f = DerivativeFilter::default();
+        let dt = 1.0 / 1500.0;
+        let count = 7.7e-6;
+        let mut worst: (f64, f64) = (0.0, 0.0);
+        for i in 0..3000 {
+            let t = f64::from(i) * dt;
+            // A slow drift through the encoder's steps.
+            let q = ((0.001 * t) / count).round() * count;
+            let (v, a) = f.push(t, q);
+            if i > WINDOW as i32 {
+                worst = (worst.0.max((v - 0.001).abs()), worst.1.max(a.abs()));
+            }
+        }
+        assert!(worst.0 < 0.01 && worst.1 < 2.0, "{worst:?}");
+        assert_eq!(f.push(f64::NAN, 0.0), (0.0, 0.0));
+        assert_eq!(f.push(1.0, 0.0), (0.0, 0.0));
+    }
+
+    #[test]
+    fn friction_remembers_the_last_direction() {
+        let p = DynamicsParams {
+            inertia_kg_m2: [0.0, 0.0],
+            viscous_nm_s_per_rad: 0.0,
+            coulomb_nm: 0.05,
+            stick_velocity_rad_per_s: 0.002,
+            residual_std_nm: 0.0,
+            gate_sigmas: 0.0,
+        };
+        let mut s = JointDynamicsState::default();
+        let dt = 1e-3;
+        let mut q = 0.0;
+        let mut tau = 0.0;
+        for i in 0..200 {
+            q += 0.01 * dt;
+            tau = s.update(&p, f64::from(i) * dt, q, 0.1);
+        }
+        assert_eq!(tau, 0.05);
+        // Stopped: the friction keeps the sign of the last motion.
+        for i in 200..400 {
+            tau = s.update(&p, f64::from(i) * dt, q, 0.1);
+        }
+        assert_eq!(tau, 0.05);
+        for i in 400..600 {
+            q -= 0.01 * dt;
+            tau = s.update(&p, f64::from(i) * dt, q, 0.1);
+        }
+        assert_eq!(tau, -0.05);
+    }
+}
+
+/// One sample of a free-space excitation (`calibrate dynamics`, or recorded from a live robot).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DynamicsSample {
+    /// Time (s), increasing.
+    pub t_s: f64,
+    /// Joints 1-3 (rad, rad, m).
+    pub position: [f64; 3],
+    /// Efforts of joints 1 and 2 (N·m).
+    pub effort_nm: [f64; 2],
+}
+
+/// The identified model of one joint and how much of the effort it explains.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DynamicsFit {
+    /// 1 = yaw, 2 = pitch.
+    pub joint: u8,
+    pub params: DynamicsParams,
+    /// RMS of `tau_meas - tau_0(q)` over the samples used (N·m): the paper's `tau_ext` in free
+    /// space, all of it false.
+    pub rms_before_nm: f64,
+    /// RMS of the model's `tau_ext` over the same samples (N·m).
+    pub rms_after_nm: f64,
+    /// Samples used (after the filter's window filled).
+    pub samples: usize,
+}
+
+/// Why a dynamics fit failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DynamicsFitError {
+    /// Too few samples, or a time that does not increase.
+    #[error("joint {joint}: {reason}")]
+    Data { joint: u8, reason: &'static str },
+    /// The excitation does not separate inertia, viscous and Coulomb friction.
+    #[error(
+        "joint {joint}: the excitation does not separate inertia and friction (singular system); \
+         move the joint over its range at several speeds and depths"
+    )]
+    Singular { joint: u8 },
+}
+
+/// Identifies `J_0, J_2, b, F_c` of joint `joint` (1 or 2) by linear least squares of
+/// `tau_meas - tau_0(q) = J_0 qdd + J_2 L^2 qdd + b qd + F_c s` over free-space samples, with the
+/// same filter and direction memory as at run time; `tau_0` is the parameter file's own table.
+/// Negative estimates (not physical) are set to 0 and the rest refitted. `gate_sigmas` goes into
+/// the result unchanged.
+pub fn fit_dynamics(
+    joint: u8,
+    samples: &[DynamicsSample],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+) -> Result<DynamicsFit, DynamicsFitError> {
+    fit_dynamics_segmented(joint, samples, &[0], tau_0, gate_sigmas)
+}
+
+/// [`fit_dynamics`] over samples made of segments (one excitation per depth) starting at the
+/// indices `starts`: the filter and the direction memory restart at each, and only samples with
+/// a full window inside their segment are used.
+#[allow(clippy::needless_range_loop)] // the four regressors index parallel arrays
+pub fn fit_dynamics_segmented(
+    joint: u8,
+    samples: &[DynamicsSample],
+    starts: &[usize],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+) -> Result<DynamicsFit, DynamicsFitError> {
+    let j = usize::from(joint.clamp(1, 2) - 1);
+    if samples.len() < 4 * WINDOW {
+        return Err(DynamicsFitError::Data {
+            joint,
+            reason: "too few samples for a dynamics fit (need a few seconds of motion)",
+        });
+    }
+    if samples
+        .windows(2)
+        .any(|w| w[1].t_s.is_nan() || w[1].t_s <= w[0].t_s)
+    {
+        return Err(DynamicsFitError::Data {
+            joint,
+            reason: "sample times must increase",
+        });
+    }
+    // Regressors [qdd, L^2 qdd, qd, s] and target y, aligned with the filter's delay: the
+    // estimate of sample i refers to sample i - DELAY_SAMPLES.
+    let stick = default_stick_velocity();
+    let mut filter = DerivativeFilter::default();
+    let mut direction = 0.0;
+    let mut rows: Vec<([f64; 4], f64)> = Vec::with_capacity(samples.len());
+    let mut in_segment = 0;
+    for (i, s) in samples.iter().enumerate() {
+        if starts.contains(&i) {
+            filter.reset();
+            direction = 0.0;
+            in_segment = 0;
+        }
+        in_segment += 1;
+        let (v, a) = filter.push(s.t_s, s.position[j]);
+        if in_segment <= WINDOW {
+            continue;
+        }
+        if v > stick {
+            direction = 1.0;
+        } else if v < -stick {
+            direction = -1.0;
+        }
+        let at = &samples[i - DELAY_SAMPLES];
+        let l = at.position[2];
+        let y = at.effort_nm[j] - tau_0(at.position[j]);
+        if y.is_finite() && v.is_finite() && a.is_finite() {
+            rows.push(([a, l * l * a, v, direction], y));
+        }
+    }
+    // J_2 needs depths that differ: with less than 2 cm of spread the L^2 column is a multiple
+    // of the J_0 column, so it is left out (J_0 then holds the inertia at that depth).
+    let (l_lo, l_hi) = samples
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+            (lo.min(s.position[2]), hi.max(s.position[2]))
+        });
+    let mut active = [true, l_hi - l_lo >= 0.02, true, true];
+    // Columns scaled to unit rms, so the normal equations are well conditioned.
+    let mut scale = [0.0f64; 4];
+    for (x, _) in &rows {
+        for a in 0..4 {
+            scale[a] += x[a] * x[a];
+        }
+    }
+    for (a, sc) in scale.iter_mut().enumerate() {
+        *sc = (*sc / rows.len().max(1) as f64).sqrt();
+        if sc.is_nan() || *sc <= 0.0 {
+            active[a] = false;
+            *sc = 1.0;
+        }
+    }
+    let rows: Vec<([f64; 4], f64)> = rows
+        .into_iter()
+        .map(|(x, y)| {
+            (
+                [
+                    x[0] / scale[0],
+                    x[1] / scale[1],
+                    x[2] / scale[2],
+                    x[3] / scale[3],
+                ],
+                y,
+            )
+        })
+        .collect();
+    let mut coef = [0.0; 4];
+    for _ in 0..4 {
+        let mut m = [[0.0; 4]; 4];
+        let mut r = [0.0; 4];
+        for (x, y) in &rows {
+            for a in 0..4 {
+                if !active[a] {
+                    continue;
+                }
+                r[a] += x[a] * y;
+                for b in 0..4 {
+                    if active[b] {
+                        m[a][b] += x[a] * x[b];
+                    }
+                }
+            }
+        }
+        for a in 0..4 {
+            if !active[a] {
+                m[a] = [0.0; 4];
+                m[a][a] = 1.0;
+                r[a] = 0.0;
+            }
+        }
+        coef = solve4(m, r).ok_or(DynamicsFitError::Singular { joint })?;
+        let mut changed = false;
+        for a in 0..4 {
+            if active[a] && coef[a] < 0.0 {
+                active[a] = false;
+                coef[a] = 0.0;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    let n = rows.len().max(1) as f64;
+    let (mut before, mut after, mut mean_after) = (0.0, 0.0, 0.0);
+    for (x, y) in &rows {
+        let e = y - (coef[0] * x[0] + coef[1] * x[1] + coef[2] * x[2] + coef[3] * x[3]);
+        before += y * y;
+        after += e * e;
+        mean_after += e;
+    }
+    mean_after /= n;
+    let var = (after / n - mean_after * mean_after).max(0.0);
+    for a in 0..4 {
+        coef[a] /= scale[a];
+    }
+    Ok(DynamicsFit {
+        joint,
+        params: DynamicsParams {
+            inertia_kg_m2: [coef[0], coef[1]],
+            viscous_nm_s_per_rad: coef[2],
+            coulomb_nm: coef[3],
+            stick_velocity_rad_per_s: stick,
+            residual_std_nm: var.sqrt(),
+            gate_sigmas,
+        },
+        rms_before_nm: (before / n).sqrt(),
+        rms_after_nm: (after / n).sqrt(),
+        samples: rows.len(),
+    })
+}
+
+#[cfg(test)]
+mod fit_tests {
+    use super::*;
+
+    #[test]
+    fn recovers_inertia_and_friction_of_a_multisine() {
+        let truth = DynamicsParams {
+            inertia_kg_m2: [0.05, 0.4],
+            viscous_nm_s_per_rad: 0.2,
+            coulomb_nm: 0.03,
+            stick_velocity_rad_per_s: 0.002,
+            residual_std_nm: 0.0,
+            gate_sigmas: 4.0,
+        };
+        let dt = 1.0 / 1500.0;
+        let mut samples = Vec::new();
+        let mut dir = 0.0;
+        for (d, l) in [0.1, 0.15, 0.2].into_iter().enumerate() {
+            for i in 0..15_000 {
+                let t = (d * 15_000 + i) as f64 * dt;
+                let w = [2.0, 3.7, 5.3];
+                let amp = [0.2, 0.08, 0.03];
+                let (mut q, mut v, mut a) = (0.0, 0.0, 0.0);
+                for k in 0..3 {
+                    q += amp[k] * (w[k] * t).sin();
+                    v += amp[k] * w[k] * (w[k] * t).cos();
+                    a -= amp[k] * w[k] * w[k] * (w[k] * t).sin();
+                }
+                if v > 0.002 {
+                    dir = 1.0;
+                } else if v < -0.002 {
+                    dir = -1.0;
+                }
+                let tau = 0.1 + truth.inertia(l) * a + truth.friction(v, dir);
+                samples.push(DynamicsSample {
+                    t_s: t,
+                    position: [q, q, l],
+                    effort_nm: [tau, tau],
+                });
+            }
+        }
+        let fit = fit_dynamics(1, &samples, |_| 0.1, 4.0).unwrap();
+        let p = fit.params;
+        assert!((p.inertia_kg_m2[0] - 0.05).abs() < 2e-3, "{fit:?}");
+        assert!((p.inertia_kg_m2[1] - 0.4).abs() < 0.1, "{fit:?}");
+        assert!((p.viscous_nm_s_per_rad - 0.2).abs() < 0.01, "{fit:?}");
+        assert!((p.coulomb_nm - 0.03).abs() < 0.005, "{fit:?}");
+        assert!(fit.rms_after_nm < 0.1 * fit.rms_before_nm, "{fit:?}");
+        // Too little data is an error naming the joint.
+        let e = fit_dynamics(2, &samples[..10], |_| 0.0, 4.0).unwrap_err();
+        assert!(e.to_string().starts_with("joint 2"), "{e}");
+    }
+}

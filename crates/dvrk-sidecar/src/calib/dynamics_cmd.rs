@@ -1,0 +1,271 @@
+//! `calibrate dynamics` and the file it writes: a free-space excitation of joints 1 and 2 (a
+//! multi-sine over part of the joint range at a few insertion depths, about a minute) on the
+//! simulator, recorded through the emulated boards and the reader, one row per cycle:
+//!
+//! ```text
+//! t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm
+//! ```
+//!
+//! `fit --dynamics FILE` identifies the internal-torque model from it
+//! ([`dvrk_compliance::fit_dynamics`]). Each depth is a segment of its own; segments are separated
+//! by a gap of one second in `t_s`, where the fit restarts its filter.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, bail};
+use dvrk_compliance::DynamicsSample;
+use dvrk_io::ArmSample;
+use dvrk_io::reader::{AccessMode, ArmReader};
+use dvrk_sim::{Environment, Motion, sim_port};
+
+use crate::config::{load_io, load_scenario};
+
+/// The header of a dynamics file.
+pub const HEADER: &str = "t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm";
+
+/// `calibrate dynamics --config S.toml --out dyn.csv [--depths ..] [--seconds-per-depth N]`
+#[derive(Clone, Debug, clap::Args)]
+pub struct DynamicsArgs {
+    /// Simulator scenario (config/sim/*.toml): seed, time step, start pose, noise, transmission.
+    /// Its environment and motion are replaced by free space and the excitation.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Data file to write (CSV).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Board conversion config used by the emulator and the reader.
+    #[arg(long, default_value = "config/io/psm-classic.toml")]
+    pub io: PathBuf,
+    /// Insertion depths (m).
+    #[arg(long, value_delimiter = ',', default_values_t = [0.10, 0.15, 0.20])]
+    pub depths: Vec<f64>,
+    /// Excitation time per depth (s).
+    #[arg(long, default_value_t = 20.0)]
+    pub seconds_per_depth: f64,
+    /// Cycle rate of the recording (Hz).
+    #[arg(long, default_value_t = 1500.0)]
+    pub rate_hz: f64,
+}
+
+/// The excitation: three incommensurate sines per joint (periods 0.9-4.4 s, peak speed about
+/// 1.5 rad/s), applied by the simulator at every physics step.
+const EXCITATION: Motion = Motion::MultiSine {
+    amplitude: [[0.25, 0.12, 0.05], [0.18, 0.09, 0.04]],
+    angular_frequency: [[1.43, 3.1, 6.9], [1.67, 3.7, 6.1]],
+};
+
+/// Runs the excitation and returns the rows (no file written).
+pub fn record(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<Vec<DynamicsSample>> {
+    if a.depths.is_empty() {
+        bail!("--depths: give at least one insertion depth");
+    }
+    for &d in &a.depths {
+        if !(0.05..=0.23).contains(&d) {
+            bail!("--depths {d}: each depth must lie within 0.05..=0.23 m");
+        }
+    }
+    if !(a.seconds_per_depth.is_finite() && (2.0..=600.0).contains(&a.seconds_per_depth)) {
+        bail!(
+            "--seconds-per-depth {}: must be within 2..=600 s",
+            a.seconds_per_depth
+        );
+    }
+    if !(a.rate_hz.is_finite() && (100.0..=20_000.0).contains(&a.rate_hz)) {
+        bail!("--rate-hz {}: must be within 100..=20000", a.rate_hz);
+    }
+    let base = load_scenario(&a.config)?;
+    let period_ns = (1e9 / a.rate_hz).round() as u64;
+    let cycles = (a.seconds_per_depth * a.rate_hz).round() as u64;
+    let mut rows = Vec::new();
+    let mut t_offset = 0.0;
+    for &depth in &a.depths {
+        let io = load_io(&a.io)?;
+        let mut sc = base.clone();
+        sc.environment = Environment::Free;
+        sc.motion = EXCITATION;
+        sc.initial_position = [0.0, 0.0, depth, 0.0, 0.0, 0.0, 0.0];
+        let mut port = sim_port(&sc, &io).context("building the simulated PSM")?;
+        port.link_mut().advance_to(0);
+        let mut reader = ArmReader::new(port, io, AccessMode::Exclusive);
+        let mut arm = ArmSample::default();
+        let mut t_ns = 0u64;
+        for _ in 0..cycles {
+            if stop.load(Ordering::Relaxed) {
+                bail!("stopped before the excitation finished; nothing written");
+            }
+            t_ns += period_ns;
+            let t = t_ns as f64 * 1e-9;
+            reader.port_mut().link_mut().advance_to(t_ns);
+            if reader.read(t_ns, &mut arm).is_ok() && arm.valid {
+                rows.push(DynamicsSample {
+                    t_s: t_offset + t,
+                    position: [arm.position[0], arm.position[1], arm.position[2]],
+                    effort_nm: [arm.effort[0], arm.effort[1]],
+                });
+            }
+        }
+        t_offset += a.seconds_per_depth + 1.0;
+    }
+    Ok(rows)
+}
+
+/// The rows as CSV text.
+pub fn to_csv(rows: &[DynamicsSample]) -> String {
+    let mut s = String::with_capacity(rows.len() * 80);
+    s.push_str(HEADER);
+    s.push('\n');
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{:?},{:?},{:?},{:?},{:?},{:?}",
+            r.t_s, r.position[0], r.position[1], r.position[2], r.effort_nm[0], r.effort_nm[1]
+        );
+    }
+    s
+}
+
+/// Runs `calibrate dynamics`: records, then writes the file atomically.
+pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
+    if a.out.is_dir() {
+        bail!(
+            "--out {}: is a directory; give a file name",
+            a.out.display()
+        );
+    }
+    let rows = record(a, stop)?;
+    super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+    let text = format!("wrote {} rows to {}\n", rows.len(), a.out.display());
+    std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
+        .context("writing to stdout")
+}
+
+/// Reads a dynamics file; every error names the file, line and column.
+pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut lines = text.lines().enumerate();
+    match lines.next() {
+        Some((_, h)) if h.trim() == HEADER => {}
+        Some((_, h)) => bail!(
+            "{} line 1: header `{}`; a dynamics file starts with `{HEADER}`",
+            path.display(),
+            h.trim()
+        ),
+        None => bail!("{}: empty file", path.display()),
+    }
+    let names: Vec<&str> = HEADER.split(',').collect();
+    let mut rows = Vec::new();
+    for (i, line) in lines {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let mut v = [0.0; 6];
+        let fields: Vec<&str> = line.split(',').collect();
+        if fields.len() != 6 {
+            bail!(
+                "{} line {}: {} fields; a dynamics row has 6 ({HEADER})",
+                path.display(),
+                i + 1,
+                fields.len()
+            );
+        }
+        for (k, f) in fields.iter().enumerate() {
+            v[k] = f
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .with_context(|| {
+                    format!(
+                        "{} line {}: {} = `{}` is not a finite number",
+                        path.display(),
+                        i + 1,
+                        names[k],
+                        f.trim()
+                    )
+                })?;
+        }
+        rows.push(DynamicsSample {
+            t_s: v[0],
+            position: [v[1], v[2], v[3]],
+            effort_nm: [v[4], v[5]],
+        });
+    }
+    if rows.is_empty() {
+        bail!("{}: no data rows after the header", path.display());
+    }
+    Ok(rows)
+}
+
+/// Splits the rows into segments at time gaps over 0.5 s (one per depth).
+pub fn segments(rows: &[DynamicsSample]) -> Vec<&[DynamicsSample]> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..rows.len() {
+        if rows[i].t_s - rows[i - 1].t_s > 0.5 {
+            out.push(&rows[start..i]);
+            start = i;
+        }
+    }
+    if start < rows.len() {
+        out.push(&rows[start..]);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_round_trips_and_bad_numbers_are_named() {
+        let rows = vec![
+            DynamicsSample {
+                t_s: 0.001,
+                position: [0.1, -0.2, 0.12],
+                effort_nm: [0.3, -0.05],
+            },
+            DynamicsSample {
+                t_s: 2.5,
+                position: [0.11, -0.21, 0.15],
+                effort_nm: [0.31, -0.06],
+            },
+        ];
+        let p = std::env::temp_dir().join(format!("dvrk-dynamics-{}.csv", std::process::id()));
+        std::fs::write(&p, to_csv(&rows)).unwrap();
+        assert_eq!(read(&p).unwrap(), rows);
+        assert_eq!(segments(&rows).len(), 2);
+        std::fs::write(&p, format!("{HEADER}\n0.1,0.2,nan,0.1,0,0\n")).unwrap();
+        let e = format!("{:#}", read(&p).unwrap_err());
+        assert!(
+            e.contains("line 2") && e.contains("q2_rad") && e.contains("nan"),
+            "{e}"
+        );
+        std::fs::write(&p, "t,q\n").unwrap();
+        assert!(format!("{:#}", read(&p).unwrap_err()).contains("header"));
+        let _ = std::fs::remove_file(&p);
+    }
+
+    #[test]
+    fn excitation_starts_still_and_its_velocity_is_the_derivative() {
+        let Motion::MultiSine {
+            amplitude,
+            angular_frequency,
+        } = EXCITATION
+        else {
+            panic!("not a multi-sine")
+        };
+        for j in 0..2 {
+            let f = |t| dvrk_sim::scenario::multi_sine(&amplitude[j], &angular_frequency[j], t);
+            assert_eq!(f(0.0), (0.0, 0.0));
+            for t in [0.3, 0.8, 1.5, 7.0] {
+                let h = 1e-6;
+                let d = (f(t + h).0 - f(t - h).0) / (2.0 * h);
+                assert!((d - f(t).1).abs() < 1e-6, "{j} {t}");
+            }
+        }
+    }
+}

@@ -1,0 +1,191 @@
+//! `dvrk-sidecar evaluate --params P --scenario S.toml --seconds N [--plots DIR] --json`:
+//! the correction judged in motion against the simulator's ground truth (issue 10).
+//!
+//! The scenario runs through the whole stack as `serve` runs it: the emulated boards answer the
+//! real protocol in process (`dvrk_sim::SimPort`), `ArmReader` turns the replies into SI samples,
+//! [`crate::cycle::compute_dynamic`] applies the internal-torque model, the gate, Eq. 1 and the
+//! kinematics. Each cycle's raw and compensated tip positions are compared with the true tip.
+//!
+//! `false_activation_fraction[j]`: the share of valid cycles in which joint j's correction was
+//! active while the true torque the shaft transmitted was below that joint's `tau_min`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use dvrk_compliance::{Compensator, ComplianceConfig, PsmKinematics};
+use dvrk_io::ArmSample;
+use dvrk_io::reader::{AccessMode, ArmReader};
+use dvrk_sim::sim_port;
+use serde::Serialize;
+
+use super::plots::{Kind, Panel, Series, render};
+use crate::cycle::{ReadOutcome, compute_dynamic};
+
+/// Mean, 95th percentile and maximum of a tip error (mm).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ErrorStats {
+    pub mean: f64,
+    pub p95: f64,
+    pub max: f64,
+}
+
+/// Raw and compensated tip errors.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct TipErrors {
+    pub raw: ErrorStats,
+    pub compensated: ErrorStats,
+}
+
+/// The JSON of `evaluate --scenario`, exactly the issue's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct MotionEvaluation {
+    pub tip_error_mm: TipErrors,
+    pub correction_active_fraction: [f64; 2],
+    pub false_activation_fraction: [f64; 2],
+}
+
+/// One cycle's errors, for the figure.
+#[derive(Clone, Copy, Debug)]
+pub struct Trace {
+    pub t_s: f64,
+    pub raw_mm: f64,
+    pub compensated_mm: f64,
+}
+
+fn stats(values: &mut [f64]) -> ErrorStats {
+    if values.is_empty() {
+        return ErrorStats::default();
+    }
+    let n = values.len();
+    let mean = values.iter().sum::<f64>() / n as f64;
+    values.sort_by(f64::total_cmp);
+    // Nearest-rank 95th percentile.
+    let rank = ((0.95 * n as f64).ceil() as usize).clamp(1, n);
+    ErrorStats {
+        mean,
+        p95: values[rank - 1],
+        max: values[n - 1],
+    }
+}
+
+/// Runs `scenario` for `seconds` at `rate_hz` through emulator, reader, model and kinematics.
+pub fn evaluate_scenario(
+    cfg: &ComplianceConfig,
+    fk: &PsmKinematics,
+    scenario: &dvrk_sim::Scenario,
+    io: dvrk_io::IoConfig,
+    seconds: f64,
+    rate_hz: f64,
+) -> anyhow::Result<(MotionEvaluation, Vec<Trace>)> {
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= 3600.0) {
+        bail!("--seconds {seconds}: must be in (0, 3600]");
+    }
+    if !(rate_hz.is_finite() && (100.0..=20_000.0).contains(&rate_hz)) {
+        bail!("--rate-hz {rate_hz}: must be within 100..=20000");
+    }
+    let period_ns = (1e9 / rate_hz).round() as u64;
+    let cycles = (seconds * rate_hz).round() as u64;
+    let mut port = sim_port(scenario, &io).context("building the simulated PSM")?;
+    port.link_mut().advance_to(0);
+    let mut reader = ArmReader::new(port, io, AccessMode::Exclusive);
+    let mut compensator = Compensator::new();
+    let mut arm = ArmSample::default();
+    let tau_min = [0, 1].map(|j| cfg.joint(j).map(|m| m.tau_min_nm()));
+    let (mut raw, mut comp) = (Vec::new(), Vec::new());
+    let mut traces = Vec::new();
+    let (mut active, mut false_active) = ([0u64; 2], [0u64; 2]);
+    let mut t_ns = 0u64;
+    for _ in 0..cycles {
+        t_ns += period_ns;
+        reader.port_mut().link_mut().advance_to(t_ns);
+        let outcome = match reader.read(t_ns, &mut arm) {
+            Ok(()) => ReadOutcome::Ok,
+            Err(_) => ReadOutcome::Error,
+        };
+        let r = compute_dynamic(cfg, &mut compensator, fk, &arm, outcome);
+        if !r.valid {
+            continue;
+        }
+        let truth = reader.port_mut().link_mut().emulator().psm().truth();
+        let true_tip = nalgebra::Vector3::from(truth.tip_position_m);
+        let e_raw = (r.raw_pose.translation.vector - true_tip).norm() * 1e3;
+        let e_comp = (r.compensated_pose.translation.vector - true_tip).norm() * 1e3;
+        raw.push(e_raw);
+        comp.push(e_comp);
+        traces.push(Trace {
+            t_s: t_ns as f64 * 1e-9,
+            raw_mm: e_raw,
+            compensated_mm: e_comp,
+        });
+        for j in 0..2 {
+            if r.correction.active[j] {
+                active[j] += 1;
+                if let Some(tm) = tau_min[j]
+                    && truth.tau_ext_nm[j].abs() < tm
+                {
+                    false_active[j] += 1;
+                }
+            }
+        }
+    }
+    let n = raw.len();
+    if n == 0 {
+        bail!("no valid sample in {cycles} cycles: the emulated boards never answered");
+    }
+    let frac = |c: [u64; 2]| c.map(|x| x as f64 / n as f64);
+    Ok((
+        MotionEvaluation {
+            tip_error_mm: TipErrors {
+                raw: stats(&mut raw),
+                compensated: stats(&mut comp),
+            },
+            correction_active_fraction: frac(active),
+            false_activation_fraction: frac(false_active),
+        },
+        traces,
+    ))
+}
+
+/// The tip error over time, raw against compensated (`tip-error.svg` and `.png`).
+pub fn tip_error_figure(dir: &Path, font: &Path, traces: &[Trace]) -> anyhow::Result<[PathBuf; 2]> {
+    // At most about 4000 points per line.
+    let step = (traces.len() / 4000).max(1);
+    let line = |f: fn(&Trace) -> f64| -> Vec<(f64, f64)> {
+        traces.iter().step_by(step).map(|t| (t.t_s, f(t))).collect()
+    };
+    let panel = Panel {
+        title: "Tip error against the simulator's truth".into(),
+        x_label: "time (s)".into(),
+        y_label: "tip error (mm)".into(),
+        series: vec![
+            Series {
+                label: Some("raw".into()),
+                color: plotters::style::RGBColor(200, 40, 40),
+                kind: Kind::Line,
+                points: line(|t| t.raw_mm),
+            },
+            Series {
+                label: Some("compensated".into()),
+                color: plotters::style::RGBColor(30, 80, 200),
+                kind: Kind::Line,
+                points: line(|t| t.compensated_mm),
+            },
+        ],
+    };
+    render(dir, "tip-error", font, &[panel], 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_use_the_nearest_rank() {
+        let mut v: Vec<f64> = (1..=100).map(f64::from).collect();
+        let s = stats(&mut v);
+        assert_eq!((s.mean, s.p95, s.max), (50.5, 95.0, 100.0));
+        assert_eq!(stats(&mut []), ErrorStats::default());
+        let mut one = [3.0];
+        assert_eq!(stats(&mut one).p95, 3.0);
+    }
+}
