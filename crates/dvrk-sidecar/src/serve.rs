@@ -321,6 +321,9 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     /// [`Pipeline::cycle`], published in the status message.
     pub late_ns: u64,
     check: Option<(SampleCheck, &'a IoConfig)>,
+    /// The internal-torque estimator (friction and inertia removed from the measured effort);
+    /// reset by every invalid sample.
+    compensator: dvrk_compliance::Compensator,
     held: Option<cycle::Held>,
     last_duration_ns: u64,
     last_sample_t_ns: Option<u64>,
@@ -344,6 +347,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             period_ns,
             late_ns: 0,
             check: None,
+            compensator: dvrk_compliance::Compensator::new(),
             held: None,
             last_duration_ns: 0,
             last_sample_t_ns: None,
@@ -397,7 +401,13 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             c.read_failures += 1;
             c.window_read_failures += 1;
         }
-        let fresh = cycle::compute(self.model, self.kinematics, &self.sample, read);
+        let fresh = cycle::compute_dynamic(
+            self.model,
+            &mut self.compensator,
+            self.kinematics,
+            &self.sample,
+            read,
+        );
         let (held_age, (sample, mut result)) = if fresh.valid {
             self.held = Some(cycle::Held {
                 sample: self.sample,
@@ -509,6 +519,7 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     let mut deadline = t0;
     let mut next_summary = t0 + 1_000_000_000;
     let mut next_watchdog = t0;
+    let mut next_reap = t0 + REAP_PERIOD_NS;
 
     while !stop.raised() {
         if period_ns > 0 {
@@ -537,6 +548,15 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         {
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             next_watchdog = t_end + w;
+        }
+        if t_end >= next_reap {
+            // Subscribers killed without cleaning up (SIGKILL) would otherwise count, and cost a
+            // notification per cycle, until another process happened to reap them.
+            let r = pipe.publisher.reap_dead_nodes();
+            if r.reaped > 0 || r.failed > 0 {
+                info!(reaped = r.reaped, failed = r.failed, "removed dead subscriber nodes");
+            }
+            next_reap = rt::monotonic_ns() + REAP_PERIOD_NS;
         }
         if t_end >= next_summary {
             summary(&pipe.counters, &hist, &pipe.publisher);
@@ -567,6 +587,10 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     Ok(())
 }
 
+/// How often `serve` removes the shared-memory resources of dead subscriber processes (outside
+/// the cycle; it lists files).
+const REAP_PERIOD_NS: u64 = 5_000_000_000;
+
 /// Plausibility limits of the configured arm (reference §5.2 and the kinematics reference).
 pub fn plausibility_limits(cfg: &SidecarConfig) -> PlausibilityLimits {
     match cfg.arm {
@@ -582,7 +606,15 @@ fn summary<Svc: iceoryx2::service::Service>(
 ) {
     let p99_us = hist.quantile_ns(0.99).unwrap_or(0) as f64 / 1e3;
     let max_us = hist.max_ns() as f64 / 1e3;
-    let subscribers = publisher.number_of_subscribers(dvrk_ipc::Topic::CompensatedMeasuredCp);
+    let counts = publisher.subscriber_counts();
+    let (most_topic, most) = counts.max();
+    let (fewest_topic, fewest) = counts.min();
+    let subscribers = format_args!(
+        "{most} (most, {}), {fewest} (fewest, {}), {} listening to the cycle event",
+        most_topic.suffix(),
+        fewest_topic.suffix(),
+        counts.cycle_listeners
+    );
     if c.window_read_failures > 0 || c.window_implausible > 0 {
         warn!(
             rate_hz = c.window_cycles,
@@ -604,7 +636,7 @@ fn summary<Svc: iceoryx2::service::Service>(
             implausible = c.window_implausible,
             tip_displacement_mm = format_args!("{:.3}", last * 1e3),
             tip_displacement_max_mm = format_args!("{:.3}", c.window_max_displacement_m * 1e3),
-            subscribers,
+            subscribers = %subscribers,
             "summary"
         ),
         None => info!(
@@ -615,7 +647,7 @@ fn summary<Svc: iceoryx2::service::Service>(
             missed_reads = c.window_read_failures,
             implausible = c.window_implausible,
             tip_displacement_mm = "n/a (no valid sample)",
-            subscribers,
+            subscribers = %subscribers,
             "summary"
         ),
     }
