@@ -1,0 +1,232 @@
+//! The shared-memory side of every bridge: subscribe to the sidecar's compensated topics, wake on
+//! its cycle event, and hand every sample to a [`Sink`] in order. A consumer process: nothing
+//! here can slow the sidecar's cycle (a full buffer overwrites its oldest sample).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use dvrk_ipc::iceoryx2::node::Node;
+use dvrk_ipc::iceoryx2::port::subscriber::Subscriber;
+use dvrk_ipc::iceoryx2::service::ipc::Service;
+use dvrk_ipc::{
+    CompensationStatusV2, JointStateV1, Message, NOMINAL_PERIOD, PoseV1, ServiceNames,
+    Subscription, Topic, Update,
+};
+
+use crate::convert::{ClockOffset, Decimator};
+use crate::error::BridgeError;
+
+/// Where the samples go.
+pub trait Sink {
+    /// A compensated pose (RCM frame) of a valid cycle.
+    fn pose(&mut self, p: &PoseV1) -> Result<(), BridgeError>;
+    /// Compensated joints of a valid cycle.
+    fn joints(&mut self, js: &JointStateV1) -> Result<(), BridgeError>;
+    /// The status of every cycle, valid or not.
+    fn status(&mut self, s: &CompensationStatusV2) -> Result<(), BridgeError>;
+}
+
+/// Counters of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RunStats {
+    /// Cycles whose status was passed on.
+    pub cycles: u64,
+    /// Poses and joint states not passed on because their cycle was invalid (`valid = 0`: the
+    /// sidecar holds the last good values; the status says why).
+    pub invalid_skipped: u64,
+    /// Cycles left out by `--rate`.
+    pub decimated: u64,
+}
+
+/// Subscriptions to `compensated/measured_cp` (woken by the cycle event),
+/// `compensated/measured_js` and `compensated/status` of one arm.
+pub struct ShmSource {
+    names: ServiceNames,
+    pose: Subscription<PoseV1, Service>,
+    joints: Subscriber<Service, JointStateV1, ()>,
+    status: Subscriber<Service, CompensationStatusV2, ()>,
+    poses: Vec<PoseV1>,
+    // Kept last: the ports above borrow nothing from it, but are dropped before it.
+    _node: Node<Service>,
+}
+
+impl core::fmt::Debug for ShmSource {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ShmSource")
+            .field("prefix", &self.names.prefix())
+            .finish_non_exhaustive()
+    }
+}
+
+fn subscriber<T: Message>(
+    node: &Node<Service>,
+    names: &ServiceNames,
+    topic: Topic,
+) -> Result<Subscriber<Service, T, ()>, BridgeError> {
+    dvrk_ipc::open_topic::<T, Service>(node, names, topic)?
+        .subscriber_builder()
+        .create()
+        .map_err(|source| BridgeError::Subscribe {
+            service: names.topic(topic).as_str().to_owned(),
+            source,
+        })
+}
+
+impl ShmSource {
+    /// Subscribes under the shared-memory prefix `shm_prefix` (e.g. `dvrk/PSM1`) with an
+    /// iceoryx2 node named `node_name`.
+    pub fn new(shm_prefix: &str, node_name: &str) -> Result<Self, BridgeError> {
+        let names = ServiceNames::new(shm_prefix)?;
+        let node = dvrk_ipc::create_node::<Service>(node_name, None)?;
+        let pose = Subscription::<PoseV1, Service>::new(
+            &node,
+            &names,
+            Topic::CompensatedMeasuredCp,
+            NOMINAL_PERIOD,
+        )?;
+        let joints = subscriber::<JointStateV1>(&node, &names, Topic::CompensatedMeasuredJs)?;
+        let status = subscriber::<CompensationStatusV2>(&node, &names, Topic::CompensatedStatus)?;
+        Ok(ShmSource {
+            names,
+            pose,
+            joints,
+            status,
+            poses: Vec::with_capacity(dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            _node: node,
+        })
+    }
+
+    /// Passes every cycle to `sink` until `stop` is raised or `until` passes. `rate_period_ns`
+    /// decimates (see [`Decimator`]).
+    pub fn run<K: Sink>(
+        &mut self,
+        sink: &mut K,
+        rate_period_ns: Option<u64>,
+        stop: &AtomicBool,
+        until: Option<Instant>,
+    ) -> Result<RunStats, BridgeError> {
+        let mut stats = RunStats::default();
+        let mut dec = [Decimator::new(rate_period_ns); 3];
+        let mut silent_since: Option<Instant> = None;
+        while !stop.load(Ordering::Relaxed) && until.is_none_or(|u| Instant::now() < u) {
+            self.poses.clear();
+            let poses = &mut self.poses;
+            let update =
+                self.pose
+                    .wait_with(|p| poses.push(*p))
+                    .map_err(|source| BridgeError::Wait {
+                        service: self
+                            .names
+                            .topic(Topic::CompensatedMeasuredCp)
+                            .as_str()
+                            .to_owned(),
+                        source,
+                    })?;
+            match update {
+                Update::Fresh(_) => {
+                    if let Some(t) = silent_since.take() {
+                        tracing::info!(
+                            "{}: samples again after {:.1} s",
+                            self.names.prefix(),
+                            t.elapsed().as_secs_f64()
+                        );
+                    }
+                }
+                Update::Stale { .. } | Update::Terminated => {
+                    if silent_since.is_none() {
+                        tracing::warn!(
+                            "{}: no samples (is `dvrk-sidecar serve` running?)",
+                            self.names.prefix()
+                        );
+                        silent_since = Some(Instant::now());
+                    }
+                }
+                Update::Interrupted => {}
+            }
+            for p in &self.poses {
+                if !dec[0].accept(p.header.sample_t_ns) {
+                    continue;
+                }
+                if p.header.valid != 0 {
+                    sink.pose(p)?;
+                } else {
+                    stats.invalid_skipped += 1;
+                }
+            }
+            let service = |t: Topic| self.names.topic(t).as_str().to_owned();
+            while let Some(s) = self
+                .joints
+                .receive()
+                .map_err(|source| BridgeError::Receive {
+                    service: service(Topic::CompensatedMeasuredJs),
+                    source,
+                })?
+            {
+                let js: JointStateV1 = *s;
+                drop(s);
+                if !dec[1].accept(js.header.sample_t_ns) {
+                    continue;
+                }
+                if js.header.valid != 0 {
+                    sink.joints(&js)?;
+                } else {
+                    stats.invalid_skipped += 1;
+                }
+            }
+            while let Some(s) = self
+                .status
+                .receive()
+                .map_err(|source| BridgeError::Receive {
+                    service: service(Topic::CompensatedStatus),
+                    source,
+                })?
+            {
+                let st: CompensationStatusV2 = *s;
+                drop(s);
+                if !dec[2].accept(st.header.sample_t_ns) {
+                    stats.decimated += 1;
+                    continue;
+                }
+                sink.status(&st)?;
+                stats.cycles += 1;
+            }
+        }
+        Ok(stats)
+    }
+}
+
+/// Measures `CLOCK_REALTIME - CLOCK_MONOTONIC`: the tightest of a few back-to-back readings
+/// (monotonic, realtime, monotonic), taking the midpoint of the monotonic pair.
+pub fn measure_clock_offset() -> Result<ClockOffset, BridgeError> {
+    let mut best: Option<(i64, i64)> = None; // (window ns, offset ns)
+    for _ in 0..16 {
+        let m0 = read_clock(libc::CLOCK_MONOTONIC, "CLOCK_MONOTONIC")?;
+        let r = read_clock(libc::CLOCK_REALTIME, "CLOCK_REALTIME")?;
+        let m1 = read_clock(libc::CLOCK_MONOTONIC, "CLOCK_MONOTONIC")?;
+        let window = m1 - m0;
+        let offset = r - (m0 + window / 2);
+        if best.is_none_or(|(w, _)| window < w) {
+            best = Some((window, offset));
+        }
+    }
+    let (_, offset) = best.unwrap_or((0, 0));
+    Ok(ClockOffset {
+        realtime_minus_monotonic_ns: offset,
+    })
+}
+
+fn read_clock(id: libc::clockid_t, name: &'static str) -> Result<i64, BridgeError> {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec.
+    let rc = unsafe { libc::clock_gettime(id, &mut ts) };
+    if rc != 0 {
+        return Err(BridgeError::Clock {
+            clock: name,
+            source: std::io::Error::last_os_error(),
+        });
+    }
+    Ok(ts.tv_sec * 1_000_000_000 + ts.tv_nsec)
+}
