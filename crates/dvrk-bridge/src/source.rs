@@ -26,6 +26,9 @@ pub trait Sink {
     fn status(&mut self, s: &CompensationStatusV2) -> Result<(), BridgeError>;
 }
 
+/// Silence after which the run logs that no samples arrive (once per silence).
+const SILENCE_REPORT_NS: u64 = 1_000_000_000;
+
 /// Counters of a run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RunStats {
@@ -36,6 +39,9 @@ pub struct RunStats {
     pub invalid_skipped: u64,
     /// Cycles left out by `--rate`.
     pub decimated: u64,
+    /// Cycles lost in shared memory before this process took them (its buffer overflowed
+    /// because it fell behind by more than the subscriber buffer).
+    pub shm_seq_gaps: u64,
 }
 
 /// Subscriptions to `compensated/measured_cp` (woken by the cycle event),
@@ -46,6 +52,9 @@ pub struct ShmSource {
     joints: Subscriber<Service, JointStateV1, ()>,
     status: Subscriber<Service, CompensationStatusV2, ()>,
     poses: Vec<PoseV1>,
+    pending_joints: Vec<JointStateV1>,
+    pending_status: Vec<CompensationStatusV2>,
+    upto_seq: Option<u64>,
     // Kept last: the ports above borrow nothing from it, but are dropped before it.
     _node: Node<Service>,
 }
@@ -92,6 +101,9 @@ impl ShmSource {
             joints,
             status,
             poses: Vec::with_capacity(dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            pending_joints: Vec::with_capacity(2 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            pending_status: Vec::with_capacity(2 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            upto_seq: None,
             _node: node,
         })
     }
@@ -132,10 +144,11 @@ impl ShmSource {
                         );
                     }
                 }
+                Update::Stale { since_ns } if since_ns < SILENCE_REPORT_NS => {}
                 Update::Stale { .. } | Update::Terminated => {
                     if silent_since.is_none() {
                         tracing::warn!(
-                            "{}: no samples (is `dvrk-sidecar serve` running?)",
+                            "{}: no samples for 1 s (is `dvrk-sidecar serve` running?)",
                             self.names.prefix()
                         );
                         silent_since = Some(Instant::now());
@@ -153,46 +166,88 @@ impl ShmSource {
                     stats.invalid_skipped += 1;
                 }
             }
-            let service = |t: Topic| self.names.topic(t).as_str().to_owned();
-            while let Some(s) = self
-                .joints
-                .receive()
-                .map_err(|source| BridgeError::Receive {
-                    service: service(Topic::CompensatedMeasuredJs),
-                    source,
-                })?
-            {
-                let js: JointStateV1 = *s;
-                drop(s);
-                if !dec[1].accept(js.header.sample_t_ns) {
-                    continue;
+            // Joints and status of a cycle are passed on once its pose was taken, so that a run
+            // that stops between two drains writes whole cycles only.
+            if let Some(p) = self.poses.last() {
+                self.upto_seq = Some(p.header.seq);
+            }
+            let upto = self.upto_seq;
+            take_into(
+                &self.joints,
+                &mut self.pending_joints,
+                &self.names,
+                Topic::CompensatedMeasuredJs,
+            )?;
+            take_into(
+                &self.status,
+                &mut self.pending_status,
+                &self.names,
+                Topic::CompensatedStatus,
+            )?;
+            let mut err = None;
+            release(&mut self.pending_joints, upto, |js| {
+                if err.is_some() || !dec[1].accept(js.header.sample_t_ns) {
+                    return;
                 }
                 if js.header.valid != 0 {
-                    sink.joints(&js)?;
+                    err = sink.joints(js).err();
                 } else {
                     stats.invalid_skipped += 1;
                 }
-            }
-            while let Some(s) = self
-                .status
-                .receive()
-                .map_err(|source| BridgeError::Receive {
-                    service: service(Topic::CompensatedStatus),
-                    source,
-                })?
-            {
-                let st: CompensationStatusV2 = *s;
-                drop(s);
+            });
+            release(&mut self.pending_status, upto, |st| {
+                if err.is_some() {
+                    return;
+                }
                 if !dec[2].accept(st.header.sample_t_ns) {
                     stats.decimated += 1;
-                    continue;
+                    return;
                 }
-                sink.status(&st)?;
+                err = sink.status(st).err();
                 stats.cycles += 1;
+            });
+            if let Some(e) = err {
+                return Err(e);
             }
+            stats.shm_seq_gaps = self.pose.stats().seq_gaps_total;
         }
         Ok(stats)
     }
+}
+
+/// Takes every buffered sample of `sub` into `pending`, keeping at most
+/// [`dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE`] (the oldest go first, as in shared memory).
+fn take_into<T: Message>(
+    sub: &Subscriber<Service, T, ()>,
+    pending: &mut Vec<T>,
+    names: &ServiceNames,
+    topic: Topic,
+) -> Result<(), BridgeError> {
+    while let Some(s) = sub.receive().map_err(|source| BridgeError::Receive {
+        service: names.topic(topic).as_str().to_owned(),
+        source,
+    })? {
+        pending.push(*s);
+    }
+    let cap = dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE;
+    if pending.len() > cap {
+        pending.drain(..pending.len() - cap);
+    }
+    Ok(())
+}
+
+/// Calls `f` for the samples of `pending` whose cycle's pose was taken (`seq <= upto`), oldest
+/// first, and keeps the others.
+fn release<T: Message>(pending: &mut Vec<T>, upto: Option<u64>, mut f: impl FnMut(&T)) {
+    let Some(upto) = upto else { return };
+    pending.retain(|m| {
+        if m.header().seq <= upto {
+            f(m);
+            false
+        } else {
+            true
+        }
+    });
 }
 
 /// Measures `CLOCK_REALTIME - CLOCK_MONOTONIC`: the tightest of a few back-to-back readings
