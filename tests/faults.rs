@@ -257,12 +257,48 @@ fn analyse_with(recs: &[Rec], strict: bool) -> Report {
     r
 }
 
+/// Reads a child's stderr in a thread (a pipe nobody reads fills up after 64 KiB and then
+/// blocks the child's logging, and so its loop), keeping the last 256 KiB.
+struct LogTail(Arc<Mutex<String>>, Option<JoinHandle<()>>);
+
+impl LogTail {
+    fn start(p: &mut Proc) -> Self {
+        let mut err = p.child.as_mut().unwrap().stderr.take().unwrap();
+        let buf = Arc::new(Mutex::new(String::new()));
+        let b = buf.clone();
+        let t = std::thread::spawn(move || {
+            let mut chunk = [0u8; 4096];
+            while let Ok(n) = std::io::Read::read(&mut err, &mut chunk) {
+                if n == 0 {
+                    break;
+                }
+                let mut s = b.lock().unwrap();
+                s.push_str(&String::from_utf8_lossy(&chunk[..n]));
+                if s.len() > 256 * 1024 {
+                    let cut = s.len() - 128 * 1024;
+                    let cut = (cut..s.len()).find(|i| s.is_char_boundary(*i)).unwrap();
+                    s.replace_range(..cut, "");
+                }
+            }
+        });
+        Self(buf, Some(t))
+    }
+
+    fn text(&mut self) -> String {
+        if let Some(t) = self.1.take() {
+            let _ = t.join();
+        }
+        self.0.lock().unwrap().clone()
+    }
+}
+
 /// One emulator + proxy + serve, with a subscriber.
 struct Rig {
     emulator: Proc,
     emulator_port: u16,
     proxy: FaultProxy,
     serve: Proc,
+    serve_log: LogTail,
     collector: Collector,
     prefix: String,
 }
@@ -282,12 +318,14 @@ impl Rig {
             "divot-push.toml",
         );
         let collector = Collector::start(&prefix);
-        let serve = serve(&cfg);
+        let mut serve = serve(&cfg);
+        let serve_log = LogTail::start(&mut serve);
         Self {
             emulator,
             emulator_port,
             proxy,
             serve,
+            serve_log,
             collector,
             prefix,
         }
@@ -298,8 +336,14 @@ impl Rig {
         assert!(
             st.is_none(),
             "serve exited ({st:?}) under faults: {}",
-            self.serve.stderr_text()
+            self.serve_log.text()
         );
+    }
+
+    /// Stops serve with SIGTERM; returns its exit status and log.
+    fn stop_serve(&mut self) -> (std::process::ExitStatus, String) {
+        let (st, _) = self.serve.terminate();
+        (st, self.serve_log.text())
     }
 
     fn wait_first_valid(&self) -> u64 {
@@ -431,7 +475,7 @@ fn steady_faults_never_publish_a_wrong_sample_as_valid() {
             (back - t_clear) / 1_000_000
         );
     }
-    let (st, err) = rig.serve.terminate();
+    let (st, err) = rig.stop_serve();
     assert!(st.success(), "{err}");
     // The summary counted what the checks refused and the port's CRC check caught.
     assert!(err.contains("samples published as invalid"), "{err}");
@@ -460,7 +504,7 @@ fn flipped_bits_without_crcs_are_caught_by_the_plausibility_checks() {
     assert_trustworthy("bit-flip-2%-without-crc", &r);
     assert!(r.valid > r.invalid, "most samples stay valid");
     assert!(r.implausible > 0, "the plausibility checks caught nothing");
-    let (st, err) = rig.serve.terminate();
+    let (st, err) = rig.stop_serve();
     assert!(st.success(), "{err}");
     assert!(err.contains("implausible"), "{err}");
 }
@@ -507,11 +551,11 @@ fn a_stall_of_the_boards_is_recovered() {
             (back - t_cont) / 1_000_000
         );
     }
+    rig.stop_serve();
     let (_, st) = rig.collector.stop();
     // The status message told the age of the held sample while the boards were silent.
     let max_age = st.iter().map(|s| s.held_sample_age_ns).max().unwrap();
     assert!(max_age >= 1_500_000_000, "held age at most {max_age} ns");
-    rig.serve.terminate();
 }
 
 /// The emulator is killed and a new one started on the same port.
@@ -545,7 +589,7 @@ fn an_emulator_restart_is_recovered() {
         "recovery took {} ms",
         (back - t_up) / 1_000_000
     );
-    rig.serve.terminate();
+    rig.stop_serve();
 }
 
 /// Ten starts of `serve` with 10% of the datagrams lost from the first one: discovery waits
@@ -664,5 +708,5 @@ fn soak_ten_minutes() {
     assert_trustworthy("soak-idle", &r);
     assert_eq!(r.invalid, 0, "idle cycles failed");
     assert!(rss1 <= rss0 + 1024, "RSS grew from {rss0} to {rss1} KiB");
-    rig.serve.terminate();
+    rig.stop_serve();
 }

@@ -314,3 +314,34 @@ fn fk_and_correct_refuse_values_no_psm_can_have() {
         stderr(&o)
     );
 }
+
+#[test]
+fn an_output_that_is_a_directory_is_refused_before_any_work() {
+    let dir = std::env::temp_dir().join(format!("dvrk-cli-out-{}", std::process::id()));
+    let out = dir.join("existing");
+    std::fs::create_dir_all(&out).unwrap();
+    let sweep = repo().join("config/sim/divot-push.toml");
+    for args in [
+        vec!["fit", "--clamp", "/nonexistent.csv", "--out"],
+        vec![
+            "calibrate",
+            "divot",
+            "--config",
+            sweep.to_str().unwrap(),
+            "--out",
+        ],
+    ] {
+        let mut a = args.clone();
+        a.push(out.to_str().unwrap());
+        let o = run(&a);
+        assert!(!o.status.success());
+        let err = stderr(&o);
+        assert!(err.contains("is a directory"), "{args:?}: {err}");
+        // Refused at parse time: nothing else (no missing-file error, no procedure) happened.
+        assert!(!err.contains("nonexistent"), "{err}");
+    }
+    // Nothing was written anywhere: not into the directory, not beside it.
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0);
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
