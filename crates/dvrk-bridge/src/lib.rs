@@ -150,9 +150,13 @@ pub fn run_record(
     let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record")?;
     let mut sink = McapSink::create(src.encoder()?, &rec.out)?;
     tracing::info!("record: {} -> {}", src.shm_prefix(), rec.out.display());
-    let stats = source.run(&mut sink, period, stop, until)?;
-    let written = sink.finish()?;
-    Ok((stats, written))
+    match source.run(&mut sink, period, stop, until) {
+        Ok(stats) => Ok((stats, sink.finish()?)),
+        Err(e) => {
+            sink.abandon();
+            Err(e)
+        }
+    }
 }
 
 #[cfg(test)]

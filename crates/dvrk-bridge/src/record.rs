@@ -16,11 +16,16 @@ use crate::source::Sink;
 /// An MCAP file being written: one channel per [`OutTopic`], named by its ROS 2 topic name
 /// (`/PSM1/compensated/local/measured_cp`).
 ///
+/// The file is written as `.<name>.partial` beside the target and renamed to it by
+/// [`McapSink::finish`], so a reader never sees a file without its summary; [`McapSink::abandon`]
+/// removes it after an error.
+///
 /// Log and publish times are the message's ROS stamp (the sample time in CLOCK_REALTIME ns), and
 /// the MCAP sequence is the low 32 bits of the sidecar's `seq`.
 pub struct McapSink {
     encoder: Encoder,
     path: PathBuf,
+    tmp: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
     channels: [u16; OutTopic::ALL.len()],
     payload: Vec<u8>,
@@ -37,21 +42,29 @@ impl core::fmt::Debug for McapSink {
 }
 
 impl McapSink {
-    /// Creates (or truncates) `path` and registers the schemas and channels.
+    /// Starts the file that will become `path` and registers the schemas and channels.
     pub fn create(encoder: Encoder, path: &Path) -> Result<Self, BridgeError> {
-        let file = File::create(path).map_err(|source| BridgeError::CreateFile {
-            path: path.to_owned(),
+        let Some(name) = path.file_name() else {
+            return Err(BridgeError::InvalidArgument {
+                what: "--out",
+                value: path.display().to_string(),
+                reason: "not a file path",
+            });
+        };
+        let tmp = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
+        let file = File::create(&tmp).map_err(|source| BridgeError::CreateFile {
+            path: tmp.clone(),
             source,
         })?;
         let mcap_err = |source| BridgeError::Mcap {
-            path: path.to_owned(),
+            path: tmp.clone(),
             source,
         };
         let mut writer = mcap::WriteOptions::new()
             .compression(None)
             .profile("ros2")
             .create(BufWriter::new(file))
-            .map_err(mcap_err)?;
+            .map_err(&mcap_err)?;
         let mut channels = [0u16; OutTopic::ALL.len()];
         for (i, t) in OutTopic::ALL.into_iter().enumerate() {
             let ty = t.msg_type();
@@ -70,6 +83,7 @@ impl McapSink {
         Ok(McapSink {
             encoder,
             path: path.to_owned(),
+            tmp,
             writer,
             channels,
             payload: Vec::new(),
@@ -82,13 +96,52 @@ impl McapSink {
         self.written
     }
 
-    /// Writes the summary and closes the file.
+    /// Writes the summary, closes the file and renames it to its target; returns the number of
+    /// messages. On error the partial file is removed.
     pub fn finish(mut self) -> Result<u64, BridgeError> {
-        self.writer.finish().map_err(|source| BridgeError::Mcap {
-            path: self.path.clone(),
-            source,
-        })?;
-        Ok(self.written)
+        let tmp = self.tmp.clone();
+        let result = self
+            .writer
+            .finish()
+            .map_err(|source| BridgeError::Mcap {
+                path: tmp.clone(),
+                source,
+            })
+            .and_then(|_| {
+                self.writer
+                    .into_inner()
+                    .into_inner()
+                    .map_err(|e| BridgeError::CreateFile {
+                        path: tmp.clone(),
+                        source: e.into_error(),
+                    })
+            })
+            .and_then(|file| {
+                file.sync_all().map_err(|source| BridgeError::CreateFile {
+                    path: tmp.clone(),
+                    source,
+                })
+            })
+            .and_then(|()| {
+                std::fs::rename(&tmp, &self.path).map_err(|source| BridgeError::CreateFile {
+                    path: self.path.clone(),
+                    source,
+                })
+            });
+        match result {
+            Ok(()) => Ok(self.written),
+            Err(e) => {
+                let _ = std::fs::remove_file(&tmp);
+                Err(e)
+            }
+        }
+    }
+
+    /// Removes the partial file (after an error).
+    pub fn abandon(self) {
+        let tmp = self.tmp.clone();
+        drop(self);
+        let _ = std::fs::remove_file(tmp);
     }
 
     fn write(&mut self, t: OutTopic, header: &dvrk_ipc::Header) -> Result<(), BridgeError> {
@@ -110,7 +163,7 @@ impl McapSink {
                 &self.payload,
             )
             .map_err(|source| BridgeError::Mcap {
-                path: self.path.clone(),
+                path: self.tmp.clone(),
                 source,
             })?;
         self.written += 1;

@@ -40,7 +40,8 @@ pub struct RunStats {
     /// Cycles left out by `--rate`.
     pub decimated: u64,
     /// Cycles lost in shared memory before this process took them (its buffer overflowed
-    /// because it fell behind by more than the subscriber buffer).
+    /// because it fell behind by more than the subscriber buffer): the most of any of the three
+    /// topics.
     pub shm_seq_gaps: u64,
 }
 
@@ -55,6 +56,8 @@ pub struct ShmSource {
     pending_joints: Vec<JointStateV1>,
     pending_status: Vec<CompensationStatusV2>,
     upto_seq: Option<u64>,
+    /// Last seq and seqs skipped, of joints and status.
+    gaps: [(Option<u64>, u64); 2],
     // Kept last: the ports above borrow nothing from it, but are dropped before it.
     _node: Node<Service>,
 }
@@ -104,6 +107,7 @@ impl ShmSource {
             pending_joints: Vec::with_capacity(2 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
             pending_status: Vec::with_capacity(2 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
             upto_seq: None,
+            gaps: [(None, 0); 2],
             _node: node,
         })
     }
@@ -156,6 +160,22 @@ impl ShmSource {
                 }
                 Update::Interrupted => {}
             }
+            // Take the three topics together, before any (slow) sink call, so that a bridge that
+            // falls behind loses the same cycles on all of them.
+            take_into(
+                &self.joints,
+                &mut self.pending_joints,
+                &self.names,
+                Topic::CompensatedMeasuredJs,
+                &mut self.gaps[0],
+            )?;
+            take_into(
+                &self.status,
+                &mut self.pending_status,
+                &self.names,
+                Topic::CompensatedStatus,
+                &mut self.gaps[1],
+            )?;
             for p in &self.poses {
                 if !dec[0].accept(p.header.sample_t_ns) {
                     continue;
@@ -172,18 +192,6 @@ impl ShmSource {
                 self.upto_seq = Some(p.header.seq);
             }
             let upto = self.upto_seq;
-            take_into(
-                &self.joints,
-                &mut self.pending_joints,
-                &self.names,
-                Topic::CompensatedMeasuredJs,
-            )?;
-            take_into(
-                &self.status,
-                &mut self.pending_status,
-                &self.names,
-                Topic::CompensatedStatus,
-            )?;
             let mut err = None;
             release(&mut self.pending_joints, upto, |js| {
                 if err.is_some() || !dec[1].accept(js.header.sample_t_ns) {
@@ -209,7 +217,12 @@ impl ShmSource {
             if let Some(e) = err {
                 return Err(e);
             }
-            stats.shm_seq_gaps = self.pose.stats().seq_gaps_total;
+            stats.shm_seq_gaps = self
+                .pose
+                .stats()
+                .seq_gaps_total
+                .max(self.gaps[0].1)
+                .max(self.gaps[1].1);
         }
         Ok(stats)
     }
@@ -217,17 +230,28 @@ impl ShmSource {
 
 /// Takes every buffered sample of `sub` into `pending`, keeping at most
 /// [`dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE`] (the oldest go first, as in shared memory).
+/// `gaps` counts the seqs skipped between consecutive samples (`last` is the previous seq).
 fn take_into<T: Message>(
     sub: &Subscriber<Service, T, ()>,
     pending: &mut Vec<T>,
     names: &ServiceNames,
     topic: Topic,
+    (last, gaps): &mut (Option<u64>, u64),
 ) -> Result<(), BridgeError> {
     while let Some(s) = sub.receive().map_err(|source| BridgeError::Receive {
         service: names.topic(topic).as_str().to_owned(),
         source,
     })? {
-        pending.push(*s);
+        let v: T = *s;
+        drop(s);
+        let seq = v.header().seq;
+        if let Some(prev) = *last
+            && seq > prev + 1
+        {
+            *gaps += seq - prev - 1;
+        }
+        *last = Some(seq);
+        pending.push(v);
     }
     let cap = dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE;
     if pending.len() > cap {
