@@ -563,3 +563,63 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         "stamp offset {off} ns is not realtime - monotonic ({host} ns)"
     );
 }
+
+#[test]
+fn record_rate_keeps_one_cycle_per_period() {
+    if !require_python(&["mcap", "mcap_ros2"]) {
+        return;
+    }
+    let prefix = unique_prefix("record-rate");
+    let cfg = write_config("record-rate", "sim", "shared", &prefix, "divot-push.toml");
+    let mut serve = serve(&cfg);
+    let out = scratch("record-rate").join("rate.mcap");
+    let mut rec = Proc::spawn(
+        "record",
+        Command::new(sidecar_bin())
+            .args(["record", "--prefix", "PSM1", "--shm-prefix", &prefix])
+            .args(["--rate", "100", "--seconds", "2", "--out"])
+            .arg(&out)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let st = rec
+        .wait_timeout(Duration::from_secs(60))
+        .expect("record did not stop after --seconds 2");
+    let rec_log = rec.stderr_text();
+    assert!(st.success(), "record exited with {st}: {rec_log}");
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "serve exited with {st}: {log}");
+    let dec = Command::new("python3")
+        .arg(repo().join("tests/bridge/mcap_check.py"))
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        dec.status.success(),
+        "{}",
+        String::from_utf8_lossy(&dec.stderr)
+    );
+    let stamps: Vec<i64> = String::from_utf8(dec.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|m| m["topic"] == "/PSM1/compensated/local/measured_cp")
+        .map(|m| m["log_time"].as_i64().unwrap())
+        .collect();
+    // At 1500 Hz a 10 ms slot holds 15 cycles; --rate 100 keeps the first of each slot, so
+    // the kept cycles lie in distinct slots: at most (span / 10 ms) + 2 of them.
+    let n = stamps.len() as i64;
+    assert!(
+        n >= 20,
+        "only {n} poses kept in 2 s at --rate 100: {rec_log}"
+    );
+    assert!(stamps.windows(2).all(|w| w[1] > w[0]));
+    let span = stamps[stamps.len() - 1] - stamps[0];
+    assert!(
+        n <= span / 10_000_000 + 2,
+        "{n} poses over {span} ns: more than one per 10 ms"
+    );
+    // Decimation drops whole cycles, and says how many.
+    assert!(rec_log.contains(" decimated"), "{rec_log}");
+}
