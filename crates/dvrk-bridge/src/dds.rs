@@ -1,6 +1,7 @@
 //! The DDS shell of the ROS 2 bridge: a RustDDS participant with one writer per output topic,
 //! writing the CDR bodies of [`crate::convert::Encoder`] under ROS 2's DDS names and types.
 
+use std::convert::Infallible;
 use std::net::IpAddr;
 
 use dvrk_ipc::{CompensationStatusV2, JointStateV1, PoseV1};
@@ -24,17 +25,13 @@ pub struct CdrBody(pub Bytes);
 #[derive(Debug)]
 pub struct CdrBodyAdapter;
 
-/// Never returned: passing bytes through cannot fail.
-#[derive(Debug, thiserror::Error)]
-#[error("unreachable")]
-pub enum NoError {}
-
 impl SerializerAdapter<CdrBody> for CdrBodyAdapter {
-    type Error = NoError;
+    /// Passing bytes through cannot fail.
+    type Error = Infallible;
     fn output_encoding() -> RepresentationIdentifier {
         RepresentationIdentifier::CDR_LE
     }
-    fn to_bytes(value: &CdrBody) -> Result<Bytes, NoError> {
+    fn to_bytes(value: &CdrBody) -> Result<Bytes, Infallible> {
         Ok(value.0.clone())
     }
 }
