@@ -70,10 +70,13 @@ impl SourceOptions {
     }
 
     fn encoder(&self) -> Result<Encoder, BridgeError> {
-        Ok(Encoder::new(
-            ArmFrames::new(&self.arm),
-            measure_clock_offset()?,
-        ))
+        let clock = measure_clock_offset()?;
+        tracing::info!(
+            "stamps are ROS time: the CLOCK_MONOTONIC sample time + {} ns (CLOCK_REALTIME - \
+             CLOCK_MONOTONIC, measured now); base frame: identity",
+            clock.realtime_minus_monotonic_ns
+        );
+        Ok(Encoder::new(ArmFrames::new(&self.arm), clock))
     }
 }
 
