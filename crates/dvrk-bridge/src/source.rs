@@ -56,6 +56,8 @@ pub struct ShmSource {
     pending_joints: Vec<JointStateV1>,
     pending_status: Vec<CompensationStatusV2>,
     upto_seq: Option<u64>,
+    /// First cycle passed on (see [`ShmSource::run`]).
+    start_seq: Option<u64>,
     /// Last seq and seqs skipped, of joints and status.
     gaps: [(Option<u64>, u64); 2],
     // Kept last: the ports above borrow nothing from it, but are dropped before it.
@@ -104,9 +106,14 @@ impl ShmSource {
             joints,
             status,
             poses: Vec::with_capacity(dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
-            pending_joints: Vec::with_capacity(2 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
-            pending_status: Vec::with_capacity(2 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            pending_joints: Vec::with_capacity(
+                PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE,
+            ),
+            pending_status: Vec::with_capacity(
+                PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE,
+            ),
             upto_seq: None,
+            start_seq: None,
             gaps: [(None, 0); 2],
             _node: node,
         })
@@ -150,6 +157,11 @@ impl ShmSource {
                 }
                 Update::Stale { since_ns } if since_ns < SILENCE_REPORT_NS => {}
                 Update::Stale { .. } | Update::Terminated => {
+                    if update == Update::Terminated {
+                        // A new serve starts its seq at 1 again: align anew.
+                        self.start_seq = None;
+                        self.upto_seq = None;
+                    }
                     if silent_since.is_none() {
                         tracing::warn!(
                             "{}: no samples for 1 s (is `dvrk-sidecar serve` running?)",
@@ -176,7 +188,28 @@ impl ShmSource {
                 Topic::CompensatedStatus,
                 &mut self.gaps[1],
             )?;
-            for p in &self.poses {
+            // The three subscribers connect one after the other, so the first samples of the pose
+            // may be older than those of the others: start at the first cycle all three have.
+            if self.start_seq.is_none() {
+                match (
+                    self.poses.first(),
+                    self.pending_joints.first(),
+                    self.pending_status.first(),
+                ) {
+                    (Some(p), Some(j), Some(s)) => {
+                        self.start_seq = Some(p.header.seq.max(j.header.seq).max(s.header.seq));
+                    }
+                    _ => {
+                        self.poses.clear();
+                        self.pending_joints.clear();
+                        self.pending_status.clear();
+                    }
+                }
+            }
+            let start = self.start_seq.unwrap_or(u64::MAX);
+            self.pending_joints.retain(|m| m.header.seq >= start);
+            self.pending_status.retain(|m| m.header.seq >= start);
+            for p in self.poses.iter().filter(|p| p.header.seq >= start) {
                 if !dec[0].accept(p.header.sample_t_ns) {
                     continue;
                 }
@@ -188,7 +221,7 @@ impl ShmSource {
             }
             // Joints and status of a cycle are passed on once its pose was taken, so that a run
             // that stops between two drains writes whole cycles only.
-            if let Some(p) = self.poses.last() {
+            if let Some(p) = self.poses.last().filter(|p| p.header.seq >= start) {
                 self.upto_seq = Some(p.header.seq);
             }
             let upto = self.upto_seq;
@@ -228,8 +261,11 @@ impl ShmSource {
     }
 }
 
-/// Takes every buffered sample of `sub` into `pending`, keeping at most
-/// [`dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE`] (the oldest go first, as in shared memory).
+/// Most samples of one topic held back waiting for their cycle's pose: 4 shared-memory buffers.
+const PENDING_CAP: usize = 4 * dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE;
+
+/// Takes every buffered sample of `sub` into `pending`, keeping at most [`PENDING_CAP`] (the
+/// oldest go first, as in shared memory).
 /// `gaps` counts the seqs skipped between consecutive samples (`last` is the previous seq).
 fn take_into<T: Message>(
     sub: &Subscriber<Service, T, ()>,
@@ -253,9 +289,13 @@ fn take_into<T: Message>(
         *last = Some(seq);
         pending.push(v);
     }
-    let cap = dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE;
+    // Normally only the samples of the few cycles newer than the last pose wait here; the cap
+    // only matters if the pose topic stops while this one goes on. Dropped samples count as lost.
+    let cap = PENDING_CAP;
     if pending.len() > cap {
-        pending.drain(..pending.len() - cap);
+        let excess = pending.len() - cap;
+        pending.drain(..excess);
+        *gaps += excess as u64;
     }
     Ok(())
 }
