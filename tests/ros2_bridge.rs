@@ -631,3 +631,72 @@ fn record_rate_keeps_one_cycle_per_period() {
     // Decimation drops whole cycles, and says how many.
     assert!(rec_log.contains(" decimated"), "{rec_log}");
 }
+
+#[test]
+fn record_follows_a_restarted_serve() {
+    if !require_python(&["mcap", "mcap_ros2"]) {
+        return;
+    }
+    let prefix = unique_prefix("record-restart");
+    let cfg = write_config(
+        "record-restart",
+        "sim",
+        "shared",
+        &prefix,
+        "divot-push.toml",
+    );
+    let out = scratch("record-restart").join("restart.mcap");
+    let mut first = serve(&cfg);
+    let mut rec = Proc::spawn(
+        "record",
+        Command::new(sidecar_bin())
+            .args(["record", "--prefix", "PSM1", "--shm-prefix", &prefix])
+            .args(["--seconds", "8", "--out"])
+            .arg(&out)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let (st, log) = first.terminate();
+    assert!(st.success(), "serve exited with {st}: {log}");
+    let mut second = serve(&cfg);
+    let st = rec
+        .wait_timeout(Duration::from_secs(60))
+        .expect("record did not stop after --seconds 8");
+    let rec_log = rec.stderr_text();
+    assert!(st.success(), "record exited with {st}: {rec_log}");
+    let (st, log) = second.terminate();
+    assert!(st.success(), "serve exited with {st}: {log}");
+    let dec = Command::new("python3")
+        .arg(repo().join("tests/bridge/mcap_check.py"))
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        dec.status.success(),
+        "{}",
+        String::from_utf8_lossy(&dec.stderr)
+    );
+    let mut per_topic: BTreeMap<String, Vec<u64>> = BTreeMap::new();
+    for l in String::from_utf8(dec.stdout).unwrap().lines() {
+        let m: Value = serde_json::from_str(l).unwrap();
+        per_topic
+            .entry(m["topic"].as_str().unwrap().to_owned())
+            .or_default()
+            .push(m["sequence"].as_u64().unwrap());
+    }
+    assert_eq!(per_topic.len(), 5, "{rec_log}");
+    for (t, seqs) in &per_topic {
+        // The second serve counts from 1 again: the recording goes on after the drop.
+        let drop = seqs
+            .windows(2)
+            .position(|w| w[1] < w[0])
+            .unwrap_or_else(|| panic!("{t}: no second run recorded: {rec_log}"));
+        let after = seqs.len() - drop - 1;
+        assert!(
+            after >= 100,
+            "{t}: only {after} messages after the restart: {rec_log}"
+        );
+    }
+}

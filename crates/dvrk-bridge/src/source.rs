@@ -188,6 +188,17 @@ impl ShmSource {
                 Topic::CompensatedStatus,
                 &mut self.gaps[1],
             )?;
+            // A serve that restarted before the subscription noticed starts its seq at 1 again:
+            // drop this wake's samples (they may mix both runs) and align anew.
+            if let (Some(p), Some(u)) = (self.poses.first(), self.upto_seq)
+                && p.header.seq <= u
+            {
+                self.start_seq = None;
+                self.upto_seq = None;
+                self.poses.clear();
+                self.pending_joints.clear();
+                self.pending_status.clear();
+            }
             // The three subscribers connect one after the other, so the first samples of the pose
             // may be older than those of the others: start at the first cycle all three have.
             if self.start_seq.is_none() {
