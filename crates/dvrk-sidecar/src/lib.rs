@@ -4,6 +4,7 @@
 //! `anyhow` is used here because this is the application layer (setup and commands); the
 //! library crates below it have their own error enums.
 
+pub mod bridge_cmd;
 pub mod calib;
 pub mod config;
 pub mod cycle;

@@ -2,7 +2,7 @@
 //! backlash (Chrysilla et al.), and publishes raw and compensated joint and tip states over
 //! iceoryx2 shared memory. Also carries the offline tools of the paper's workflow.
 
-use dvrk_sidecar::{calib, echo, offline, serve, simcmd};
+use dvrk_sidecar::{bridge_cmd, calib, echo, offline, serve, simcmd};
 
 use std::path::PathBuf;
 
@@ -43,6 +43,11 @@ enum Command {
     Fit(calib::FitArgs),
     /// Evaluate the correction on divot-push data (drift, tip error; paper Figs. 7-8).
     Evaluate(calib::EvaluateArgs),
+    /// Publish the compensated topics to ROS 2 over DDS (no ROS installation needed).
+    #[command(name = "ros2-bridge")]
+    Ros2Bridge(bridge_cmd::Ros2BridgeArgs),
+    /// Record the compensated topics to an MCAP file (ROS 2 schemas, CDR payloads).
+    Record(bridge_cmd::RecordArgs),
 }
 
 /// Logging is set up once, here: fmt to stderr (systemd passes it to the journal), filtered by
@@ -120,5 +125,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Calibrate(args) => calib::run_calibrate(&args),
         Command::Fit(args) => calib::run_fit(&args),
         Command::Evaluate(args) => calib::run_evaluate(&args),
+        Command::Ros2Bridge(args) => bridge_cmd::run_ros2_bridge(&args),
+        Command::Record(args) => bridge_cmd::run_record(&args),
     }
 }

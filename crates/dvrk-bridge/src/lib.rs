@@ -1,0 +1,195 @@
+//! dvrk-bridge: carries the compensated topics of dvrk-sidecar to ROS 2 and to MCAP files.
+//!
+//! Both bridges are consumer processes of the sidecar's shared memory (dvrk-ipc): they wake on
+//! the cycle event, so nothing they do can slow the cycle. They need no ROS installation:
+//!
+//! - [`run_ros2_bridge`] publishes DDS topics that a ROS 2 node sees as
+//!   `/PSM1/compensated/local/measured_cp` and `/PSM1/compensated/measured_cp`
+//!   (`geometry_msgs/PoseStamped`), `/PSM1/compensated/measured_js` (6 joints) and
+//!   `/PSM1/compensated/jaw/measured_js` (`sensor_msgs/JointState`), and
+//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]), with
+//!   RustDDS (RTPS in pure Rust) and hand-written CDR ([`cdr`]). QoS is ROS 2's sensor-data
+//!   profile by default. It never publishes under the console's own names.
+//! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads).
+//!
+//! Mapping from the shared memory of today (see [`convert`]): `local/measured_cp` is the
+//! sidecar's `compensated/measured_cp` (RCM frame); `measured_cp` is base frame × local, with an
+//! identity base frame until the configuration carries one; stamps are ROS time
+//! (CLOCK_REALTIME), converted from the CLOCK_MONOTONIC sample time with an offset measured at
+//! start, until the message header carries both clocks. Poses and joints of invalid cycles
+//! (`valid = 0`) are not published; the status of every cycle is.
+
+pub mod cdr;
+pub mod convert;
+pub mod dds;
+mod error;
+pub mod msgdefs;
+pub mod record;
+pub mod source;
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+pub use convert::{ArmFrames, ClockOffset, Decimator, Encoder, OutTopic, Transform};
+pub use dds::{DdsOptions, DdsSink, QosProfile};
+pub use error::BridgeError;
+pub use record::McapSink;
+pub use source::{RunStats, ShmSource, Sink, measure_clock_offset};
+
+/// What both bridges read.
+#[derive(Debug, Clone)]
+pub struct SourceOptions {
+    /// Arm name: the ROS namespace and frame names (`PSM1`).
+    pub arm: String,
+    /// Shared-memory prefix of the sidecar's services; `None`: `dvrk/<arm>`.
+    pub shm_prefix: Option<String>,
+    /// Publish at most this many cycles per second; `None`: every cycle.
+    pub rate_hz: Option<f64>,
+}
+
+impl SourceOptions {
+    /// The shared-memory prefix in use.
+    pub fn shm_prefix(&self) -> String {
+        self.shm_prefix
+            .clone()
+            .unwrap_or_else(|| format!("dvrk/{}", self.arm))
+    }
+
+    fn validate(&self) -> Result<Option<u64>, BridgeError> {
+        validate_arm(&self.arm)?;
+        self.rate_hz
+            .map(|hz| {
+                Decimator::period_from_rate(hz).map_err(|reason| BridgeError::InvalidArgument {
+                    what: "--rate",
+                    value: hz.to_string(),
+                    reason,
+                })
+            })
+            .transpose()
+    }
+
+    fn encoder(&self) -> Result<Encoder, BridgeError> {
+        let clock = measure_clock_offset()?;
+        tracing::info!(
+            "stamps are ROS time: the CLOCK_MONOTONIC sample time + {} ns (CLOCK_REALTIME - \
+             CLOCK_MONOTONIC, measured now); base frame: identity",
+            clock.realtime_minus_monotonic_ns
+        );
+        Ok(Encoder::new(ArmFrames::new(&self.arm), clock))
+    }
+}
+
+/// Checks that `arm` is one ROS name token (`PSM1`): ASCII letters, digits and `_`, not starting
+/// with a digit.
+pub fn validate_arm(arm: &str) -> Result<(), BridgeError> {
+    let bad = |reason| BridgeError::InvalidArgument {
+        what: "arm name (--prefix)",
+        value: arm.to_owned(),
+        reason,
+    };
+    let Some(first) = arm.chars().next() else {
+        return Err(bad("is empty"));
+    };
+    if first.is_ascii_digit() {
+        return Err(bad("must not start with a digit (ROS names)"));
+    }
+    if !arm.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err(bad(
+            "must be ASCII letters, digits and '_' only (one ROS name token, e.g. PSM1)",
+        ));
+    }
+    Ok(())
+}
+
+/// Runs the ROS 2 bridge until `stop` is raised.
+pub fn run_ros2_bridge(
+    src: &SourceOptions,
+    dds: &DdsOptions,
+    stop: &AtomicBool,
+) -> Result<(RunStats, u64), BridgeError> {
+    let period = src.validate()?;
+    let mut sink = DdsSink::new(src.encoder()?, dds)?;
+    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-ros2-bridge")?;
+    tracing::info!(
+        "ros2-bridge: {} -> DDS domain {} topics rt/{}/compensated/...",
+        src.shm_prefix(),
+        dds.domain,
+        src.arm
+    );
+    let stats = source.run(&mut sink, period, stop, None)?;
+    Ok((stats, sink.written()))
+}
+
+/// What [`run_record`] writes.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    pub out: PathBuf,
+    /// Stop after this long; `None`: until `stop`.
+    pub seconds: Option<f64>,
+}
+
+/// Records to an MCAP file until `stop` is raised or `--seconds` pass; returns the counters and
+/// the number of messages written.
+pub fn run_record(
+    src: &SourceOptions,
+    rec: &RecordOptions,
+    stop: &AtomicBool,
+) -> Result<(RunStats, u64), BridgeError> {
+    let period = src.validate()?;
+    let until = match rec.seconds {
+        None => None,
+        Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => {
+            Some(Instant::now() + Duration::from_secs_f64(s))
+        }
+        Some(s) => {
+            return Err(BridgeError::InvalidArgument {
+                what: "--seconds",
+                value: s.to_string(),
+                reason: "must be a finite number of seconds above 0",
+            });
+        }
+    };
+    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record")?;
+    let mut sink = McapSink::create(src.encoder()?, &rec.out)?;
+    tracing::info!("record: {} -> {}", src.shm_prefix(), rec.out.display());
+    match source.run(&mut sink, period, stop, until) {
+        Ok(stats) => Ok((stats, sink.finish()?)),
+        Err(e) => {
+            sink.abandon();
+            Err(e)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arm_names_are_ros_tokens() {
+        assert!(validate_arm("PSM1").is_ok());
+        assert!(validate_arm("psm_2").is_ok());
+        for bad in ["", "1PSM", "PSM 1", "PSM1/x", "/PSM1", "PSM-1"] {
+            let e = validate_arm(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("--prefix") && e.contains(&format!("{bad:?}")),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn rate_and_prefix_are_checked() {
+        let mut s = SourceOptions {
+            arm: "PSM1".into(),
+            shm_prefix: None,
+            rate_hz: Some(0.0),
+        };
+        let e = s.validate().unwrap_err().to_string();
+        assert!(e.contains("--rate") && e.contains('0'), "{e}");
+        s.rate_hz = Some(100.0);
+        assert_eq!(s.validate().unwrap(), Some(10_000_000));
+        assert_eq!(s.shm_prefix(), "dvrk/PSM1");
+    }
+}

@@ -1,0 +1,106 @@
+//! `ros2-bridge` and `record`: consumers of the shared memory that carry the compensated topics
+//! to ROS 2 (DDS) and to MCAP files. The work is in the dvrk-bridge crate; this is the CLI.
+
+use std::net::IpAddr;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use dvrk_bridge::{DdsOptions, QosProfile, RecordOptions, SourceOptions};
+
+use crate::signals::StopFlag;
+
+#[derive(clap::Args, Debug)]
+pub struct SourceArgs {
+    /// Arm name: the ROS namespace and frame names (topics /<ARM>/compensated/...).
+    #[arg(long, default_value = "PSM1")]
+    prefix: String,
+    /// Shared-memory prefix of the running `serve` (default: dvrk/<ARM>).
+    #[arg(long)]
+    shm_prefix: Option<String>,
+    /// Publish at most this many cycles per second (default: every cycle).
+    #[arg(long)]
+    rate: Option<f64>,
+}
+
+impl SourceArgs {
+    fn options(&self) -> SourceOptions {
+        SourceOptions {
+            arm: self.prefix.clone(),
+            shm_prefix: self.shm_prefix.clone(),
+            rate_hz: self.rate,
+        }
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct Ros2BridgeArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// DDS domain id (ROS_DOMAIN_ID).
+    #[arg(long, default_value_t = 0)]
+    domain: u16,
+    /// Use only the network interface with this address (repeatable), e.g. 127.0.0.1 to stay on
+    /// this host. Default: all interfaces.
+    #[arg(long = "interface")]
+    interfaces: Vec<IpAddr>,
+    /// Reliable QoS (ROS 2 default profile) instead of sensor data (best effort).
+    #[arg(long)]
+    reliable: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RecordArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// MCAP file to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    seconds: Option<f64>,
+}
+
+pub fn run_ros2_bridge(args: &Ros2BridgeArgs) -> Result<()> {
+    let stop = StopFlag::install()?;
+    let dds = DdsOptions {
+        domain: args.domain,
+        interfaces: args.interfaces.clone(),
+        qos: if args.reliable {
+            QosProfile::Reliable
+        } else {
+            QosProfile::SensorData
+        },
+    };
+    let (stats, written) =
+        dvrk_bridge::run_ros2_bridge(&args.source.options(), &dds, stop.as_atomic())
+            .context("ros2-bridge")?;
+    tracing::info!(
+        "ros2-bridge stopped: {} cycles, {} DDS samples written, {} invalid skipped, {} decimated, {} lost in shared memory",
+        stats.cycles,
+        written,
+        stats.invalid_skipped,
+        stats.decimated,
+        stats.shm_seq_gaps
+    );
+    Ok(())
+}
+
+pub fn run_record(args: &RecordArgs) -> Result<()> {
+    let stop = StopFlag::install()?;
+    let rec = RecordOptions {
+        out: args.out.clone(),
+        seconds: args.seconds,
+    };
+    let (stats, written) = dvrk_bridge::run_record(&args.source.options(), &rec, stop.as_atomic())
+        .with_context(|| format!("recording to {}", args.out.display()))?;
+    tracing::info!(
+        "record: {} messages of {} cycles written to {} ({} invalid skipped, {} decimated, {} lost in shared memory)",
+        written,
+        stats.cycles,
+        args.out.display(),
+        stats.invalid_skipped,
+        stats.decimated,
+        stats.shm_seq_gaps
+    );
+    Ok(())
+}

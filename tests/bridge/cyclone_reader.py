@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""Reads ROS 2 topics of `dvrk-sidecar ros2-bridge` with Cyclone DDS (an independent DDS
+implementation, the one under ROS 2's rmw_cyclonedds) and prints one JSON object per sample.
+
+The IDL types are declared here from the ROS 2 message definitions, with the DDS type names the
+ROS 2 rmw layers register (`geometry_msgs::msg::dds_::PoseStamped_`), so a match proves that a
+ROS 2 node would receive them.
+
+Usage: cyclone_reader.py --domain N --topic rt/PSM1/compensated/local/measured_cp
+                         --type pose|joints --count K --timeout-s T
+Exit status 0 when K samples were read, 2 on timeout.
+"""
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import float64, int32, sequence, uint32
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time
+    frame_id: str
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64
+    y: float64
+    z: float64
+    w: float64
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point
+    orientation: Quaternion
+
+
+@dataclass
+class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
+    header: Header
+    pose: Pose
+
+
+@dataclass
+class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+    header: Header
+    name: sequence[str]
+    position: sequence[float64]
+    velocity: sequence[float64]
+    effort: sequence[float64]
+
+
+def to_json(kind, s):
+    h = {"sec": s.header.stamp.sec, "nanosec": s.header.stamp.nanosec,
+         "frame_id": s.header.frame_id}
+    if kind == "pose":
+        p, q = s.pose.position, s.pose.orientation
+        return {"header": h, "position": [p.x, p.y, p.z],
+                "orientation_xyzw": [q.x, q.y, q.z, q.w]}
+    return {"header": h, "name": list(s.name), "position": list(s.position),
+            "velocity": list(s.velocity), "effort": list(s.effort)}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--domain", type=int, required=True)
+    ap.add_argument("--topic", required=True)
+    ap.add_argument("--type", choices=["pose", "joints"], required=True)
+    ap.add_argument("--count", type=int, required=True)
+    ap.add_argument("--timeout-s", type=float, default=30.0)
+    ap.add_argument("--reliable", action="store_true",
+                    help="request reliable delivery (the bridge must run with --reliable)")
+    a = ap.parse_args()
+
+    dp = DomainParticipant(a.domain)
+    ty = PoseStamped if a.type == "pose" else JointState
+    topic = Topic(dp, a.topic, ty)
+    # ROS 2's sensor-data profile on the reading side too (or reliable); a deep history so that
+    # no sample of a burst is lost between two takes.
+    rel = (Policy.Reliability.Reliable(duration(milliseconds=100)) if a.reliable
+           else Policy.Reliability.BestEffort)
+    qos = Qos(rel, Policy.History.KeepLast(1000))
+    reader = DataReader(dp, topic, qos=qos)
+    print(json.dumps({"ready": True}), flush=True)
+    got = 0
+    end = time.monotonic() + a.timeout_s
+    while got < a.count and time.monotonic() < end:
+        for s in reader.take(N=1000):
+            if got < a.count:
+                print(json.dumps(to_json(a.type, s)), flush=True)
+                got += 1
+        if got < a.count:
+            time.sleep(0.002)
+    if got < a.count:
+        print(f"timeout: {got} of {a.count} samples on {a.topic}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

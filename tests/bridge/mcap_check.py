@@ -1,0 +1,45 @@
+#!/usr/bin/env python3
+"""Decodes every message of an MCAP file written by `dvrk-sidecar record` with the `mcap` and
+`mcap-ros2-support` packages (the ROS 2 decoder Foxglove's tooling uses), and prints one JSON
+object per message: topic, schema name, sequence, log time and the decoded fields.
+
+Usage: mcap_check.py FILE
+"""
+
+import json
+import sys
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+
+def fields(m):
+    if hasattr(m, "__slots__"):
+        return {k: fields(getattr(m, k)) for k in m.__slots__}
+    if isinstance(m, (list, tuple)):
+        return [fields(x) for x in m]
+    if isinstance(m, (bytes, bytearray)):
+        return list(m)
+    return m
+
+
+def main():
+    with open(sys.argv[1], "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        header_profile = reader.get_header().profile
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            print(json.dumps({
+                "profile": header_profile,
+                "topic": channel.topic,
+                "encoding": channel.message_encoding,
+                "schema": schema.name,
+                "schema_encoding": schema.encoding,
+                "sequence": message.sequence,
+                "log_time": message.log_time,
+                "msg": fields(decoded),
+            }))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
