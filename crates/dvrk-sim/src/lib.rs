@@ -26,7 +26,7 @@ pub use link::{SimLink, SimPort, sim_port};
 pub use measure::{ActuatorScales, NoiseParams};
 pub use physics::{Environment, JointState, PhysicsParams, ShaftParams, SimPsm, Truth};
 pub use rng::SimRng;
-pub use scenario::{Motion, MotionDriver, Scenario, ScenarioParams};
+pub use scenario::{EthernetMode, Motion, MotionDriver, Scenario, ScenarioParams};
 
 /// Errors of dvrk-sim (setup only: the step and the emulator's request handling cannot fail).
 #[derive(Debug, thiserror::Error)]

@@ -109,6 +109,22 @@ pub struct ScenarioParams {
     pub noise: NoiseSection,
     #[serde(default)]
     pub shaft: Option<ShaftSection>,
+    /// How the emulated boards present themselves on Ethernet (default `bridge`).
+    #[serde(default)]
+    pub ethernet: EthernetMode,
+}
+
+/// How the emulated boards present themselves on Ethernet (reference §3.3 step 5, §3.4).
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum EthernetMode {
+    /// FPGA V2 (100 Mb Ethernet) bridging to FireWire: the host talks to the hub, and reads
+    /// hub memory explicitly after a broadcast query.
+    #[default]
+    Bridge,
+    /// FPGA V3 with firmware Rev 9: the host unicasts to each board, and the hub sends the
+    /// broadcast-read data unasked after the query.
+    EthernetOnly,
 }
 
 /// What the stand-in console commands over time.
@@ -137,6 +153,7 @@ pub struct Scenario {
     pub motion: Motion,
     pub noise: NoiseParams,
     pub physics: PhysicsParams,
+    pub ethernet: EthernetMode,
 }
 
 fn invalid(
@@ -373,6 +390,7 @@ impl Scenario {
             motion,
             noise,
             physics,
+            ethernet: p.ethernet,
         })
     }
 
