@@ -7,6 +7,7 @@
 pub mod calib;
 pub mod config;
 pub mod cycle;
+pub mod drive;
 pub mod echo;
 pub mod formats;
 pub mod offline;
