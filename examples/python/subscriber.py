@@ -60,6 +60,9 @@ FLAG_NAMES = (
     "CORRECTION_ACTIVE_J2",
     "SIMULATED",
     "OVERRUN",
+    "IMPLAUSIBLE",
+    "NO_SOURCE",
+    "HELD",
 )
 
 f64 = ctypes.c_double
@@ -114,8 +117,8 @@ class PoseV1(ctypes.Structure):
         return "dvrk::PoseV1"
 
 
-class CompensationStatusV1(ctypes.Structure):
-    """compensated/status, 128 bytes."""
+class CompensationStatusV2(ctypes.Structure):
+    """compensated/status, 168 bytes."""
 
     _fields_ = [
         ("header", Header),
@@ -129,28 +132,33 @@ class CompensationStatusV1(ctypes.Structure):
         ("overruns_total", u64),
         ("consecutive_read_failures", u32),
         ("_reserved", u32),
+        ("tau_margin_nm", f64 * 2),
+        ("held_sample_age_ns", u64),
+        ("publish_late_ns", u64),
+        ("implausible_total", u64),
     ]
 
     @classmethod
     def type_name(cls) -> str:
-        return "dvrk::CompensationStatusV1"
+        return "dvrk::CompensationStatusV2"
 
 
 # Layout checks: the same sizes and offsets as the Rust const assertions.
-for _t, _size in ((Header, 40), (JointStateV1, 208), (PoseV1, 168), (CompensationStatusV1, 128)):
+for _t, _size in ((Header, 40), (JointStateV1, 208), (PoseV1, 168), (CompensationStatusV2, 168)):
     assert ctypes.sizeof(_t) == _size, (_t.__name__, ctypes.sizeof(_t))
     assert ctypes.alignment(_t) == 8, _t.__name__
 assert Header.flags.offset == 36
 assert JointStateV1.effort.offset == 152
 assert PoseV1.rotation.offset == 96
-assert CompensationStatusV1.consecutive_read_failures.offset == 120
+assert CompensationStatusV2.consecutive_read_failures.offset == 120
+assert CompensationStatusV2.implausible_total.offset == 160
 
 TOPICS = {
     "measured_js": JointStateV1,
     "measured_cp": PoseV1,
     "compensated/measured_js": JointStateV1,
     "compensated/measured_cp": PoseV1,
-    "compensated/status": CompensationStatusV1,
+    "compensated/status": CompensationStatusV2,
 }
 
 

@@ -37,6 +37,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod convert;
+pub mod plausibility;
 pub mod port;
 pub mod tap;
 pub mod wire;

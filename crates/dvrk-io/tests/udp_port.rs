@@ -423,3 +423,119 @@ fn per_board_addressing_of_rev9_ethernet_only_boards() {
     r6.with(|b| assert_eq!(b.log.len(), 1));
     r7.with(|b| assert_eq!(b.log.len(), 1));
 }
+
+/// A board that stops answering for longer than the whole label space, then answers every queued
+/// request at once (what a SIGSTOPped emulator or a stalled switch does): the late replies must
+/// never be taken for the answers to new requests, and the port answers right again at once.
+#[test]
+fn late_replies_after_a_stall_are_drained_and_never_taken_for_new_answers() {
+    let board = UdpSocket::bind("127.0.0.1:0").unwrap();
+    board
+        .set_read_timeout(Some(Duration::from_millis(500)))
+        .unwrap();
+    let mut boards = Boards::psm(8);
+    let mut p = UdpPort::open_udp(board.local_addr().unwrap()).unwrap();
+    p.link_mut().set_timeout(Duration::from_millis(2)).unwrap();
+    // 100 requests for the hardware version go unanswered...
+    let mut queued = Vec::new();
+    let mut buf = [0u8; 2048];
+    let mut from = None;
+    for _ in 0..100 {
+        assert!(p.read_quadlet(6, 4).is_err());
+        let (n, f) = board.recv_from(&mut buf).unwrap();
+        from = Some(f);
+        queued.extend(boards.handle(&buf[..n]));
+    }
+    // ...then are all answered late, before the next request is even sent.
+    let from = from.unwrap();
+    for r in &queued {
+        board.send_to(r, from).unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(20));
+    // From now on the board answers at once. Ask for the firmware version (8): an old reply
+    // with the same label would carry the hardware version instead.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let s2 = stop.clone();
+    let answering = std::thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        while !s2.load(std::sync::atomic::Ordering::Relaxed) {
+            if let Ok((n, f)) = board.recv_from(&mut buf) {
+                for r in boards.handle(&buf[..n]) {
+                    board.send_to(&r, f).unwrap();
+                }
+            }
+        }
+    });
+    p.link_mut()
+        .set_timeout(Duration::from_millis(200))
+        .unwrap();
+    for _ in 0..200 {
+        assert_eq!(p.read_quadlet(6, 7).unwrap(), 8);
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    answering.join().unwrap();
+    let c = p.counters();
+    assert!(c.resyncs >= 1, "{c:?}");
+    assert_eq!(
+        c.drained + c.stale_replies,
+        100,
+        "every late reply is drained or skipped: {c:?}"
+    );
+}
+
+/// A bit flipped anywhere in a reply's FireWire packet is caught by its CRC (the emulator and
+/// this responder send CRCs); a source that sent CRCs cannot switch them off.
+#[test]
+fn corrupted_replies_fail_their_crc() {
+    let board = UdpSocket::bind("127.0.0.1:0").unwrap();
+    board
+        .set_read_timeout(Some(Duration::from_millis(500)))
+        .unwrap();
+    let mut boards = Boards::psm(8);
+    let mut p = UdpPort::open_udp(board.local_addr().unwrap()).unwrap();
+    p.link_mut()
+        .set_timeout(Duration::from_millis(200))
+        .unwrap();
+    let mut buf = [0u8; 2048];
+    let mut blk = [0u8; 128];
+    // One good block read first: the port learns that this source sends CRCs.
+    let mut exchange = |p: &mut UdpPort,
+                        edit: &(dyn Fn(&mut Vec<u8>) + Sync),
+                        blk: &mut [u8; 128]|
+     -> Result<(), PortError> {
+        std::thread::scope(|s| {
+            let h = s.spawn(|| {
+                let (n, f) = board.recv_from(&mut buf).unwrap();
+                for mut r in boards.handle(&buf[..n]) {
+                    edit(&mut r);
+                    board.send_to(&r, f).unwrap();
+                }
+            });
+            let r = p.read_block(6, 0, blk);
+            h.join().unwrap();
+            r
+        })
+    };
+    exchange(&mut p, &|_| {}, &mut blk).unwrap();
+    // Flip each bit of the data (after the 20-byte header) in turn: never accepted.
+    for bit in [0usize, 7, 100, 511, 1000] {
+        let e = exchange(
+            &mut p,
+            &move |r| r[20 + bit / 8] ^= 1 << (bit % 8),
+            &mut blk,
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, PortError::CrcMismatch { board: 6, .. }),
+            "{e:?}"
+        );
+    }
+    // A zeroed CRC from this source is refused too.
+    let e = exchange(&mut p, &|r| r[16..20].copy_from_slice(&[0; 4]), &mut blk).unwrap_err();
+    assert!(
+        matches!(e, PortError::CrcMismatch { board: 6, .. }),
+        "{e:?}"
+    );
+    assert_eq!(p.counters().crc_errors, 6);
+    exchange(&mut p, &|_| {}, &mut blk).unwrap();
+}

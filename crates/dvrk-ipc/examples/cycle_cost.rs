@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, JointStateV1, PoseV1, ServiceNames, Subscription, Topic,
+    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, ServiceNames, Subscription, Topic,
     create_node, domain_config,
 };
 
@@ -45,7 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let publisher = ArmPublisher::create(&node, &names)?;
         let mut js = JointStateV1::default();
         let mut cp = PoseV1::default();
-        let mut st = CompensationStatusV1::default();
+        let mut st = CompensationStatusV2::default();
         let mut samples = Vec::with_capacity(cycles);
         for i in 0..(cycles + 1000) {
             let seq = i as u64 + 1;

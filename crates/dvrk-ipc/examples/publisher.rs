@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, Header, JointStateV1, PoseV1, ServiceNames, Topic,
+    ArmPublisher, CompensationStatusV2, Header, JointStateV1, PoseV1, ServiceNames, Topic,
     create_node, domain_config, flags,
 };
 
@@ -145,7 +145,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 rotation,
             }
         };
-        let status = CompensationStatusV1 {
+        let status = CompensationStatusV2 {
             header,
             tau_ext_nm: [0.05, -0.08],
             delta_rad: delta,
@@ -160,7 +160,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             read_failures_total: 0,
             overruns_total: 0,
             consecutive_read_failures: 0,
-            _reserved: 0,
+            ..Default::default()
         };
         last_sample_t_ns = sample_t_ns;
         publisher.publish_cycle(&js, &tip(&q), &cjs, &tip(&qc), &status)?;

@@ -11,7 +11,7 @@
  *   <prefix>/measured_cp              dvrk_PoseV1         "dvrk::PoseV1"
  *   <prefix>/compensated/measured_js  dvrk_JointStateV1
  *   <prefix>/compensated/measured_cp  dvrk_PoseV1
- *   <prefix>/compensated/status       dvrk_CompensationStatusV1 "dvrk::CompensationStatusV1"
+ *   <prefix>/compensated/status       dvrk_CompensationStatusV2 "dvrk::CompensationStatusV2"
  *   <prefix>/cycle                    event, notified once per cycle after the five messages
  *
  * Open or create every service with the DVRK_IPC_QOS_* values below: whichever process creates
@@ -60,7 +60,7 @@ extern "C" {
 
 #define DVRK_IPC_TYPE_NAME_JOINT_STATE_V1 "dvrk::JointStateV1"
 #define DVRK_IPC_TYPE_NAME_POSE_V1 "dvrk::PoseV1"
-#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V1 "dvrk::CompensationStatusV1"
+#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V2 "dvrk::CompensationStatusV2"
 
 /* ---- joints ---------------------------------------------------------------------------------- */
 
@@ -81,6 +81,9 @@ extern "C" {
 #define DVRK_IPC_FLAG_CORRECTION_ACTIVE_J2 (1u << 8) /* compliance correction of joint 2 active */
 #define DVRK_IPC_FLAG_SIMULATED (1u << 9)            /* source is the simulated PSM */
 #define DVRK_IPC_FLAG_OVERRUN (1u << 10)             /* previous cycle exceeded the period */
+#define DVRK_IPC_FLAG_IMPLAUSIBLE (1u << 11)         /* failed a plausibility check; valid = 0 */
+#define DVRK_IPC_FLAG_NO_SOURCE (1u << 12)           /* tap sees no console traffic; valid = 0 */
+#define DVRK_IPC_FLAG_HELD (1u << 13)                /* values held from the last valid sample */
 #define DVRK_IPC_FLAG_FAULT_MASK (0x3fu)             /* bits 0..5 */
 
 /* ---- messages -------------------------------------------------------------------------------- */
@@ -121,9 +124,9 @@ typedef struct dvrk_PoseV1 {
 
 /* Compensation and loop status. delta_rad = q - q_hat of joints 1, 2; *_total are counters since
  * the publisher started; cycle_duration_ns is the most recent completed cycle's work time. */
-typedef struct dvrk_CompensationStatusV1 {
+typedef struct dvrk_CompensationStatusV2 {
 #ifdef __cplusplus
-    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V1;
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V2;
 #endif
     dvrk_Header header;
     double tau_ext_nm[2];
@@ -136,7 +139,11 @@ typedef struct dvrk_CompensationStatusV1 {
     uint64_t overruns_total;
     uint32_t consecutive_read_failures;
     uint32_t _reserved;
-} dvrk_CompensationStatusV1;
+    double tau_margin_nm[2];      /* |tau_ext| minus the engage threshold, joints 1, 2 (N.m) */
+    uint64_t held_sample_age_ns;  /* 0 when fresh; age of the held valid sample otherwise */
+    uint64_t publish_late_ns;     /* how late the cycle started after its deadline */
+    uint64_t implausible_total;   /* samples rejected by the plausibility checks */
+} dvrk_CompensationStatusV2;
 
 /* ---- layout checks (the same numbers as the Rust const assertions) --------------------------- */
 
@@ -155,10 +162,13 @@ DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, position_m) == 40, "position_m offs
 DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, orientation_xyzw) == 64, "orientation offset");
 DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, rotation) == 96, "rotation offset");
 
-DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV1) == 128, "dvrk_CompensationStatusV1 size");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV1, insertion_m) == 72, "insertion_m offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV1, consecutive_read_failures) == 120,
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV2) == 168, "dvrk_CompensationStatusV2 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, insertion_m) == 72, "insertion_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, consecutive_read_failures) == 120,
                        "consecutive_read_failures offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, tau_margin_nm) == 128, "tau_margin_nm offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, implausible_total) == 160,
+                       "implausible_total offset");
 
 #ifdef __cplusplus
 } /* extern "C" */

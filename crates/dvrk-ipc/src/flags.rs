@@ -14,8 +14,11 @@
 //! | 8 | `CORRECTION_ACTIVE_J2` | the compliance correction of joint 2 (pitch) is active | — |
 //! | 9 | `SIMULATED` | the source is the simulated PSM, not real boards | — |
 //! | 10 | `OVERRUN` | the previous cycle took longer than the nominal period | — |
+//! | 11 | `IMPLAUSIBLE` | the sample failed a plausibility check (joint limits, jump between cycles, effort, pot/encoder agreement) | 0 |
+//! | 12 | `NO_SOURCE` | nothing to read: the passive tap sees no console traffic | 0 |
+//! | 13 | `HELD` | positions and poses are those of the last valid sample, held (see `held_sample_age_ns`) | 0 |
 //!
-//! Bits 11..31 are reserved and 0. "as read" means the bit describes the hardware state and does
+//! Bits 14..31 are reserved and 0. "as read" means the bit describes the hardware state and does
 //! not by itself invalidate the sample; the publisher decides `valid` (0 when no usable
 //! position could be read). A consumer that needs a safe robot should still check
 //! [`FAULT_MASK`].
@@ -43,15 +46,26 @@ pub const SIMULATED: u32 = 1 << 9;
 /// The previous cycle took longer than the nominal period.
 pub const OVERRUN: u32 = 1 << 10;
 
+/// The sample failed a plausibility check (joint outside its limits plus a margin, a jump
+/// between cycles beyond the joint's maximum velocity, an effort beyond the amplifier's maximum
+/// current, pots and encoders disagreeing). Published with `valid = 0`.
+pub const IMPLAUSIBLE: u32 = 1 << 11;
+/// There is nothing to read: the passive tap sees no console traffic. Published with
+/// `valid = 0`.
+pub const NO_SOURCE: u32 = 1 << 12;
+/// The positions, velocities, efforts and poses of this message are those of the last valid
+/// sample, held while reads fail or are rejected (never zeros). Published with `valid = 0`.
+pub const HELD: u32 = 1 << 13;
+
 /// Every defined bit.
-pub const ALL: u32 = (1 << 11) - 1;
+pub const ALL: u32 = (1 << 14) - 1;
 
 /// Bits that report a hardware or communication fault.
 pub const FAULT_MASK: u32 =
     BOARD_TIMEOUT | BOARD_ERROR | WATCHDOG_TIMEOUT | POWER_OFF | ENCODER_ERROR | AMP_FAULT;
 
 /// `(bit, name)` of every defined flag, in bit order (for printing; no allocation).
-pub const TABLE: [(u32, &str); 11] = [
+pub const TABLE: [(u32, &str); 14] = [
     (BOARD_TIMEOUT, "BOARD_TIMEOUT"),
     (BOARD_ERROR, "BOARD_ERROR"),
     (WATCHDOG_TIMEOUT, "WATCHDOG_TIMEOUT"),
@@ -63,6 +77,9 @@ pub const TABLE: [(u32, &str); 11] = [
     (CORRECTION_ACTIVE_J2, "CORRECTION_ACTIVE_J2"),
     (SIMULATED, "SIMULATED"),
     (OVERRUN, "OVERRUN"),
+    (IMPLAUSIBLE, "IMPLAUSIBLE"),
+    (NO_SOURCE, "NO_SOURCE"),
+    (HELD, "HELD"),
 ];
 
 /// Names of the bits set in `flags`, in bit order; reserved bits are skipped.

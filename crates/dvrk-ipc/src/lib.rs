@@ -4,7 +4,7 @@
 //! compensated for instrument compliance, through iceoryx2 shared memory. This crate holds
 //! everything both sides must agree on:
 //!
-//! - the `#[repr(C)]` message types ([`JointStateV1`], [`PoseV1`], [`CompensationStatusV1`], all
+//! - the `#[repr(C)]` message types ([`JointStateV1`], [`PoseV1`], [`CompensationStatusV2`], all
 //!   starting with the common [`Header`]) and the [`flags`] bits, mirrored for C and C++ in
 //!   `include/dvrk_ipc.h`;
 //! - the service names under a prefix (default `dvrk/PSM1`, see [`ServiceNames`]):
@@ -15,7 +15,7 @@
 //!   | `<prefix>/measured_cp` | [`PoseV1`] |
 //!   | `<prefix>/compensated/measured_js` | [`JointStateV1`] |
 //!   | `<prefix>/compensated/measured_cp` | [`PoseV1`] |
-//!   | `<prefix>/compensated/status` | [`CompensationStatusV1`] |
+//!   | `<prefix>/compensated/status` | [`CompensationStatusV2`] |
 //!   | `<prefix>/cycle` | event, notified once per cycle after the five messages |
 //!
 //! - the QoS ([`qos`]) applied by the one function that opens or creates services
@@ -53,7 +53,7 @@ mod subscription;
 
 pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
-    COMPENSATION_STATUS_V1_SIZE, CompensationStatusV1, HEADER_SIZE, Header, JOINT_NAMES,
+    COMPENSATION_STATUS_V2_SIZE, CompensationStatusV2, HEADER_SIZE, Header, JOINT_NAMES,
     JOINT_STATE_V1_SIZE, JointStateV1, Message, NUM_JOINTS, POSE_V1_SIZE, PoseV1,
 };
 pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, ServiceNames, Topic};

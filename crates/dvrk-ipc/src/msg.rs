@@ -140,10 +140,14 @@ impl Default for PoseV1 {
 /// | `overruns_total` | cycles that took longer than the nominal period since start |
 /// | `consecutive_read_failures` | failed reads in a row up to and including this cycle (0 when this read succeeded) |
 /// | `_reserved` | 0 |
+/// | `tau_margin_nm` | how far \|tau_ext\| of joints 1, 2 is above (> 0) or below (< 0) the threshold at which the correction engages (N·m); 0 when the sample is invalid |
+/// | `held_sample_age_ns` | 0 when this cycle's read succeeded; otherwise the age of the last valid sample whose positions and poses are held in the messages (`u64::MAX` when there was none yet) |
+/// | `publish_late_ns` | how late this cycle started after its scheduled deadline (0 in `follow` mode and when on time) |
+/// | `implausible_total` | samples rejected by the plausibility checks since start (published with `valid = 0` and `IMPLAUSIBLE`) |
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("dvrk::CompensationStatusV1")]
-pub struct CompensationStatusV1 {
+#[type_name("dvrk::CompensationStatusV2")]
+pub struct CompensationStatusV2 {
     pub header: Header,
     pub tau_ext_nm: [f64; 2],
     pub delta_rad: [f64; 2],
@@ -155,13 +159,17 @@ pub struct CompensationStatusV1 {
     pub overruns_total: u64,
     pub consecutive_read_failures: u32,
     pub _reserved: u32,
+    pub tau_margin_nm: [f64; 2],
+    pub held_sample_age_ns: u64,
+    pub publish_late_ns: u64,
+    pub implausible_total: u64,
 }
 
 mod sealed {
     pub trait Sealed {}
     impl Sealed for super::JointStateV1 {}
     impl Sealed for super::PoseV1 {}
-    impl Sealed for super::CompensationStatusV1 {}
+    impl Sealed for super::CompensationStatusV2 {}
 }
 
 /// The message types of this crate (sealed): what [`crate::Subscription`] and
@@ -197,8 +205,8 @@ impl Message for PoseV1 {
     }
 }
 
-impl Message for CompensationStatusV1 {
-    const TYPE_NAME: &'static str = "dvrk::CompensationStatusV1";
+impl Message for CompensationStatusV2 {
+    const TYPE_NAME: &'static str = "dvrk::CompensationStatusV2";
     fn header(&self) -> &Header {
         &self.header
     }
@@ -211,7 +219,7 @@ impl Message for CompensationStatusV1 {
 pub const HEADER_SIZE: usize = 40;
 pub const JOINT_STATE_V1_SIZE: usize = 208;
 pub const POSE_V1_SIZE: usize = 168;
-pub const COMPENSATION_STATUS_V1_SIZE: usize = 128;
+pub const COMPENSATION_STATUS_V2_SIZE: usize = 168;
 
 // Compile-time layout checks: size, alignment and every field offset. Each offset equals the end of
 // the previous field, so there is no implicit padding anywhere (the checks fail to compile if a
@@ -239,10 +247,11 @@ assert_layout!(JointStateV1, size = JOINT_STATE_V1_SIZE,
     effort: [f64; NUM_JOINTS]);
 assert_layout!(PoseV1, size = POSE_V1_SIZE,
     header: Header, position_m: [f64; 3], orientation_xyzw: [f64; 4], rotation: [f64; 9]);
-assert_layout!(CompensationStatusV1, size = COMPENSATION_STATUS_V1_SIZE,
+assert_layout!(CompensationStatusV2, size = COMPENSATION_STATUS_V2_SIZE,
     header: Header, tau_ext_nm: [f64; 2], delta_rad: [f64; 2], insertion_m: f64,
     cycle_period_ns: u64, cycle_duration_ns: u64, cycles_total: u64, read_failures_total: u64,
-    overruns_total: u64, consecutive_read_failures: u32, _reserved: u32);
+    overruns_total: u64, consecutive_read_failures: u32, _reserved: u32, tau_margin_nm: [f64; 2],
+    held_sample_age_ns: u64, publish_late_ns: u64, implausible_total: u64);
 
 #[cfg(test)]
 mod tests {
@@ -258,8 +267,8 @@ mod tests {
             );
             assert_eq!(<PoseV1 as ZeroCopySend>::type_name(), PoseV1::TYPE_NAME);
             assert_eq!(
-                <CompensationStatusV1 as ZeroCopySend>::type_name(),
-                CompensationStatusV1::TYPE_NAME
+                <CompensationStatusV2 as ZeroCopySend>::type_name(),
+                CompensationStatusV2::TYPE_NAME
             );
             assert_eq!(<Header as ZeroCopySend>::type_name(), "dvrk::HeaderV1");
         }

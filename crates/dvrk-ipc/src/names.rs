@@ -6,7 +6,7 @@ use core::fmt;
 use iceoryx2::prelude::ServiceName;
 
 use crate::IpcError;
-use crate::msg::{CompensationStatusV1, JointStateV1, Message, PoseV1};
+use crate::msg::{CompensationStatusV2, JointStateV1, Message, PoseV1};
 
 /// Default service prefix.
 pub const DEFAULT_PREFIX: &str = "dvrk/PSM1";
@@ -29,7 +29,7 @@ pub enum Topic {
     CompensatedMeasuredJs,
     /// `compensated/measured_cp`, [`PoseV1`]: tip pose from the corrected joints.
     CompensatedMeasuredCp,
-    /// `compensated/status`, [`CompensationStatusV1`].
+    /// `compensated/status`, [`CompensationStatusV2`].
     CompensatedStatus,
 }
 
@@ -59,7 +59,7 @@ impl Topic {
         match self {
             Topic::MeasuredJs | Topic::CompensatedMeasuredJs => JointStateV1::TYPE_NAME,
             Topic::MeasuredCp | Topic::CompensatedMeasuredCp => PoseV1::TYPE_NAME,
-            Topic::CompensatedStatus => CompensationStatusV1::TYPE_NAME,
+            Topic::CompensatedStatus => CompensationStatusV2::TYPE_NAME,
         }
     }
 
@@ -294,7 +294,7 @@ mod tests {
         assert_eq!(Topic::CompensatedMeasuredCp.type_name(), "dvrk::PoseV1");
         assert_eq!(
             Topic::CompensatedStatus.type_name(),
-            "dvrk::CompensationStatusV1"
+            "dvrk::CompensationStatusV2"
         );
         assert!(Topic::MeasuredCp.carries::<PoseV1>());
         assert!(!Topic::MeasuredJs.carries::<PoseV1>());

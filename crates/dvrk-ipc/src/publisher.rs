@@ -8,7 +8,7 @@ use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 use crate::error::{IpcError, PublishError};
-use crate::msg::{CompensationStatusV1, JointStateV1, Message, PoseV1};
+use crate::msg::{CompensationStatusV2, JointStateV1, Message, PoseV1};
 use crate::names::{ServiceNames, Topic};
 use crate::services::ArmServices;
 
@@ -27,7 +27,7 @@ pub struct ArmPublisher<S: Service = iceoryx2::service::ipc::Service> {
     measured_cp: Publisher<S, PoseV1, ()>,
     compensated_measured_js: Publisher<S, JointStateV1, ()>,
     compensated_measured_cp: Publisher<S, PoseV1, ()>,
-    compensated_status: Publisher<S, CompensationStatusV1, ()>,
+    compensated_status: Publisher<S, CompensationStatusV2, ()>,
     cycle: Notifier<S>,
 }
 
@@ -109,7 +109,7 @@ impl<S: Service> ArmPublisher<S> {
         measured_cp: &PoseV1,
         compensated_measured_js: &JointStateV1,
         compensated_measured_cp: &PoseV1,
-        compensated_status: &CompensationStatusV1,
+        compensated_status: &CompensationStatusV2,
     ) -> Result<(), PublishError> {
         debug_assert!(
             [

@@ -12,7 +12,7 @@ use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 use crate::IpcError;
-use crate::msg::{CompensationStatusV1, JointStateV1, Message, PoseV1};
+use crate::msg::{CompensationStatusV2, JointStateV1, Message, PoseV1};
 use crate::names::{ServiceNames, Topic};
 
 /// The project's quality of service. The same numbers are `DVRK_IPC_QOS_*` in `dvrk_ipc.h`.
@@ -181,7 +181,7 @@ pub struct ArmServices<S: Service = iceoryx2::service::ipc::Service> {
     pub measured_cp: PubSubFactory<S, PoseV1, ()>,
     pub compensated_measured_js: PubSubFactory<S, JointStateV1, ()>,
     pub compensated_measured_cp: PubSubFactory<S, PoseV1, ()>,
-    pub compensated_status: PubSubFactory<S, CompensationStatusV1, ()>,
+    pub compensated_status: PubSubFactory<S, CompensationStatusV2, ()>,
     pub cycle: EventFactory<S>,
 }
 

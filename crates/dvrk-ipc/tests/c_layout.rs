@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use dvrk_ipc::{
-    CompensationStatusV1, Header, JOINT_NAMES, JointStateV1, Message, NUM_JOINTS, PoseV1, Topic,
+    CompensationStatusV2, Header, JOINT_NAMES, JointStateV1, Message, NUM_JOINTS, PoseV1, Topic,
     flags, qos,
 };
 
@@ -27,24 +27,28 @@ const FIELDS: &[(&str, &str)] = &[
     ("dvrk_PoseV1", "position_m"),
     ("dvrk_PoseV1", "orientation_xyzw"),
     ("dvrk_PoseV1", "rotation"),
-    ("dvrk_CompensationStatusV1", "header"),
-    ("dvrk_CompensationStatusV1", "tau_ext_nm"),
-    ("dvrk_CompensationStatusV1", "delta_rad"),
-    ("dvrk_CompensationStatusV1", "insertion_m"),
-    ("dvrk_CompensationStatusV1", "cycle_period_ns"),
-    ("dvrk_CompensationStatusV1", "cycle_duration_ns"),
-    ("dvrk_CompensationStatusV1", "cycles_total"),
-    ("dvrk_CompensationStatusV1", "read_failures_total"),
-    ("dvrk_CompensationStatusV1", "overruns_total"),
-    ("dvrk_CompensationStatusV1", "consecutive_read_failures"),
-    ("dvrk_CompensationStatusV1", "_reserved"),
+    ("dvrk_CompensationStatusV2", "header"),
+    ("dvrk_CompensationStatusV2", "tau_ext_nm"),
+    ("dvrk_CompensationStatusV2", "delta_rad"),
+    ("dvrk_CompensationStatusV2", "insertion_m"),
+    ("dvrk_CompensationStatusV2", "cycle_period_ns"),
+    ("dvrk_CompensationStatusV2", "cycle_duration_ns"),
+    ("dvrk_CompensationStatusV2", "cycles_total"),
+    ("dvrk_CompensationStatusV2", "read_failures_total"),
+    ("dvrk_CompensationStatusV2", "overruns_total"),
+    ("dvrk_CompensationStatusV2", "consecutive_read_failures"),
+    ("dvrk_CompensationStatusV2", "_reserved"),
+    ("dvrk_CompensationStatusV2", "tau_margin_nm"),
+    ("dvrk_CompensationStatusV2", "held_sample_age_ns"),
+    ("dvrk_CompensationStatusV2", "publish_late_ns"),
+    ("dvrk_CompensationStatusV2", "implausible_total"),
 ];
 
 const TYPES: &[&str] = &[
     "dvrk_Header",
     "dvrk_JointStateV1",
     "dvrk_PoseV1",
-    "dvrk_CompensationStatusV1",
+    "dvrk_CompensationStatusV2",
 ];
 
 /// Integer constants of the header and their Rust values.
@@ -97,6 +101,9 @@ fn int_constants() -> Vec<(&'static str, u64)> {
         "DVRK_IPC_FLAG_CORRECTION_ACTIVE_J2",
         "DVRK_IPC_FLAG_SIMULATED",
         "DVRK_IPC_FLAG_OVERRUN",
+        "DVRK_IPC_FLAG_IMPLAUSIBLE",
+        "DVRK_IPC_FLAG_NO_SOURCE",
+        "DVRK_IPC_FLAG_HELD",
     ];
     assert_eq!(flag_macros.len(), flags::TABLE.len(), "a flag is missing");
     for (mac, (bit, name)) in flag_macros.iter().zip(flags::TABLE) {
@@ -137,8 +144,8 @@ fn string_constants() -> Vec<(&'static str, String)> {
         ),
         ("DVRK_IPC_TYPE_NAME_POSE_V1", PoseV1::TYPE_NAME.into()),
         (
-            "DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V1",
-            CompensationStatusV1::TYPE_NAME.into(),
+            "DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V2",
+            CompensationStatusV2::TYPE_NAME.into(),
         ),
     ]
 }
@@ -184,8 +191,8 @@ fn rust_layout() -> BTreeMap<String, String> {
         [header, position_m, orientation_xyzw, rotation]
     );
     ty!(
-        "dvrk_CompensationStatusV1",
-        CompensationStatusV1,
+        "dvrk_CompensationStatusV2",
+        CompensationStatusV2,
         [
             header,
             tau_ext_nm,
@@ -197,7 +204,11 @@ fn rust_layout() -> BTreeMap<String, String> {
             read_failures_total,
             overruns_total,
             consecutive_read_failures,
-            _reserved
+            _reserved,
+            tau_margin_nm,
+            held_sample_age_ns,
+            publish_late_ns,
+            implausible_total
         ]
     );
     for (name, value) in int_constants() {

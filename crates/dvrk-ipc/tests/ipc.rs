@@ -13,7 +13,7 @@ use common::Domain;
 use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, Header, IpcError, JointStateV1, Message, PoseV1,
+    ArmPublisher, CompensationStatusV2, Header, IpcError, JointStateV1, Message, PoseV1,
     Subscription, Topic, Update, create_node, flags,
 };
 
@@ -32,7 +32,7 @@ fn cycle(
     PoseV1,
     JointStateV1,
     PoseV1,
-    CompensationStatusV1,
+    CompensationStatusV2,
 ) {
     let s = seq as f64;
     let header = Header {
@@ -63,7 +63,7 @@ fn cycle(
         position_m: [s + 0.5, 2.0 * s, 3.0 * s],
         ..cp
     };
-    let status = CompensationStatusV1 {
+    let status = CompensationStatusV2 {
         header,
         tau_ext_nm: [0.1 * s, -0.2 * s],
         delta_rad: [0.01, -0.02],
@@ -75,6 +75,7 @@ fn cycle(
         overruns_total: 1,
         consecutive_read_failures: 0,
         _reserved: 0,
+        ..Default::default()
     };
     (js, cp, cjs, ccp, status)
 }
@@ -105,7 +106,7 @@ fn round_trip_of_all_five_topics() {
     let mut ccp =
         Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD)
             .expect("sub ccp");
-    let mut st = Subscription::<CompensationStatusV1>::new(
+    let mut st = Subscription::<CompensationStatusV2>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,
@@ -175,7 +176,7 @@ fn buffer_overflow_shows_up_as_seq_gaps() {
 fn invalid_cycles_carry_valid_zero_and_the_reason() {
     let d = Domain::new("invalid");
     let node = node(&d, "invalid");
-    let mut sub = Subscription::<CompensationStatusV1>::new(
+    let mut sub = Subscription::<CompensationStatusV2>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,

@@ -17,7 +17,7 @@ use std::time::Duration;
 use common::Domain;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, JointStateV1, PoseV1, Subscription, Topic, Update,
+    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, Subscription, Topic, Update,
     create_node,
 };
 
@@ -78,7 +78,7 @@ fn publish_cycle_allocates_only_iceoryx2s_per_sample_handle() {
     let publisher = ArmPublisher::create(&node, &d.names).unwrap();
     let mut js = JointStateV1::default();
     let mut cp = PoseV1::default();
-    let mut st = CompensationStatusV1::default();
+    let mut st = CompensationStatusV2::default();
 
     // The first send connects the subscriber (setup work, may allocate).
     publisher.publish_cycle(&js, &cp, &js, &cp, &st).unwrap();

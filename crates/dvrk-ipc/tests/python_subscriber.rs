@@ -12,7 +12,7 @@ use std::time::Duration;
 use common::Domain;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV1, Header, JointStateV1, PoseV1, Topic, create_node, flags,
+    ArmPublisher, CompensationStatusV2, Header, JointStateV1, PoseV1, Topic, create_node, flags,
 };
 
 fn script() -> PathBuf {
@@ -96,7 +96,7 @@ fn python_subscriber_decodes_the_compensated_pose() {
         let cp = pose(seq);
         let mut js = js;
         js.header = cp.header;
-        let st = CompensationStatusV1 {
+        let st = CompensationStatusV2 {
             header: cp.header,
             ..Default::default()
         };

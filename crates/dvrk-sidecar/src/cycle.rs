@@ -3,7 +3,7 @@
 
 use dvrk_compliance::{ComplianceConfig, Correction, PsmKinematics};
 use dvrk_io::ArmSample;
-use dvrk_ipc::{CompensationStatusV1, Header, JointStateV1, PoseV1, flags};
+use dvrk_ipc::{CompensationStatusV2, Header, JointStateV1, PoseV1, flags};
 use nalgebra::Isometry3;
 
 /// Why a read failed, as far as the published flags are concerned.
@@ -14,6 +14,10 @@ pub enum ReadOutcome {
     Timeout,
     /// A reply that failed validation, or any other port error.
     Error,
+    /// Nothing to read: the passive tap sees no console traffic.
+    NoSource,
+    /// The read succeeded but the sample failed a plausibility check.
+    Implausible,
 }
 
 /// Everything computed in one cycle, before it is written into messages.
@@ -26,6 +30,8 @@ pub struct CycleResult {
     pub compensated_pose: Isometry3<f64>,
     pub valid: bool,
     pub flags: u32,
+    /// |tau_ext| minus the threshold at which the correction of joints 1, 2 engages (N·m).
+    pub tau_margin_nm: [f64; 2],
 }
 
 impl CycleResult {
@@ -42,6 +48,8 @@ pub fn health_flags(s: &ArmSample, outcome: ReadOutcome) -> u32 {
         ReadOutcome::Ok => {}
         ReadOutcome::Timeout => f |= flags::BOARD_TIMEOUT,
         ReadOutcome::Error => f |= flags::BOARD_ERROR,
+        ReadOutcome::NoSource => f |= flags::NO_SOURCE,
+        ReadOutcome::Implausible => f |= flags::IMPLAUSIBLE,
     }
     // Hardware bits mean something only for boards whose status was read: an unread board's
     // power bits are unknown, not off (its BOARD_TIMEOUT/BOARD_ERROR says why).
@@ -88,6 +96,11 @@ pub fn compute(
     if correction.active[1] {
         f |= flags::CORRECTION_ACTIVE_J2;
     }
+    let tau_margin_nm = core::array::from_fn(|j| {
+        model
+            .joint(j)
+            .map_or(0.0, |m| correction.tau_ext_nm[j].abs() - m.tau_min_nm())
+    });
     CycleResult {
         raw_pose: kin.forward(&raw_q6),
         correction,
@@ -95,6 +108,80 @@ pub fn compute(
         compensated_pose: kin.forward(&comp_q6),
         valid: outcome == ReadOutcome::Ok && s.valid,
         flags: f,
+        tau_margin_nm,
+    }
+}
+
+/// The last valid cycle, held and republished (with `valid = 0`) while reads fail or samples
+/// are rejected, so that no consumer ever sees zeros or a half-read sample as a position.
+#[derive(Debug, Clone, Copy)]
+pub struct Held {
+    pub sample: ArmSample,
+    pub result: CycleResult,
+    /// Host time of the held sample (ns).
+    pub sample_t_ns: u64,
+}
+
+/// What an invalid cycle publishes: the last valid sample's values with `valid = 0`, the flags
+/// that say why (`reason`, from [`health_flags`] of this cycle's read) plus `HELD`, correction
+/// flags cleared. Without any valid sample yet, positions, velocities, efforts and poses are NaN
+/// (never zeros, which are a plausible pose), and `HELD` is not set.
+///
+/// Returns the sample to write into the joint-state messages and the cycle result.
+pub fn held(last: Option<&Held>, current: &ArmSample, reason: u32) -> (ArmSample, CycleResult) {
+    let keep = flags::SIMULATED | flags::OVERRUN;
+    match last {
+        Some(h) => {
+            let mut sample = h.sample;
+            sample.board_timestamp = current.board_timestamp;
+            sample.boards = current.boards;
+            sample.axes = current.axes;
+            sample.valid = false;
+            let mut result = h.result;
+            result.valid = false;
+            result.flags = (h.result.flags & keep) | reason | flags::HELD;
+            result.correction.active = [false; 2];
+            result.tau_margin_nm = [0.0; 2];
+            (sample, result)
+        }
+        None => {
+            let nan_pose = Isometry3::from_parts(
+                nalgebra::Translation3::new(f64::NAN, f64::NAN, f64::NAN),
+                nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
+                    f64::NAN,
+                    f64::NAN,
+                    f64::NAN,
+                    f64::NAN,
+                )),
+            );
+            let sample = ArmSample {
+                t_ns: current.t_ns,
+                position: [f64::NAN; 7],
+                velocity: [f64::NAN; 7],
+                effort: [f64::NAN; 7],
+                board_timestamp: current.board_timestamp,
+                boards: current.boards,
+                axes: current.axes,
+                valid: false,
+            };
+            let result = CycleResult {
+                raw_pose: nan_pose,
+                correction: Correction {
+                    position: [f64::NAN; 3],
+                    delta_rad: [0.0; 2],
+                    tau_ext_nm: [0.0; 2],
+                    active: [false; 2],
+                    insertion_m: f64::NAN,
+                    insertion_clamped: false,
+                },
+                compensated_position: [f64::NAN; 7],
+                compensated_pose: nan_pose,
+                valid: false,
+                flags: reason,
+                tau_margin_nm: [0.0; 2],
+            };
+            (sample, result)
+        }
     }
 }
 
@@ -115,6 +202,11 @@ pub struct CycleTiming {
     pub read_failures_total: u64,
     pub overruns_total: u64,
     pub consecutive_read_failures: u32,
+    /// 0 for a fresh sample; the age of the held sample otherwise (`u64::MAX`: none yet).
+    pub held_sample_age_ns: u64,
+    /// How late the cycle started after its deadline.
+    pub publish_late_ns: u64,
+    pub implausible_total: u64,
 }
 
 /// The five messages of one cycle.
@@ -124,7 +216,7 @@ pub struct Messages {
     pub measured_cp: PoseV1,
     pub compensated_js: JointStateV1,
     pub compensated_cp: PoseV1,
-    pub status: CompensationStatusV1,
+    pub status: CompensationStatusV2,
 }
 
 fn pose_msg(header: Header, p: &Isometry3<f64>) -> PoseV1 {
@@ -170,7 +262,7 @@ pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
         position: r.compensated_position,
         ..measured_js
     };
-    let status = CompensationStatusV1 {
+    let status = CompensationStatusV2 {
         header,
         tau_ext_nm: r.correction.tau_ext_nm,
         delta_rad: r.correction.delta_rad,
@@ -181,6 +273,10 @@ pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
         read_failures_total: t.read_failures_total,
         overruns_total: t.overruns_total,
         consecutive_read_failures: t.consecutive_read_failures,
+        tau_margin_nm: r.tau_margin_nm,
+        held_sample_age_ns: t.held_sample_age_ns,
+        publish_late_ns: t.publish_late_ns,
+        implausible_total: t.implausible_total,
         ..Default::default()
     };
     Messages {

@@ -3,7 +3,7 @@
 use anyhow::{Context, Result, bail};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV1, Header, JOINT_NAMES, JointStateV1, Message, NOMINAL_PERIOD, PoseV1,
+    CompensationStatusV2, Header, JOINT_NAMES, JointStateV1, Message, NOMINAL_PERIOD, PoseV1,
     ServiceNames, Subscription, Topic,
 };
 use serde_json::{Value, json};
@@ -45,7 +45,7 @@ pub fn run(args: &EchoArgs) -> Result<()> {
         Topic::MeasuredCp | Topic::CompensatedMeasuredCp => {
             echo::<PoseV1>(&node, &names, topic, args, &stop, pose_json, pose_text)
         }
-        Topic::CompensatedStatus => echo::<CompensationStatusV1>(
+        Topic::CompensatedStatus => echo::<CompensationStatusV2>(
             &node,
             &names,
             topic,
@@ -155,7 +155,7 @@ fn pose_text(m: &PoseV1) -> String {
     )
 }
 
-fn status_json(m: &CompensationStatusV1) -> Value {
+fn status_json(m: &CompensationStatusV2) -> Value {
     json!({ "header": header_json(&m.header), "tau_ext_nm": m.tau_ext_nm, "delta_rad": m.delta_rad,
             "insertion_m": m.insertion_m, "cycle_period_ns": m.cycle_period_ns,
             "cycle_duration_ns": m.cycle_duration_ns, "cycles_total": m.cycles_total,
@@ -163,7 +163,7 @@ fn status_json(m: &CompensationStatusV1) -> Value {
             "consecutive_read_failures": m.consecutive_read_failures })
 }
 
-fn status_text(m: &CompensationStatusV1) -> String {
+fn status_text(m: &CompensationStatusV2) -> String {
     format!(
         "{}\n  tau_ext_nm [{:+.4}, {:+.4}]  delta_rad [{:+.6}, {:+.6}]  insertion_m {:.4}\n  cycle period {:.1} us, duration {:.1} us, read failures {}",
         header_text(&m.header),

@@ -9,9 +9,10 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use dvrk_io::ArmSample;
+use dvrk_io::plausibility::{PlausibilityLimits, SampleCheck};
 use dvrk_io::port::{Port, UdpLink, UdpPort};
 use dvrk_io::reader::ArmReader;
+use dvrk_io::{ArmSample, IoConfig};
 use dvrk_ipc::iceoryx2;
 use dvrk_ipc::{ArmPublisher, ServiceNames, flags};
 use tracing::{info, warn};
@@ -167,14 +168,22 @@ pub struct Counters {
     pub consecutive_read_failures: u64,
     pub overruns: u64,
     pub publish_failures: u64,
+    /// Samples that were read but refused by the plausibility checks.
+    pub implausible: u64,
     pub window_cycles: u64,
     pub window_read_failures: u64,
+    pub window_implausible: u64,
+    /// Valid cycles in the current summary window.
+    pub window_valid: u64,
     pub window_max_displacement_m: f64,
-    pub last_displacement_m: f64,
+    /// Tip displacement of the newest valid cycle of the current window (None: no valid cycle
+    /// in this window, so there is no fresh figure to print).
+    pub window_last_displacement_m: Option<f64>,
 }
 
 /// One cycle's work, from the read to the notify: what the loop runs every period and what
-/// benches/cycle.rs measures. Owns the source, the sample buffer and the publishers.
+/// benches/cycle.rs measures. Owns the source, the sample buffer, the plausibility checker, the
+/// last valid cycle (held while reads fail) and the publishers.
 pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     pub source: Src,
     pub sample: ArmSample,
@@ -183,6 +192,11 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     pub publisher: ArmPublisher<Svc>,
     pub counters: Counters,
     pub period_ns: u64,
+    /// How late the current cycle started after its deadline; set by the loop before
+    /// [`Pipeline::cycle`], published in the status message.
+    pub late_ns: u64,
+    check: Option<(SampleCheck, &'a IoConfig)>,
+    held: Option<cycle::Held>,
     last_duration_ns: u64,
     last_sample_t_ns: Option<u64>,
 }
@@ -203,28 +217,79 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             publisher,
             counters: Counters::default(),
             period_ns,
+            late_ns: 0,
+            check: None,
+            held: None,
             last_duration_ns: 0,
             last_sample_t_ns: None,
         }
+    }
+
+    /// Checks every successfully read sample with `check` (limits, jumps, currents) before it
+    /// is published as valid; `io` converts joint values back to actuator space.
+    pub fn with_check(mut self, check: SampleCheck, io: &'a IoConfig) -> Self {
+        self.check = Some((check, io));
+        self
+    }
+
+    /// The plausibility checker's counters, when there is one.
+    pub fn check_counters(&self) -> Option<dvrk_io::plausibility::PlausibilityCounters> {
+        self.check.as_ref().map(|(c, _)| c.counters())
     }
 
     /// Runs one cycle that starts at `t_start` (the loop's clock reading, passed to the reader
     /// for velocities and to the simulator). `clock` is read twice more: when the board read has
     /// completed (the header's `sample_t_ns`) and just before sending (`publish_t_ns`).
     /// Returns the sample time (ns). No allocation, no lock, no logging.
+    ///
+    /// A cycle whose read failed, or whose sample the checks refused, publishes `valid = 0`
+    /// with the reason, and the last valid cycle's values (flag `HELD`, its age in the status
+    /// message); never zeros, never a correction computed from a half-read sample.
     #[inline]
     pub fn cycle(&mut self, t_start: u64, clock: impl Fn() -> u64) -> u64 {
         let c = &mut self.counters;
-        let read = self.source.read(t_start, &mut self.sample);
+        let mut read = self.source.read(t_start, &mut self.sample);
         let t_sample = clock();
+        if read == ReadOutcome::Ok
+            && self.sample.valid
+            && let Some((check, io)) = self.check.as_mut()
+        {
+            let s = &self.sample;
+            let actuator_position = io.joint_to_actuator_position(&s.position);
+            let actuator_effort = io.joint_to_actuator_effort(&s.effort);
+            let amps: [f64; dvrk_io::NUM_JOINTS] =
+                core::array::from_fn(|i| io.actuators()[i].effort_to_amps(actuator_effort[i]));
+            if check.check(s, &actuator_position, &amps, None).is_err() {
+                read = ReadOutcome::Implausible;
+                c.implausible += 1;
+                c.window_implausible += 1;
+            }
+        }
         if read == ReadOutcome::Ok {
             c.consecutive_read_failures = 0;
-        } else {
+        } else if read != ReadOutcome::Implausible {
             c.consecutive_read_failures += 1;
             c.read_failures += 1;
             c.window_read_failures += 1;
         }
-        let mut result = cycle::compute(self.model, self.kinematics, &self.sample, read);
+        let fresh = cycle::compute(self.model, self.kinematics, &self.sample, read);
+        let (held_age, (sample, mut result)) = if fresh.valid {
+            self.held = Some(cycle::Held {
+                sample: self.sample,
+                result: fresh,
+                sample_t_ns: t_sample,
+            });
+            (0, (self.sample, fresh))
+        } else {
+            let age = self
+                .held
+                .as_ref()
+                .map_or(u64::MAX, |h| t_sample.saturating_sub(h.sample_t_ns));
+            (
+                age,
+                cycle::held(self.held.as_ref(), &self.sample, fresh.flags),
+            )
+        };
         if self.source.simulated() {
             result.flags |= flags::SIMULATED;
         }
@@ -244,8 +309,11 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             read_failures_total: c.read_failures,
             overruns_total: c.overruns,
             consecutive_read_failures: c.consecutive_read_failures.min(u64::from(u32::MAX)) as u32,
+            held_sample_age_ns: held_age,
+            publish_late_ns: self.late_ns,
+            implausible_total: c.implausible,
         };
-        let msgs = cycle::messages(&self.sample, &result, &timing);
+        let msgs = cycle::messages(&sample, &result, &timing);
         let sent = self.publisher.publish_cycle(
             &msgs.measured_js,
             &msgs.measured_cp,
@@ -259,8 +327,10 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         c.cycles += 1;
         c.window_cycles += 1;
         if result.valid {
-            c.last_displacement_m = result.tip_displacement_m();
-            c.window_max_displacement_m = c.window_max_displacement_m.max(c.last_displacement_m);
+            let d = result.tip_displacement_m();
+            c.window_valid += 1;
+            c.window_last_displacement_m = Some(d);
+            c.window_max_displacement_m = c.window_max_displacement_m.max(d);
         }
         self.last_sample_t_ns = Some(t_sample);
         t_sample
@@ -295,7 +365,8 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         &cfg.kinematics,
         publisher,
         period_ns,
-    );
+    )
+    .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io);
     let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
     let mut hist = DurationHistogram::new();
 
@@ -315,6 +386,11 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             rt::sleep_until_ns(deadline);
         }
         let t_start = rt::monotonic_ns();
+        pipe.late_ns = if period_ns > 0 {
+            t_start.saturating_sub(deadline)
+        } else {
+            0
+        };
         pipe.cycle(t_start, rt::monotonic_ns);
         let t_end = rt::monotonic_ns();
         hist.record(pipe.finish(t_start, t_end));
@@ -339,7 +415,10 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             let c = &mut pipe.counters;
             c.window_cycles = 0;
             c.window_read_failures = 0;
+            c.window_implausible = 0;
+            c.window_valid = 0;
             c.window_max_displacement_m = 0.0;
+            c.window_last_displacement_m = None;
             next_summary += 1_000_000_000;
             if next_summary < t_end {
                 next_summary = t_end + 1_000_000_000;
@@ -351,11 +430,20 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     info!(
         cycles = c.cycles,
         read_failures = c.read_failures,
+        implausible = c.implausible,
         overruns = c.overruns,
         publish_failures = c.publish_failures,
         "stopped"
     );
     Ok(())
+}
+
+/// Plausibility limits of the configured arm (reference §5.2 and the kinematics reference).
+pub fn plausibility_limits(cfg: &SidecarConfig) -> PlausibilityLimits {
+    match cfg.arm {
+        dvrk_compliance::ArmKind::Classic => PlausibilityLimits::classic_psm(&cfg.io),
+        dvrk_compliance::ArmKind::Si => PlausibilityLimits::si_psm(&cfg.io),
+    }
 }
 
 fn summary<Svc: iceoryx2::service::Service>(
@@ -366,22 +454,40 @@ fn summary<Svc: iceoryx2::service::Service>(
     let p99_us = hist.quantile_ns(0.99).unwrap_or(0) as f64 / 1e3;
     let max_us = hist.max_ns() as f64 / 1e3;
     let subscribers = publisher.number_of_subscribers(dvrk_ipc::Topic::CompensatedMeasuredCp);
-    if c.window_read_failures > 0 {
+    if c.window_read_failures > 0 || c.window_implausible > 0 {
         warn!(
             rate_hz = c.window_cycles,
             missed_reads = c.window_read_failures,
             missed_reads_total = c.read_failures,
-            "board reads failed in the last second"
+            implausible = c.window_implausible,
+            implausible_total = c.implausible,
+            "samples published as invalid in the last second"
         );
     }
-    info!(
-        rate_hz = c.window_cycles,
-        cycle_p99_us = format_args!("{p99_us:.1}"),
-        cycle_max_us = format_args!("{max_us:.1}"),
-        missed_reads = c.window_read_failures,
-        tip_displacement_mm = format_args!("{:.3}", c.last_displacement_m * 1e3),
-        tip_displacement_max_mm = format_args!("{:.3}", c.window_max_displacement_m * 1e3),
-        subscribers,
-        "summary"
-    );
+    // Displacements only from valid cycles of this window: a second without any prints none.
+    match c.window_last_displacement_m {
+        Some(last) => info!(
+            rate_hz = c.window_cycles,
+            valid = c.window_valid,
+            cycle_p99_us = format_args!("{p99_us:.1}"),
+            cycle_max_us = format_args!("{max_us:.1}"),
+            missed_reads = c.window_read_failures,
+            implausible = c.window_implausible,
+            tip_displacement_mm = format_args!("{:.3}", last * 1e3),
+            tip_displacement_max_mm = format_args!("{:.3}", c.window_max_displacement_m * 1e3),
+            subscribers,
+            "summary"
+        ),
+        None => info!(
+            rate_hz = c.window_cycles,
+            valid = 0,
+            cycle_p99_us = format_args!("{p99_us:.1}"),
+            cycle_max_us = format_args!("{max_us:.1}"),
+            missed_reads = c.window_read_failures,
+            implausible = c.window_implausible,
+            tip_displacement_mm = "n/a (no valid sample)",
+            subscribers,
+            "summary"
+        ),
+    }
 }

@@ -12,8 +12,10 @@ pub const MAX_READ_BYTES: usize = 1440;
 pub const MAX_WRITE_BYTES: usize = 1446;
 const TX_CAP: usize = CONTROL_LEN + 20 + MAX_WRITE_BYTES + 8;
 const RX_CAP: usize = 4096;
-/// Replies with a stale label skipped while waiting for the right one (each costs one receive).
-const MAX_STALE: u8 = 8;
+/// Replies with another label or from another node skipped while waiting for the right one (each
+/// costs one receive): the whole 6-bit label space, so a burst of late replies after a stall is
+/// read through within one request.
+const MAX_STALE: u8 = 64;
 
 /// Per-port counters, read by the binary's 1 Hz summary.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -21,8 +23,16 @@ pub struct EthCounters {
     pub requests: u64,
     pub replies_ok: u64,
     pub timeouts: u64,
-    /// Replies with an old label (answers to timed-out requests), skipped.
+    /// Replies with another label or from another node (late answers to timed-out requests,
+    /// duplicates), skipped.
     pub stale_replies: u64,
+    /// Replies whose header or data CRC was nonzero and wrong, or zero from a source that sends
+    /// CRCs (the emulator; a real FPGA sends 0, reference §3.1), rejected.
+    pub crc_errors: u64,
+    /// Times the port resynchronized (drained its link) after a timeout or an unexpected reply.
+    pub resyncs: u64,
+    /// Datagrams thrown away by those drains.
+    pub drained: u64,
     /// Replies rejected by validation (tcode, source, length, flags, malformed).
     pub bad_replies: u64,
     pub dropped: u64,
@@ -53,6 +63,11 @@ pub struct EthPort<L: Link> {
     hub_board: Option<u8>,
     query_allowed: bool,
     query_seq: u16,
+    /// The link must be drained before the next request: a timeout or an unexpected reply
+    /// means late replies may be queued.
+    resync: bool,
+    /// The source has sent a nonzero CRC: from now on a zero CRC is an error too.
+    crcs_seen: bool,
     counters: EthCounters,
     tx: Box<[u8; TX_CAP]>,
     rx: Box<[u8; RX_CAP]>,
@@ -75,6 +90,8 @@ impl<L: Link> EthPort<L> {
             hub_board: None,
             query_allowed: false,
             query_seq: 0,
+            resync: false,
+            crcs_seen: false,
             counters: EthCounters::default(),
             tx: Box::new([0; TX_CAP]),
             rx: Box::new([0; RX_CAP]),
@@ -149,6 +166,13 @@ impl<L: Link> EthPort<L> {
         payload: &[u8],
         noforward: bool,
     ) -> Result<u8, PortError> {
+        if self.resync {
+            // Late and duplicate replies of earlier requests may be queued: throw them away
+            // before asking again, so that they can never be taken for this request's reply.
+            self.resync = false;
+            self.counters.resyncs += 1;
+            self.counters.drained += self.link.discard_pending(&mut self.rx[..]) as u64;
+        }
         let label = self.take_label();
         let req = RequestRepr::host(node, label, u64::from(addr), kind);
         let cw = ControlWord::new(noforward, self.bus_generation);
@@ -175,25 +199,34 @@ impl<L: Link> EthPort<L> {
                 Ok(n) => n,
                 Err(PortError::Timeout { .. }) => {
                     self.counters.timeouts += 1;
+                    self.resync = true;
+                    // A wrong reply followed by silence says more than the silence alone.
                     return Err(stale.unwrap_or(PortError::Timeout { board, addr }));
                 }
-                Err(e) => return Err(e),
+                Err(e) => {
+                    self.resync = true;
+                    return Err(e);
+                }
             };
             match self.validate(n, board, expect_src, label, expect, out) {
                 Ok(v) => {
                     self.counters.replies_ok += 1;
                     return Ok(v);
                 }
-                Err(e @ PortError::WrongLabel { .. }) => {
+                Err(e @ (PortError::WrongLabel { .. } | PortError::WrongSource { .. })) => {
+                    // Not ours: a late or duplicate reply. Skip it and keep waiting.
                     self.counters.stale_replies += 1;
+                    self.resync = true;
                     stale = Some(e);
                 }
                 Err(e) => {
                     self.counters.bad_replies += 1;
+                    self.resync = true;
                     return Err(e);
                 }
             }
         }
+        self.resync = true;
         Err(stale.unwrap_or(PortError::Timeout { board, addr }))
     }
 
@@ -269,14 +302,8 @@ impl<L: Link> EthPort<L> {
                 need: expected_len,
             });
         };
-        let tcode = p.tcode();
-        if tcode != expected_tcode {
-            return Err(PortError::WrongTcode {
-                board,
-                expected: expected_tcode as u8,
-                got: tcode as u8,
-            });
-        }
+        // A reply is ours only if both its label and its source node match; anything else is a
+        // late or duplicate reply of another request, skipped by the caller.
         if p.label() != label {
             return Err(PortError::WrongLabel {
                 board,
@@ -292,6 +319,27 @@ impl<L: Link> EthPort<L> {
                 board,
                 expected: exp,
                 got: src,
+            });
+        }
+        let crcs = [
+            (p.header_crc(), p.computed_header_crc()),
+            (p.data_crc(), p.computed_data_crc()),
+        ];
+        for (carried, computed) in crcs {
+            check_crc(
+                &mut self.crcs_seen,
+                &mut self.counters.crc_errors,
+                board,
+                carried,
+                computed,
+            )?;
+        }
+        let tcode = p.tcode();
+        if tcode != expected_tcode {
+            return Err(PortError::WrongTcode {
+                board,
+                expected: expected_tcode as u8,
+                got: tcode as u8,
             });
         }
         if p.rcode() != 0 {
@@ -419,6 +467,30 @@ impl<L: Link> Port for EthPort<L> {
         )?;
         self.read_block(hub, HUB_ADDRESS, out)
     }
+}
+
+/// Checks one CRC of a reply (header, or data of a block reply; both are 0 = 0 for the kinds
+/// without data). A real FPGA sends 0 (reference §3.1; the UDP checksum protects the wire); a
+/// source that has once sent a CRC must always send a right one.
+fn check_crc(
+    crcs_seen: &mut bool,
+    crc_errors: &mut u64,
+    board: u8,
+    carried: u32,
+    computed: u32,
+) -> Result<(), PortError> {
+    if carried != 0 {
+        *crcs_seen = true;
+    }
+    if carried == computed || (carried == 0 && !*crcs_seen) {
+        return Ok(());
+    }
+    *crc_errors += 1;
+    Err(PortError::CrcMismatch {
+        board,
+        carried,
+        computed,
+    })
 }
 
 /// The write capability of an [`EthPort`]. Exists only through [`EthPort::allow_writes`].

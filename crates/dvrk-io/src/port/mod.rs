@@ -80,6 +80,14 @@ pub trait Link {
     /// Receives one reply datagram into `buf`; `Err(PortError::Timeout { .. })` when nothing
     /// arrives in time (board [`UNKNOWN_BOARD`]; the engine fills in board and address).
     fn recv(&mut self, buf: &mut [u8]) -> Result<usize, PortError>;
+    /// Throws away every datagram already queued, without waiting, using `buf` as scratch;
+    /// returns how many. Called by the engine before a request after a timeout or an
+    /// unexpected reply, so late replies cannot pile up. Links that cannot hold a late reply
+    /// (a synchronous in-process emulator) keep the default, which does nothing.
+    fn discard_pending(&mut self, buf: &mut [u8]) -> usize {
+        let _ = buf;
+        0
+    }
 }
 
 impl<L: Link + ?Sized> Link for &mut L {
@@ -88,6 +96,9 @@ impl<L: Link + ?Sized> Link for &mut L {
     }
     fn recv(&mut self, buf: &mut [u8]) -> Result<usize, PortError> {
         (**self).recv(buf)
+    }
+    fn discard_pending(&mut self, buf: &mut [u8]) -> usize {
+        (**self).discard_pending(buf)
     }
 }
 
@@ -121,6 +132,12 @@ pub enum PortError {
     BusReset { board: u8, generation: u8 },
     #[error("board {board}: FPGA internal error (extra-data flags 0x{flags:02x})")]
     InternalError { board: u8, flags: u8 },
+    #[error("board {board}: reply CRC 0x{carried:08x}, computed 0x{computed:08x}")]
+    CrcMismatch {
+        board: u8,
+        carried: u32,
+        computed: u32,
+    },
     #[error("board {board}: malformed reply: {error}")]
     Malformed { board: u8, error: WireError },
     #[error("block of {len} bytes not allowed (multiple of 4, at most {max})")]

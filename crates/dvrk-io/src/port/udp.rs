@@ -190,4 +190,20 @@ impl Link for UdpLink {
         }
         Err(PortError::LINK_TIMEOUT)
     }
+
+    fn discard_pending(&mut self, buf: &mut [u8]) -> usize {
+        // Bounded: a peer flooding the socket cannot keep us here.
+        const MAX_DRAIN: usize = 4096;
+        if self.socket.set_nonblocking(true).is_err() {
+            return 0;
+        }
+        let mut n = 0;
+        while n < MAX_DRAIN && self.socket.recv_from(buf).is_ok() {
+            n += 1;
+        }
+        // If this fails the next recv returns at once with WouldBlock, read as a timeout, and
+        // the engine tries again: nothing is lost but one cycle.
+        let _ = self.socket.set_nonblocking(false);
+        n
+    }
 }
