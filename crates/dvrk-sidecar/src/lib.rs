@@ -16,4 +16,5 @@ pub mod serve;
 pub mod signals;
 pub mod simcmd;
 pub mod stats;
+pub mod tap;
 pub mod watch;

@@ -141,6 +141,10 @@ pub fn run(path: &Path) -> Result<()> {
             run_loop(&cfg, reader, &stop)
         }
         Source::Firewire(n) => firewire(&cfg, n, &stop),
+        Source::Tap { iface, port } => {
+            let source = crate::tap::TapSource::open(&iface, port, cfg.io.clone())?;
+            run_loop(&cfg, source, &stop)
+        }
     }
 }
 

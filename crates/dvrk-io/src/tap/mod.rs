@@ -101,6 +101,7 @@ pub enum TapEvent {
 /// Pairs requests and replies and decodes the console's reads into samples.
 pub struct TapDecoder {
     cfg: IoConfig,
+    board_port: u16,
     pending: [Option<Pending>; PENDING],
     next_slot: usize,
     blocks: [[u8; BLOCK_CAP]; MAX_BOARDS],
@@ -116,6 +117,7 @@ impl TapDecoder {
     pub fn new(cfg: IoConfig) -> Self {
         Self {
             cfg,
+            board_port: BOARD_PORT,
             pending: [None; PENDING],
             next_slot: 0,
             blocks: [[0; BLOCK_CAP]; MAX_BOARDS],
@@ -124,6 +126,12 @@ impl TapDecoder {
             seen: [0; MAX_BOARDS],
             counters: TapCounters::default(),
         }
+    }
+
+    /// The boards' UDP port, if not 1394 (an emulator on another port, in tests).
+    pub fn with_board_port(mut self, port: u16) -> Self {
+        self.board_port = port;
+        self
     }
 
     pub fn config(&self) -> &IoConfig {
@@ -170,9 +178,10 @@ impl TapDecoder {
 
     /// Same as [`TapDecoder::push`] for an already extracted UDP datagram.
     pub fn push_datagram(&mut self, d: &Datagram<'_>, t_ns: u64, out: &mut ArmSample) -> TapEvent {
-        if d.dst.port() == BOARD_PORT && d.src.port() != BOARD_PORT {
+        let bp = self.board_port;
+        if d.dst.port() == bp && d.src.port() != bp {
             self.request(d.src, d.payload)
-        } else if d.src.port() == BOARD_PORT && d.dst.port() != BOARD_PORT {
+        } else if d.src.port() == bp && d.dst.port() != bp {
             self.reply(d.dst, d.payload, t_ns, out)
         } else {
             TapEvent::Skipped(Skip::OtherPort)
