@@ -220,8 +220,9 @@ impl Console {
             Dest::EthBroadcast => BROADCAST_NODE,
             Dest::Node(n) => n,
         };
-        let label = self.label;
+        // Incremented before use, as the host library does (its first request has label 1, §9).
         self.label = (self.label + 1) & LABEL_MASK;
+        let label = self.label;
         let nf = noforward || !self.mode_known || self.ethernet_only;
         let req = RequestRepr::host(node, label, u64::from(offset), kind);
         let n = EthRequest::emit(
