@@ -1067,3 +1067,95 @@ impl Emulator {
         }
     }
 }
+
+#[cfg(test)]
+mod ethernet_mode_tests {
+    //! FPGA V2 bridge vs V3 Ethernet-only: the Ethernet-status register and the broadcast read.
+    use super::*;
+    use dvrk_io::wire::ControlWord;
+
+    const IO: &str = include_str!("../../../config/io/psm-classic.toml");
+    const IDLE: &str = include_str!("../../../config/sim/idle.toml");
+
+    fn emulator(mode: EthernetMode) -> Emulator {
+        let io = IoConfig::from_params(toml::from_str(IO).unwrap()).unwrap();
+        let mut scenario = Scenario::from_params(toml::from_str(IDLE).unwrap()).unwrap();
+        scenario.ethernet = mode;
+        let mut e = Emulator::new(&scenario, &io).unwrap();
+        e.advance_to(1_000_000);
+        e.advance_to(2_000_000);
+        e
+    }
+
+    fn request(node: u8, label: u8, addr: u16, kind: RequestKind) -> Vec<u8> {
+        let req = RequestRepr::host(node, label, u64::from(addr), kind);
+        let mut buf = vec![0u8; 64];
+        let n = EthRequest::emit(&mut buf, ControlWord::new(true, 0), &req, &[]).unwrap();
+        buf.truncate(n);
+        buf
+    }
+
+    fn quadlet(e: &mut Emulator, addr: u16) -> u32 {
+        let mut reply = [0u8; MAX_REPLY_BYTES];
+        let n = e
+            .handle(&request(6, 1, addr, RequestKind::QuadletRead), &mut reply)
+            .unwrap();
+        EthReply::parse(&reply[..n])
+            .unwrap()
+            .packet
+            .unwrap()
+            .quadlet_data()
+    }
+
+    #[test]
+    fn ethernet_status_says_v2_or_v3() {
+        assert_eq!(
+            quadlet(&mut emulator(EthernetMode::Bridge), 12),
+            ETH_STATUS_V2
+        );
+        let mut e = emulator(EthernetMode::EthernetOnly);
+        assert_eq!(quadlet(&mut e, 12), ETH_STATUS_V3);
+        assert_eq!(
+            quadlet(&mut e, 12) >> 30,
+            0b01,
+            "bits 31:30 = 01 is V3 (reference §1.1)"
+        );
+        assert_eq!(quadlet(&mut e, 7), 9);
+    }
+
+    #[test]
+    fn bridge_query_gets_no_reply_ethernet_only_query_gets_the_hub_data() {
+        let q = RequestKind::QuadletWrite {
+            data: (0x0123 << 16) | 0x00C0,
+        };
+        let mut reply = [0u8; MAX_REPLY_BYTES];
+        let mut b = emulator(EthernetMode::Bridge);
+        assert_eq!(
+            b.handle(&request(0x3F, 17, QUERY_ADDRESS, q), &mut reply),
+            None
+        );
+        assert_eq!(b.counters().unsolicited_hub_replies, 0);
+
+        let mut e = emulator(EthernetMode::EthernetOnly);
+        let n = e
+            .handle(&request(0x3F, 17, QUERY_ADDRESS, q), &mut reply)
+            .expect("the Ethernet-only hub answers the query with its data");
+        let r = EthReply::parse(&reply[..n]).unwrap();
+        let p = r.packet.unwrap();
+        assert_eq!(p.tcode(), Tcode::BlockResponse);
+        assert_eq!(p.label(), 17, "the query's label");
+        assert_eq!(p.src_node(), 6, "from the hub board");
+        // Two QLA Rev 9 blocks of 32 quadlets, a header each, and the timing quadlet: 67.
+        assert_eq!(usize::from(p.data_length()), 67 * 4);
+        let lay = BlockLayout::new(9, BoardKind::Qla).unwrap();
+        let hl = HubLayout::new(&[(6, lay), (7, lay)]).unwrap();
+        let hub = HubView::new_checked(p.payload(), hl).unwrap();
+        for (i, id) in [6u8, 7].into_iter().enumerate() {
+            let h = hub.header(i).unwrap();
+            assert_eq!(h.sequence_lsb(), 0x23);
+            assert!(!h.sequence_mismatch());
+            assert_eq!(hub.block(i).unwrap().status().board_id(), id);
+        }
+        assert_eq!(e.counters().unsolicited_hub_replies, 1);
+    }
+}

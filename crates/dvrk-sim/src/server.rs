@@ -178,3 +178,45 @@ pub fn serve_udp(
     summary.counters = emu.counters();
     Ok((emu, summary))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requests_are_counted_per_peer_in_order_of_arrival() {
+        let a: SocketAddr = "127.0.0.1:40000".parse().unwrap();
+        let b: SocketAddr = "127.0.0.1:40001".parse().unwrap();
+        let mut p = PeerCounts::default();
+        assert_eq!(p.to_string(), "");
+        p.record(a);
+        p.record(b);
+        p.record(a);
+        assert_eq!(p.to_string(), "127.0.0.1:40000/2,127.0.0.1:40001/1");
+        assert_eq!(p.get(a), 2);
+        assert_eq!(p.get("127.0.0.1:1".parse().unwrap()), 0);
+    }
+
+    #[test]
+    fn clients_beyond_the_table_are_summed() {
+        let mut p = PeerCounts::default();
+        for port in 0..(MAX_PEERS as u16 + 3) {
+            p.record(SocketAddr::from(([127, 0, 0, 1], 30000 + port)));
+        }
+        assert_eq!(p.iter().count(), MAX_PEERS);
+        assert_eq!(p.others, 3);
+        assert!(p.to_string().ends_with(",others/3"));
+    }
+
+    #[test]
+    fn listening_on_any_address_joins_the_multicast_group_or_says_why_not() {
+        let (s, join) = bind_boards("0.0.0.0:0".parse().unwrap(), Ipv4Addr::LOCALHOST).unwrap();
+        assert!(s.local_addr().unwrap().ip().is_unspecified());
+        assert!(matches!(
+            join,
+            MulticastJoin::Joined(_) | MulticastJoin::Failed(_)
+        ));
+        let (_, join) = bind_boards("127.0.0.1:0".parse().unwrap(), Ipv4Addr::LOCALHOST).unwrap();
+        assert_eq!(join, MulticastJoin::NotAttempted);
+    }
+}
