@@ -318,7 +318,9 @@ fn discovery_of_an_emulator_on_any_address() {
         let (_, log) = sim.terminate();
         assert_eq!(field(&out, "mode"), Some(mode), "{out}");
         assert!(out.contains("boards=[6, 7] hub=6"), "{out}");
-        assert!(parse_record(&rec).len() > 100, "{out}");
+        // Cycles after discovery read both boards (a loose bound: the machine is shared).
+        let ok = parse_record(&rec).iter().filter(|r| r.0).count();
+        assert!(ok > 20, "{ok} good reads: {out}");
         let local_port = field(&out, "local_port").unwrap();
         assert!(
             field(&log, "requests_by_peer")

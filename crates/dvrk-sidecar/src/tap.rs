@@ -7,8 +7,10 @@
 //! crate to the build, and a `recvfrom` into a buffer allocated at start gives one frame per
 //! call with no allocation on the cycle's path. It is `SOCK_DGRAM` ("cooked": frames start at
 //! the IPv4 header, whatever the link layer), bound to the interface, with a classic BPF filter
-//! that passes only unfragmented UDP from or to the boards' port, so the kernel wakes the loop
-//! for board traffic only.
+//! that passes only unfragmented UDP of the boards' port. Two such sockets: the boards' replies,
+//! the only one the loop waits on, and the console's requests, drained when a reply arrives, so
+//! the sidecar wakes once per reply and never for a request or a write (on a 2-vCPU VM each
+//! wake-up of another process costs the console tens of µs, benches/README.md).
 //!
 //! On a loopback interface every packet is seen twice (leaving and arriving): the leaving copy
 //! is dropped. On a real interface the console's requests are the leaving packets and are kept.
@@ -33,22 +35,33 @@ pub const NO_SOURCE_AFTER_NS: u64 = 20_000_000;
 
 const ETH_P_IP: u16 = 0x0800;
 
-/// Classic BPF on a cooked IPv4 packet: UDP, not a fragment, source or destination port `port`.
-fn udp_port_filter(port: u16) -> [libc::sock_filter; 11] {
+/// Which half of the traffic a capture socket takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// Host to boards: UDP destination port = the boards' port.
+    Requests,
+    /// Boards to host: UDP source port = the boards' port.
+    Replies,
+}
+
+/// Classic BPF on a cooked IPv4 packet: UDP, not a fragment, and the boards' `port` as source
+/// (replies) or destination (requests) port.
+fn udp_port_filter(port: u16, dir: Direction) -> [libc::sock_filter; 9] {
     let op = |code: u16, jt: u8, jf: u8, k: u32| libc::sock_filter { code, jt, jf, k };
-    let p = u32::from(port);
+    let field = match dir {
+        Direction::Replies => 0,
+        Direction::Requests => 2,
+    };
     [
-        op(0x30, 0, 0, 9),           // 0: A = ip[9] (protocol)
-        op(0x15, 0, 8, 17),          // 1: UDP? else drop
-        op(0x28, 0, 0, 6),           // 2: A = ip[6:2] (flags, fragment offset)
-        op(0x45, 6, 0, 0x1FFF),      // 3: a fragment? drop
-        op(0xB1, 0, 0, 0),           // 4: X = 4 * (ip[0] & 0xF)
-        op(0x48, 0, 0, 0),           // 5: A = udp source port
-        op(0x15, 2, 0, p),           // 6: the boards' port? accept
-        op(0x48, 0, 0, 2),           // 7: A = udp destination port
-        op(0x15, 0, 1, p),           // 8: the boards' port? accept, else drop
-        op(0x06, 0, 0, 0x0004_0000), // 9: accept
-        op(0x06, 0, 0, 0),           // 10: drop
+        op(0x30, 0, 0, 9),               // 0: A = ip[9] (protocol)
+        op(0x15, 0, 6, 17),              // 1: UDP? else drop
+        op(0x28, 0, 0, 6),               // 2: A = ip[6:2] (flags, fragment offset)
+        op(0x45, 4, 0, 0x1FFF),          // 3: a fragment? drop
+        op(0xB1, 0, 0, 0),               // 4: X = 4 * (ip[0] & 0xF)
+        op(0x48, 0, 0, field),           // 5: A = UDP source or destination port
+        op(0x15, 0, 1, u32::from(port)), // 6: the boards' port? accept, else drop
+        op(0x06, 0, 0, 0x0004_0000),     // 7: accept
+        op(0x06, 0, 0, 0),               // 8: drop
     ]
 }
 
@@ -64,8 +77,9 @@ pub struct Capture {
 }
 
 impl Capture {
-    /// Opens the capture on `iface` for UDP traffic to or from `port`. Needs CAP_NET_RAW.
-    pub fn open(iface: &str, port: u16) -> Result<Self> {
+    /// Opens the capture on `iface` for the UDP requests to, or the replies from, the boards'
+    /// `port`. Needs CAP_NET_RAW.
+    pub fn open(iface: &str, port: u16, dir: Direction) -> Result<Self> {
         let cname = std::ffi::CString::new(iface)
             .with_context(|| format!("interface name {iface:?} contains a NUL byte"))?;
         // SAFETY: a valid NUL-terminated string.
@@ -93,7 +107,7 @@ impl Capture {
         }
         // SAFETY: `raw` is a new, valid descriptor owned by nobody else.
         let fd = unsafe { OwnedFd::from_raw_fd(raw) };
-        let filter = udp_port_filter(port);
+        let filter = udp_port_filter(port, dir);
         let prog = libc::sock_fprog {
             len: filter.len() as u16,
             filter: filter.as_ptr().cast_mut(),
@@ -207,6 +221,10 @@ struct Window {
 /// [`NO_SOURCE_AFTER_NS`]: [`ReadOutcome::NoSource`] (valid = 0).
 /// Once per second it names the boards of the arm missing from the console's traffic.
 pub struct TapSource {
+    /// The console's requests: drained without waiting, before each reply is decoded.
+    requests: Capture,
+    /// The boards' replies: the only socket the loop waits on, so the sidecar wakes once per
+    /// reply rather than once per packet (writes and requests never wake it).
     cap: Capture,
     dec: TapDecoder,
     port: u16,
@@ -216,18 +234,31 @@ pub struct TapSource {
 
 impl TapSource {
     pub fn open(iface: &str, port: u16, io: IoConfig) -> Result<Self> {
-        let cap = Capture::open(iface, port)?;
+        let requests = Capture::open(iface, port, Direction::Requests)?;
+        let cap = Capture::open(iface, port, Direction::Replies)?;
         info!(
             interface = iface, port, boards = ?io.board_ids(),
             "passive tap: listening to the console's traffic, sending nothing"
         );
         Ok(Self {
+            requests,
             cap,
             dec: TapDecoder::new(io).with_board_port(port),
             port,
             next_report_ns: 0,
             window: Window::default(),
         })
+    }
+
+    /// Feeds every queued request to the decoder, without waiting.
+    fn drain_requests(&mut self, out: &mut ArmSample) {
+        let now = rt::monotonic_ns();
+        while let Ok(r) = self.requests.recv(true) {
+            if let Some(m) = r {
+                self.dec
+                    .push(self.requests.frame(m), LinkType::Ip, now, out);
+            }
+        }
     }
 
     pub fn decoder(&self) -> &TapDecoder {
@@ -282,6 +313,9 @@ impl SampleSource for TapSource {
             match self.cap.recv(false) {
                 Ok(Some(n)) => {
                     let now = rt::monotonic_ns();
+                    // Every request went out before its reply came back, so it is queued by
+                    // now: take them first (pairing needs the request's label).
+                    self.drain_requests(out);
                     if self.dec.push(self.cap.frame(n), LinkType::Ip, now, out) == TapEvent::Sample
                     {
                         got = true;
@@ -296,6 +330,9 @@ impl SampleSource for TapSource {
                         io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
                     ) =>
                 {
+                    // No reply: still count the console's requests (boards that do not answer
+                    // are then named, not reported as "no traffic").
+                    self.drain_requests(out);
                     break;
                 }
                 Err(_) => {
@@ -326,22 +363,27 @@ mod tests {
     /// The filter's jumps stay inside the program and end on a return.
     #[test]
     fn filter_jumps_land_inside_the_program() {
-        let f = udp_port_filter(1394);
-        for (i, ins) in f.iter().enumerate() {
-            let is_jump = ins.code & 0x07 == 0x05;
-            if is_jump {
-                assert!(i + 1 + usize::from(ins.jt) < f.len(), "insn {i} jt");
-                assert!(i + 1 + usize::from(ins.jf) < f.len(), "insn {i} jf");
+        for (dir, field) in [(Direction::Replies, 0), (Direction::Requests, 2)] {
+            let f = udp_port_filter(1394, dir);
+            for (i, ins) in f.iter().enumerate() {
+                let is_jump = ins.code & 0x07 == 0x05;
+                if is_jump {
+                    assert!(i + 1 + usize::from(ins.jt) < f.len(), "insn {i} jt");
+                    assert!(i + 1 + usize::from(ins.jf) < f.len(), "insn {i} jf");
+                }
             }
+            assert_eq!(f[f.len() - 1].code, 0x06);
+            assert_eq!(f[5].k, field);
+            assert_eq!(f[6].k, 1394);
         }
-        assert_eq!(f[f.len() - 1].code, 0x06);
-        assert_eq!(f[6].k, 1394);
-        assert_eq!(f[8].k, 1394);
     }
 
     #[test]
     fn a_missing_interface_is_named() {
-        let e = Capture::open("nosuchif0", 1394).err().unwrap().to_string();
+        let e = Capture::open("nosuchif0", 1394, Direction::Replies)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("nosuchif0"), "{e}");
     }
 }
