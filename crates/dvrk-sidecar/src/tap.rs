@@ -12,8 +12,9 @@
 //! the sidecar wakes once per reply and never for a request or a write (on a 2-vCPU VM each
 //! wake-up of another process costs the console tens of µs, benches/README.md).
 //!
-//! On a loopback interface every packet is seen twice (leaving and arriving): the leaving copy
-//! is dropped. On a real interface the console's requests are the leaving packets and are kept.
+//! On a loopback interface every packet is seen twice (leaving and arriving): the filter drops
+//! the leaving copy there. On a real interface the console's requests are the leaving packets
+//! and are kept.
 
 use std::io;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
@@ -44,25 +45,46 @@ pub enum Direction {
     Replies,
 }
 
+/// `sll_pkttype` of a packet leaving this host.
+const PACKET_OUTGOING: u32 = 4;
+
 /// Classic BPF on a cooked IPv4 packet: UDP, not a fragment, and the boards' `port` as source
-/// (replies) or destination (requests) port.
-fn udp_port_filter(port: u16, dir: Direction) -> [libc::sock_filter; 9] {
+/// (replies) or destination (requests) port. With `drop_outgoing` (loopback, where every packet
+/// is seen leaving and arriving) the leaving copy is dropped in the kernel, so it wakes nobody.
+fn udp_port_filter(port: u16, dir: Direction, drop_outgoing: bool) -> [libc::sock_filter; 11] {
     let op = |code: u16, jt: u8, jf: u8, k: u32| libc::sock_filter { code, jt, jf, k };
     let field = match dir {
         Direction::Replies => 0,
         Direction::Requests => 2,
     };
+    let pkttype = (libc::SKF_AD_OFF + libc::SKF_AD_PKTTYPE) as u32;
+    // A packet type that never occurs (types are 0-7) when nothing is to be dropped.
+    let dropped_type = if drop_outgoing {
+        PACKET_OUTGOING
+    } else {
+        0xFFFF
+    };
     [
-        op(0x30, 0, 0, 9),               // 0: A = ip[9] (protocol)
-        op(0x15, 0, 6, 17),              // 1: UDP? else drop
-        op(0x28, 0, 0, 6),               // 2: A = ip[6:2] (flags, fragment offset)
-        op(0x45, 4, 0, 0x1FFF),          // 3: a fragment? drop
-        op(0xB1, 0, 0, 0),               // 4: X = 4 * (ip[0] & 0xF)
-        op(0x48, 0, 0, field),           // 5: A = UDP source or destination port
-        op(0x15, 0, 1, u32::from(port)), // 6: the boards' port? accept, else drop
-        op(0x06, 0, 0, 0x0004_0000),     // 7: accept
-        op(0x06, 0, 0, 0),               // 8: drop
+        op(0x20, 0, 0, pkttype),         // 0: A = packet type (ancillary data)
+        op(0x15, 8, 0, dropped_type),    // 1: leaving copy on loopback? drop
+        op(0x30, 0, 0, 9),               // 2: A = ip[9] (protocol)
+        op(0x15, 0, 6, 17),              // 3: UDP? else drop
+        op(0x28, 0, 0, 6),               // 4: A = ip[6:2] (flags, fragment offset)
+        op(0x45, 4, 0, 0x1FFF),          // 5: a fragment? drop
+        op(0xB1, 0, 0, 0),               // 6: X = 4 * (ip[0] & 0xF)
+        op(0x48, 0, 0, field),           // 7: A = UDP source or destination port
+        op(0x15, 0, 1, u32::from(port)), // 8: the boards' port? accept, else drop
+        op(0x06, 0, 0, 0x0004_0000),     // 9: accept
+        op(0x06, 0, 0, 0),               // 10: drop
     ]
+}
+
+/// Whether `iface` is a loopback device (its sysfs flags carry IFF_LOOPBACK).
+fn is_loopback(iface: &str) -> bool {
+    std::fs::read_to_string(format!("/sys/class/net/{iface}/flags"))
+        .ok()
+        .and_then(|f| u32::from_str_radix(f.trim().trim_start_matches("0x"), 16).ok())
+        .is_some_and(|f| f & libc::IFF_LOOPBACK as u32 != 0)
 }
 
 fn errno() -> io::Error {
@@ -107,7 +129,7 @@ impl Capture {
         }
         // SAFETY: `raw` is a new, valid descriptor owned by nobody else.
         let fd = unsafe { OwnedFd::from_raw_fd(raw) };
-        let filter = udp_port_filter(port, dir);
+        let filter = udp_port_filter(port, dir, is_loopback(iface));
         let prog = libc::sock_fprog {
             len: filter.len() as u16,
             filter: filter.as_ptr().cast_mut(),
@@ -364,7 +386,9 @@ mod tests {
     #[test]
     fn filter_jumps_land_inside_the_program() {
         for (dir, field) in [(Direction::Replies, 0), (Direction::Requests, 2)] {
-            let f = udp_port_filter(1394, dir);
+            let f = udp_port_filter(1394, dir, true);
+            assert_eq!(f[1].k, PACKET_OUTGOING);
+            assert_eq!(udp_port_filter(1394, dir, false)[1].k, 0xFFFF);
             for (i, ins) in f.iter().enumerate() {
                 let is_jump = ins.code & 0x07 == 0x05;
                 if is_jump {
@@ -373,9 +397,15 @@ mod tests {
                 }
             }
             assert_eq!(f[f.len() - 1].code, 0x06);
-            assert_eq!(f[5].k, field);
-            assert_eq!(f[6].k, 1394);
+            assert_eq!(f[7].k, field);
+            assert_eq!(f[8].k, 1394);
         }
+    }
+
+    #[test]
+    fn lo_is_loopback() {
+        assert!(is_loopback("lo"));
+        assert!(!is_loopback("nosuchif0"));
     }
 
     #[test]
