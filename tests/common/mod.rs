@@ -2,6 +2,8 @@
 //! service prefixes, child processes that are always reaped.
 #![allow(dead_code)]
 
+pub mod proxy;
+
 use std::io::{BufRead, BufReader, Read};
 use std::net::UdpSocket;
 use std::path::{Path, PathBuf};

@@ -40,6 +40,11 @@ pub struct SidecarParams {
     /// iceoryx2 service prefix, e.g. `dvrk/PSM1`.
     #[serde(default = "default_prefix")]
     pub prefix: String,
+    /// How long one board request waits for its reply (ms) before the cycle is published as
+    /// invalid with BOARD_TIMEOUT. The dVRK host waits 20 ms; the sidecar, whose period is
+    /// 0.67 ms, waits 5 ms by default so that a lost datagram costs few cycles.
+    #[serde(default = "default_reply_timeout_ms")]
+    pub reply_timeout_ms: f64,
     /// Simulator settings, used when `source = "sim"`.
     pub sim: Option<SimParams>,
     /// Real-time settings (all optional).
@@ -52,6 +57,9 @@ fn default_access() -> AccessMode {
 }
 fn default_rate() -> Rate {
     Rate::Hz(1500.0)
+}
+fn default_reply_timeout_ms() -> f64 {
+    5.0
 }
 fn default_prefix() -> String {
     "dvrk/PSM1".to_owned()
@@ -201,6 +209,7 @@ pub struct SidecarConfig {
     pub compliance: ComplianceConfig,
     pub rate: Rate,
     pub prefix: String,
+    pub reply_timeout: std::time::Duration,
     pub scenario_path: Option<PathBuf>,
     pub scenario: Option<dvrk_sim::Scenario>,
     pub realtime: RealtimeParams,
@@ -276,6 +285,12 @@ impl SidecarConfig {
         {
             bail!("{here}: field `realtime.fifo_priority` = {prio}: must be 1..=99");
         }
+        if !(p.reply_timeout_ms.is_finite() && (0.05..=1000.0).contains(&p.reply_timeout_ms)) {
+            bail!(
+                "{here}: field `reply_timeout_ms` = {}: must be between 0.05 and 1000 ms",
+                p.reply_timeout_ms
+            );
+        }
         dvrk_ipc::ServiceNames::new(&p.prefix)
             .map_err(|e| anyhow::anyhow!("{here}: field `prefix` = \"{}\": {e}", p.prefix))?;
 
@@ -317,6 +332,7 @@ impl SidecarConfig {
             compliance,
             rate: p.rate,
             prefix: p.prefix,
+            reply_timeout: std::time::Duration::from_secs_f64(p.reply_timeout_ms * 1e-3),
             scenario_path,
             scenario,
             realtime: p.realtime,

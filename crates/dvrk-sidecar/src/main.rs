@@ -61,8 +61,47 @@ fn init_tracing() {
         .init();
 }
 
+/// `--out` of any command: refused at parse time, before any work, when it is a directory or
+/// its directory does not exist.
+fn output_path(s: &str) -> Result<PathBuf, String> {
+    let p = PathBuf::from(s);
+    dvrk_sidecar::calib::data::check_output_path(&p).map_err(|e| format!("{e:#}"))?;
+    Ok(p)
+}
+
+/// Lets every option that takes a value, in every subcommand, take a negative number
+/// (`--tau-min-nm -1`, `--offset -0.5`), and checks every `--out` before any work: set once
+/// here, so no option can forget it.
+fn allow_negative_numbers(cmd: clap::Command) -> clap::Command {
+    let cmd = cmd.mut_args(|a| {
+        let a = if a.get_id() == "out" {
+            a.value_parser(output_path)
+        } else {
+            a
+        };
+        if a.get_action().takes_values() {
+            a.allow_negative_numbers(true)
+        } else {
+            a
+        }
+    });
+    let names: Vec<String> = cmd
+        .get_subcommands()
+        .map(|s| s.get_name().to_owned())
+        .collect();
+    names
+        .into_iter()
+        .fold(cmd, |c, n| c.mut_subcommand(n, allow_negative_numbers))
+}
+
+fn parse_cli() -> Cli {
+    use clap::{CommandFactory, FromArgMatches};
+    let matches = allow_negative_numbers(Cli::command()).get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+}
+
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    let cli = parse_cli();
     init_tracing();
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,

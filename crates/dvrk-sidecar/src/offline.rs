@@ -60,6 +60,7 @@ pub fn fk(args: &FkArgs) -> Result<()> {
     if let Some((i, v)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         bail!("joint position q{} = {v} is not a finite number", i + 1);
     }
+    check_joint_limits(args.arm.into(), &q)?;
     let kin = dvrk_compliance::PsmKinematics::new(args.arm.into(), tool);
     let pose = kin.forward(&q);
     let t = pose.translation.vector;
@@ -92,6 +93,72 @@ pub fn fk(args: &FkArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// Joint limits of a PSM with a Classic 8 mm instrument, `[lower, upper]` in rad (m for the
+/// insertion). Joints 1-3: reference psm-kinematics §1.2 and board protocol §5.2 (Classic soft
+/// limits ±91°, ±53°, 0-0.24 m; Si ±2.964, -1.265..1.301, 0-0.29 m). Joints 4-6: the ±174°
+/// actuator soft limits through the 400006 coupling (roll 1.5632, wrist 1.0186) and ±180° for
+/// the wrist yaw, generous bounds for any instrument.
+pub fn joint_limits(arm: ArmKind) -> [[f64; 2]; 6] {
+    let (yaw, pitch, insertion) = match arm {
+        ArmKind::Classic => (
+            [-91f64.to_radians(), 91f64.to_radians()],
+            [-53f64.to_radians(), 53f64.to_radians()],
+            [0.0, 0.24],
+        ),
+        ArmKind::Si => ([-2.964, 2.964], [-1.265, 1.301], [0.0, 0.29]),
+    };
+    let roll = 174f64.to_radians() * 1.5632;
+    let wrist = 174f64.to_radians() * 1.0186;
+    let pi = std::f64::consts::PI;
+    [
+        yaw,
+        pitch,
+        insertion,
+        [-roll, roll],
+        [-wrist, wrist],
+        [-pi, pi],
+    ]
+}
+
+/// Margin beyond [`joint_limits`] still accepted: 5° or 5 mm (the dVRK's pot/encoder tolerance,
+/// reference §5.2).
+pub const LIMIT_MARGIN: [f64; 6] = [0.0873, 0.0873, 0.005, 0.0873, 0.0873, 0.0873];
+
+/// Refuses joint positions outside the arm's limits plus [`LIMIT_MARGIN`], naming the joint,
+/// the value and the range.
+pub fn check_joint_limits(arm: ArmKind, q: &[f64]) -> Result<()> {
+    let limits = joint_limits(arm);
+    for (i, (&v, [lo, hi])) in q.iter().zip(limits).enumerate() {
+        let m = LIMIT_MARGIN[i];
+        if !(lo - m..=hi + m).contains(&v) {
+            let unit = if i == 2 { "m" } else { "rad" };
+            bail!(
+                "joint position q{} = {} {unit} is outside the {arm:?} PSM's range \
+                 [{lo:.4}, {hi:.4}] {unit} (plus a margin of {m} {unit})",
+                i + 1,
+                num(v)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// A number for an error message: plain when of a usual size, else in scientific notation (so
+/// 1e308 prints as `1e308`, not as 309 digits).
+pub fn num(v: f64) -> String {
+    if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// Largest |effort| a Classic PSM's amplifiers can produce on joints 1-3, with 25% to spare: the
+/// host current-check limit 1.2·Imax + 50 mA (reference §7) over effort_to_current (§5.2):
+/// (1.2·1.34 + 0.05)/0.40409 = 4.1 N·m for joints 1, 2; (1.2·0.67 + 0.05)/0.067828 = 12.6 N for
+/// the insertion.
+pub const MAX_EFFORT: [f64; 3] = [5.2, 5.2, 15.8];
 
 fn arm_name(a: ArmArg) -> &'static str {
     match a {
@@ -150,6 +217,19 @@ struct CorrectJson {
 pub fn correct(args: &CorrectArgs) -> Result<()> {
     let position = parse_triple("position", &args.position)?;
     let effort = parse_triple("effort", &args.effort)?;
+    // No --arm here: the widest arm's range (Si) bounds what any PSM can report.
+    check_joint_limits(ArmKind::Si, &position).context("option --position")?;
+    for (i, (&t, max)) in effort.iter().zip(MAX_EFFORT).enumerate() {
+        if t.abs() > max {
+            let unit = if i == 2 { "N" } else { "N·m" };
+            bail!(
+                "--effort item {} = {} {unit} is beyond what a PSM's amplifiers can produce \
+                 (|effort| <= {max} {unit})",
+                i + 1,
+                num(t)
+            );
+        }
+    }
     let model = config::load_compliance(&args.params)?;
     let c = model.correct(&position, &effort);
     let out = CorrectJson {
@@ -205,5 +285,27 @@ mod tests {
         assert!(e.contains("got 2"), "{e}");
         let e = parse_triple("position", "1,inf,2").unwrap_err().to_string();
         assert!(e.contains("not finite"), "{e}");
+    }
+
+    #[test]
+    fn joint_values_outside_the_arm_are_refused_with_their_name_and_value() {
+        check_joint_limits(ArmKind::Classic, &[0.0, 0.0, 0.12, 0.0, 0.0, 0.0]).unwrap();
+        // Just inside the margin.
+        check_joint_limits(
+            ArmKind::Classic,
+            &[1.588 + 0.08, 0.0, 0.2449, 0.0, 0.0, 0.0],
+        )
+        .unwrap();
+        let e = check_joint_limits(ArmKind::Classic, &[0.0, 0.0, -5.0, 0.0, 0.0, 0.0])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("q3 = -5 m"), "{e}");
+        let e = check_joint_limits(ArmKind::Classic, &[0.0, 1e308, 0.1, 0.0, 0.0, 0.0])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("q2 = 1e308 rad"), "{e}");
+        // The Si PSM reaches deeper.
+        check_joint_limits(ArmKind::Si, &[0.0, 0.0, 0.28, 0.0, 0.0, 0.0]).unwrap();
+        assert!(check_joint_limits(ArmKind::Classic, &[0.0, 0.0, 0.28, 0.0, 0.0, 0.0]).is_err());
     }
 }

@@ -39,19 +39,103 @@ pub fn sleep_until_ns(t_ns: u64) {
     }
 }
 
-/// Applies CPU affinity, SCHED_FIFO and mlockall as configured. Each is an explicit request, so
-/// a failure (usually missing privileges: LimitRTPRIO / LimitMEMLOCK) is an error, not a warning.
-pub fn apply(rt: &RealtimeParams) -> Result<()> {
-    if let Some(cpu) = rt.cpu {
+/// Whether this process may use `cpu` (it is in the affinity mask it was started with).
+fn cpu_allowed(cpu: usize) -> bool {
+    if cpu >= libc::CPU_SETSIZE as usize {
+        return false;
+    }
+    // SAFETY: a zeroed cpu_set_t is a valid empty set, filled by the kernel; CPU_ISSET stays
+    // within its bounds because cpu < CPU_SETSIZE.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+            return false;
+        }
+        libc::CPU_ISSET(cpu, &set)
+    }
+}
+
+/// The soft limit of `resource`, `None` when unlimited.
+fn soft_limit(resource: libc::__rlimit_resource_t) -> Option<u64> {
+    let mut r = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: `r` is a valid, writable rlimit.
+    let rc = unsafe { libc::getrlimit(resource, &mut r) };
+    if rc != 0 || r.rlim_cur == libc::RLIM_INFINITY {
+        None
+    } else {
+        Some(r.rlim_cur)
+    }
+}
+
+/// Whether the process has `cap` in its effective set (from /proc/self/status; false when that
+/// cannot be read).
+fn has_capability(cap: u32) -> bool {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("CapEff:"))
+                .and_then(|v| u64::from_str_radix(v.trim(), 16).ok())
+        })
+        .is_some_and(|eff| eff & (1u64 << cap) != 0)
+}
+
+const CAP_IPC_LOCK: u32 = 14;
+const CAP_SYS_NICE: u32 = 23;
+
+/// Checks, without changing anything, that [`apply`] can do what `rt` asks: the CPU exists and
+/// is in this process's affinity mask, the priority is a SCHED_FIFO priority that this process
+/// may use (CAP_SYS_NICE or RLIMIT_RTPRIO), and mlockall is permitted (CAP_IPC_LOCK or an
+/// unlimited RLIMIT_MEMLOCK). `check-config` runs it, and `serve` before its loop.
+pub fn check(rt: &RealtimeParams) -> Result<()> {
+    if let Some(cpu) = rt.cpu
+        && !cpu_allowed(cpu)
+    {
         let ncpu = std::thread::available_parallelism()
             .map(|n| n.get())
             .unwrap_or(1);
-        if cpu >= ncpu {
+        bail!(
+            "realtime.cpu = {cpu}: not a CPU this process may run on (this machine has CPUs              0..{})",
+            ncpu - 1
+        );
+    }
+    if let Some(prio) = rt.fifo_priority {
+        // SAFETY: plain syscalls without pointers.
+        let (lo, hi) = unsafe {
+            (
+                libc::sched_get_priority_min(libc::SCHED_FIFO),
+                libc::sched_get_priority_max(libc::SCHED_FIFO),
+            )
+        };
+        if prio < lo || prio > hi {
+            bail!("realtime.fifo_priority = {prio}: SCHED_FIFO priorities are {lo}..={hi}");
+        }
+        let allowed = has_capability(CAP_SYS_NICE)
+            || soft_limit(libc::RLIMIT_RTPRIO).is_none_or(|l| l >= prio as u64);
+        if !allowed {
             bail!(
-                "realtime.cpu = {cpu}: this machine has CPUs 0..{}",
-                ncpu - 1
+                "realtime.fifo_priority = {prio}: not permitted (RLIMIT_RTPRIO is {}; give the                  service LimitRTPRIO={prio} or CAP_SYS_NICE)",
+                soft_limit(libc::RLIMIT_RTPRIO).unwrap_or(0)
             );
         }
+    }
+    if rt.mlockall && !has_capability(CAP_IPC_LOCK) && soft_limit(libc::RLIMIT_MEMLOCK).is_some() {
+        bail!(
+            "realtime.mlockall = true: not permitted (RLIMIT_MEMLOCK is {} bytes; give the              service LimitMEMLOCK=infinity or CAP_IPC_LOCK)",
+            soft_limit(libc::RLIMIT_MEMLOCK).unwrap_or(0)
+        );
+    }
+    Ok(())
+}
+
+/// Applies CPU affinity, SCHED_FIFO and mlockall as configured. Each is an explicit request, so
+/// a failure (usually missing privileges: LimitRTPRIO / LimitMEMLOCK) is an error, not a warning.
+pub fn apply(rt: &RealtimeParams) -> Result<()> {
+    check(rt)?;
+    if let Some(cpu) = rt.cpu {
         // SAFETY: a zeroed cpu_set_t is a valid empty set; CPU_SET stays within its bounds
         // because cpu < ncpu <= CPU_SETSIZE.
         let rc = unsafe {
@@ -107,6 +191,34 @@ mod tests {
             t1 >= deadline,
             "woke at {t1}, before the deadline {deadline}"
         );
+    }
+
+    #[test]
+    fn check_refuses_what_apply_would_refuse_without_changing_anything() {
+        let e = check(&RealtimeParams {
+            cpu: Some(999),
+            fifo_priority: None,
+            mlockall: false,
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("realtime.cpu = 999"), "{e}");
+        let e = check(&RealtimeParams {
+            cpu: None,
+            fifo_priority: Some(100),
+            mlockall: false,
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("realtime.fifo_priority = 100"), "{e}");
+        assert!(e.contains("1..=99"), "{e}");
+        // CPU 0 always exists and is in the mask.
+        check(&RealtimeParams {
+            cpu: Some(0),
+            fifo_priority: None,
+            mlockall: false,
+        })
+        .unwrap();
     }
 
     #[test]

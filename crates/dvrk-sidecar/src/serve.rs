@@ -28,9 +28,11 @@ fn board_ids(cfg: &SidecarConfig) -> Vec<u8> {
     cfg.io.board_ids().to_vec()
 }
 
-/// `check-config`: load and validate everything, print what was found.
+/// `check-config`: load and validate everything, run every check that `serve` runs before its
+/// loop ([`preflight`]), print what was found.
 pub fn check_config(path: &Path) -> Result<()> {
     let cfg = SidecarConfig::load(path)?;
+    preflight(&cfg).with_context(|| format!("{}", path.display()))?;
     println!("{}: OK", path.display());
     println!("  source      {} (access {:?})", cfg.source, cfg.access);
     println!(
@@ -49,6 +51,81 @@ pub fn check_config(path: &Path) -> Result<()> {
         println!("  scenario    {}", p.display());
     }
     Ok(())
+}
+
+/// Every check `serve` makes before its loop, without starting anything: the real-time
+/// settings are permitted, the source can be opened (the simulator starts, the UDP socket binds,
+/// FireWire is compiled in and its device exists), the prefix is a valid service name, and this
+/// user may create the shared-memory node and open the services. `check-config` and `serve`
+/// both call it, so a file that `check-config` accepts does not fail in `serve` for any of these.
+pub fn preflight(cfg: &SidecarConfig) -> Result<()> {
+    rt::check(&cfg.realtime)?;
+    match &cfg.source {
+        Source::Sim => {
+            let scenario = cfg
+                .scenario
+                .as_ref()
+                .context("source = \"sim\" needs a [sim] scenario")?;
+            dvrk_sim::Emulator::new(scenario, &cfg.io).context("starting the simulated PSM")?;
+        }
+        Source::Udp(addr) => {
+            UdpLink::connect(*addr).with_context(|| format!("opening a UDP socket to {addr}"))?;
+        }
+        Source::Firewire(n) => firewire_check(*n)?,
+    }
+    let names = ServiceNames::new(&cfg.prefix)
+        .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
+    let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar-check", None)
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .context(shm_hint())?;
+    dvrk_ipc::ArmServices::open_or_create(&node, &names)
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| format!("opening the services under {}; {}", cfg.prefix, shm_hint()))?;
+    Ok(())
+}
+
+/// What to look at when iceoryx2 cannot create its files.
+fn shm_hint() -> String {
+    let mut bad = Vec::new();
+    for dir in ["/dev/shm", "/tmp/iceoryx2"] {
+        let p = std::path::Path::new(dir);
+        if p.exists() && std::fs::metadata(p).is_ok_and(|m| m.permissions().readonly()) {
+            bad.push(dir);
+        }
+    }
+    format!(
+        "creating iceoryx2 shared memory failed: this user needs write access to /dev/shm and \
+         /tmp/iceoryx2 (and to files a service of another user created there){}",
+        if bad.is_empty() {
+            String::new()
+        } else {
+            format!("; read-only: {}", bad.join(", "))
+        }
+    )
+}
+
+#[cfg(feature = "firewire")]
+fn firewire_check(n: u32) -> Result<()> {
+    // access(2), not open(2): the dVRK console refuses to start while another process holds
+    // the device open, so a check must not open it.
+    let dev = format!("/dev/fw{n}");
+    let c = std::ffi::CString::new(dev.clone())?;
+    // SAFETY: `c` is a valid NUL-terminated path.
+    if unsafe { libc::access(c.as_ptr(), libc::R_OK | libc::W_OK) } != 0 {
+        anyhow::bail!(
+            "source fw:{n}: {dev} is not readable and writable by this user: {}",
+            std::io::Error::last_os_error()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "firewire"))]
+fn firewire_check(n: u32) -> Result<()> {
+    anyhow::bail!(
+        "source fw:{n}: this binary was built without FireWire support; rebuild with \
+         `cargo build --release -p dvrk-sidecar --features firewire` (needs libraw1394-dev)"
+    )
 }
 
 /// One source of samples, read once per cycle.
@@ -119,6 +196,7 @@ impl SampleSource for SimSource {
 /// `serve`: load, set up, run until SIGTERM/SIGINT.
 pub fn run(path: &Path) -> Result<()> {
     let cfg = SidecarConfig::load(path)?;
+    preflight(&cfg).with_context(|| format!("{}", path.display()))?;
     let stop = StopFlag::install()?;
     match cfg.source.clone() {
         Source::Sim => {
@@ -126,16 +204,15 @@ pub fn run(path: &Path) -> Result<()> {
             run_loop(&cfg, source, &stop)
         }
         Source::Udp(addr) => {
-            let link =
+            let mut link =
                 UdpLink::connect(addr).with_context(|| format!("opening UDP socket to {addr}"))?;
+            link.set_timeout(cfg.reply_timeout)
+                .context("setting the reply timeout")?;
             let mut port = UdpPort::new(link);
             let ids = board_ids(&cfg);
-            let found = port
-                .discover(&ids)
-                .with_context(|| format!("discovering boards {ids:?} at {addr}"))?;
-            found
-                .check(&ids)
-                .with_context(|| format!("boards at {addr}"))?;
+            if !discover_until_found(&mut port, &ids, &addr.to_string(), &stop)? {
+                return Ok(());
+            }
             info!(%addr, boards = ?ids, "boards found");
             let reader = ArmReader::new(port, cfg.io.clone(), cfg.access);
             run_loop(&cfg, reader, &stop)
@@ -144,6 +221,54 @@ pub fn run(path: &Path) -> Result<()> {
         Source::Tap { iface, port } => {
             let source = crate::tap::TapSource::open(&iface, port, cfg.io.clone())?;
             run_loop(&cfg, source, &stop)
+        }
+    }
+}
+
+/// Discovery that waits for the boards: it retries with a backoff (10 ms doubling to 500 ms)
+/// until every board answers, logs once a second what it waits for and tells systemd
+/// (`STATUS=`). It gives up only on an error that asking again cannot fix (a board of another
+/// kind, firmware or id than configured). Returns false when stopped by a signal first.
+fn discover_until_found<L: dvrk_io::Link>(
+    port: &mut dvrk_io::EthPort<L>,
+    ids: &[u8],
+    at: &str,
+    stop: &StopFlag,
+) -> Result<bool> {
+    let mut backoff = std::time::Duration::from_millis(10);
+    let started = std::time::Instant::now();
+    let mut next_log = started;
+    let mut attempts = 0u64;
+    loop {
+        if stop.raised() {
+            return Ok(false);
+        }
+        attempts += 1;
+        match port.discover(ids) {
+            Ok(_) => {
+                if attempts > 1 {
+                    info!(
+                        attempts,
+                        waited_s = started.elapsed().as_secs_f64(),
+                        "boards answered"
+                    );
+                }
+                return Ok(true);
+            }
+            Err(e) if e.is_configuration() => {
+                return Err(e).with_context(|| format!("boards {ids:?} at {at}"));
+            }
+            Err(e) => {
+                let now = std::time::Instant::now();
+                if now >= next_log {
+                    let status = format!("waiting for boards {ids:?} at {at}: {e}");
+                    warn!(attempts, "{status}");
+                    let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
+                    next_log = now + std::time::Duration::from_secs(1);
+                }
+                std::thread::sleep(backoff);
+                backoff = (backoff * 2).min(std::time::Duration::from_millis(500));
+            }
         }
     }
 }
@@ -291,7 +416,11 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 .map_or(u64::MAX, |h| t_sample.saturating_sub(h.sample_t_ns));
             (
                 age,
-                cycle::held(self.held.as_ref(), &self.sample, fresh.flags),
+                cycle::held(
+                    self.held.as_ref(),
+                    &self.sample,
+                    cycle::health_flags(&self.sample, read),
+                ),
             )
         };
         if self.source.simulated() {

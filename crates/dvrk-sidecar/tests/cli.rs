@@ -252,3 +252,96 @@ fn check_config_accepts_a_labs_sawrobotio1394_json() {
     assert!(e.contains("bad.json") && e.contains("line 3"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn negative_numbers_are_option_values_everywhere() {
+    // Before: clap read `-1` as an unknown flag ("unexpected argument '-1' found").
+    let o = run(&[
+        "fit",
+        "--clamp",
+        "/nonexistent/clamp.csv",
+        "--tau-min-nm",
+        "-1",
+        "0.2",
+        "--out",
+        "/nonexistent/p.toml",
+    ]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(!err.contains("unexpected argument"), "{err}");
+    let o = run(&[
+        "fk", "--arm", "classic", "-0.1", "-0.2", "0.12", "-0.3", "0", "-0.1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn fk_and_correct_refuse_values_no_psm_can_have() {
+    let o = run(&["fk", "--", "0", "0", "-5", "0", "0", "0"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("q3 = -5 m"), "{}", stderr(&o));
+    let o = run(&["fk", "--", "0", "1e308", "0.1", "0", "0", "0"]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("q2 = 1e308"), "{err}");
+    assert!(err.len() < 400, "no 300-digit numbers: {err}");
+    let params = repo().join("config/compliance/paper-psm.toml");
+    let p = params.to_str().unwrap();
+    let o = run(&[
+        "correct",
+        "--params",
+        p,
+        "--position",
+        "1e308,0,0.1",
+        "--effort",
+        "0,0,0",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("q1 = 1e308"), "{}", stderr(&o));
+    let o = run(&[
+        "correct",
+        "--params",
+        p,
+        "--position",
+        "0,0,0.1",
+        "--effort",
+        "0,-40,0",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--effort item 2 = -40"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn an_output_that_is_a_directory_is_refused_before_any_work() {
+    let dir = std::env::temp_dir().join(format!("dvrk-cli-out-{}", std::process::id()));
+    let out = dir.join("existing");
+    std::fs::create_dir_all(&out).unwrap();
+    let sweep = repo().join("config/sim/divot-push.toml");
+    for args in [
+        vec!["fit", "--clamp", "/nonexistent.csv", "--out"],
+        vec![
+            "calibrate",
+            "divot",
+            "--config",
+            sweep.to_str().unwrap(),
+            "--out",
+        ],
+    ] {
+        let mut a = args.clone();
+        a.push(out.to_str().unwrap());
+        let o = run(&a);
+        assert!(!o.status.success());
+        let err = stderr(&o);
+        assert!(err.contains("is a directory"), "{args:?}: {err}");
+        // Refused at parse time: nothing else (no missing-file error, no procedure) happened.
+        assert!(!err.contains("nonexistent"), "{err}");
+    }
+    // Nothing was written anywhere: not into the directory, not beside it.
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0);
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -471,7 +471,7 @@ impl<L: Link> Port for EthPort<L> {
 
 /// Checks one CRC of a reply (header, or data of a block reply; both are 0 = 0 for the kinds
 /// without data). A real FPGA sends 0 (reference §3.1; the UDP checksum protects the wire); a
-/// source that has once sent a CRC must always send a right one.
+/// source that has once sent a right nonzero CRC must always send a right one.
 fn check_crc(
     crcs_seen: &mut bool,
     crc_errors: &mut u64,
@@ -479,10 +479,13 @@ fn check_crc(
     carried: u32,
     computed: u32,
 ) -> Result<(), PortError> {
-    if carried != 0 {
-        *crcs_seen = true;
+    if carried == computed {
+        // Learn only from a right CRC: a flipped bit in a zero CRC field must not switch the
+        // check on for a source that sends none.
+        *crcs_seen |= carried != 0;
+        return Ok(());
     }
-    if carried == computed || (carried == 0 && !*crcs_seen) {
+    if carried == 0 && !*crcs_seen {
         return Ok(());
     }
     *crc_errors += 1;

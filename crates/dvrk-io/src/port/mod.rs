@@ -171,6 +171,24 @@ pub enum PortError {
 }
 
 impl PortError {
+    /// Whether the error says the configuration does not match the hardware (a board of another
+    /// kind, firmware or id, an id out of range, a block size the protocol cannot carry), so
+    /// that asking again cannot help. Every other error (timeouts, missing boards, bad or
+    /// dropped replies, socket errors) may pass.
+    pub fn is_configuration(&self) -> bool {
+        matches!(
+            self,
+            Self::UnknownHardware { .. }
+                | Self::UnsupportedFirmware { .. }
+                | Self::HardwareMismatch { .. }
+                | Self::BoardIdMismatch { .. }
+                | Self::BoardOutOfRange { .. }
+                | Self::BlockSize { .. }
+                | Self::QueryNotAllowed
+                | Self::Unsupported
+        )
+    }
+
     /// The timeout a [`Link`] reports.
     pub const LINK_TIMEOUT: Self = Self::Timeout {
         board: UNKNOWN_BOARD,

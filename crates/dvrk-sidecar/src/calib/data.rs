@@ -245,17 +245,55 @@ pub fn write_rows<W: Write>(out: W, rows: &[DataRow]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes `text` to `path` through a temporary file in the same directory and a rename, so a
-/// reader never sees a half-written file and a failure leaves no valid-looking output.
+/// Checks that `path` can be an output file: not a directory, with a parent directory that
+/// exists. The CLI runs it on every `--out` before any work starts.
+pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
+    if path.as_os_str().is_empty() {
+        anyhow::bail!("the output path is empty");
+    }
+    if path.is_dir() {
+        anyhow::bail!(
+            "{} is a directory; give a file path inside it, e.g. {}",
+            path.display(),
+            path.join("NAME").display()
+        );
+    }
+    if path.file_name().is_none() {
+        anyhow::bail!("{}: not a file path", path.display());
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !parent.is_dir() {
+        anyhow::bail!(
+            "{}: the directory {} does not exist",
+            path.display(),
+            parent.display()
+        );
+    }
+    Ok(())
+}
+
+/// Writes `bytes` to `path` through a temporary file beside it (same directory, so the rename
+/// is atomic) and a rename, so a reader never sees a half-written file. The temporary file is
+/// removed on every error path, and a directory is refused before anything is written.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let mut tmp: PathBuf = path.to_path_buf();
+    check_output_path(path)?;
     let name = path
         .file_name()
         .with_context(|| format!("{}: not a file path", path.display()))?;
-    tmp.set_file_name(format!(".{}.partial", name.to_string_lossy()));
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path)
-        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    let tmp = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
+    let result = std::fs::write(&tmp, bytes)
+        .with_context(|| format!("writing {}", tmp.display()))
+        .and_then(|()| {
+            std::fs::rename(&tmp, path)
+                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+        });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
 }
 
 /// Reads several files; `joints` gives the joint of each 2017-layout file: either one value for
@@ -303,6 +341,38 @@ pub fn read_files(
         all.extend(rows);
     }
     Ok(all)
+}
+
+#[cfg(test)]
+mod output_tests {
+    use super::*;
+
+    #[test]
+    fn a_directory_is_refused_and_nothing_is_left_behind() {
+        let dir = std::env::temp_dir().join(format!("dvrk-out-{}", std::process::id()));
+        let target = dir.join("params");
+        std::fs::create_dir_all(&target).unwrap();
+        let e = write_atomically(&target, b"x").unwrap_err().to_string();
+        assert!(e.contains("is a directory"), "{e}");
+        assert!(
+            std::fs::read_dir(&dir).unwrap().count() == 1,
+            "only the directory itself is there"
+        );
+        let e = check_output_path(&dir.join("missing/p.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("does not exist"), "{e}");
+        // A good path: written, no temporary file left.
+        let f = dir.join("p.toml");
+        write_atomically(&f, b"ok").unwrap();
+        assert_eq!(std::fs::read(&f).unwrap(), b"ok");
+        let names: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names.len(), 2, "{names:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
 
 #[cfg(test)]
