@@ -6,6 +6,7 @@
 mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::net::SocketAddrV4;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -17,10 +18,18 @@ use dvrk_io::{AccessMode, ArmReader, ArmSample};
 struct Counting;
 static ALLOCS: AtomicUsize = AtomicUsize::new(0);
 
+thread_local! {
+    /// Only this test's thread is counted: the test harness's own threads may allocate at any
+    /// time (output capture, timing), which would make a global count flaky.
+    static COUNTED: Cell<bool> = const { Cell::new(false) };
+}
+
 // SAFETY: forwards to the system allocator, only counting.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        if COUNTED.with(Cell::get) {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
         // SAFETY: same contract as the caller's.
         unsafe { System.alloc(layout) }
     }
@@ -44,6 +53,7 @@ fn wrap(src: &str, dst: &str, payload: &[u8]) -> Vec<u8> {
 
 #[test]
 fn push_allocates_nothing() {
+    COUNTED.with(|c| c.set(true));
     let cfg = common::io_from_toml(PSM_CLASSIC_TOML).unwrap();
     let probe = ALLOCS.load(Ordering::Relaxed);
     std::hint::black_box(vec![0u8; 8]);
