@@ -5,6 +5,13 @@
 //! it unchanged: the socket sees the subnet broadcast, the per-board unicast addresses and the
 //! multicast group joined on `--multicast-if` (reference §3.3, §10). At exit it logs the
 //! requests it received per client as `requests_by_peer=ADDR:PORT/N,...`.
+//!
+//! Tried on 2026-11-23 with the dVRK host library itself (mechatronics-software @8e6a4f7, its
+//! `qlacommand -pudp:127.0.0.1`): in both modes it found "Node 6, BoardId = 6, FPGA_V3 (or
+//! FPGA_V2), Hardware = QLA1, Firmware Version = 9" and node 7, and finished initialisation.
+//! The library does not choose the multicast interface itself, so on one machine loopback needs
+//! `ip link set lo multicast on` and `ip route add 224.0.0.0/4 dev lo` (root); without them its
+//! discovery stops at the hub's Ethernet-status read, the first request sent by multicast.
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
