@@ -305,6 +305,61 @@ fn tap_broadcast_read_ethernet_only_unasked_hub_data() {
     tap_follows_the_console("tap_bq_eth", "ethernet-only", "broadcast-query-read-write");
 }
 
+/// A board of the arm that the console never reads is named in serve's log (once per second),
+/// and no sample is published as valid.
+#[test]
+fn a_board_missing_from_the_traffic_is_named() {
+    need_root!("a_board_missing_from_the_traffic_is_named");
+    let test = "tap_missing";
+    let port = free_udp_port();
+    let prefix = unique_prefix(test);
+    let mut sim = emulator_any(port, "bridge");
+    // The sidecar's arm is on boards 6 and 8; the console drives boards 6 and 7.
+    let io = std::fs::read_to_string(repo().join("config/io/psm-classic.toml"))
+        .unwrap()
+        .replace("board_id = 7", "board_id = 8");
+    let io_path = scratch(test).join("io-6-8.toml");
+    std::fs::write(&io_path, io).unwrap();
+    let cfg = tap_config(test, port, &prefix);
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let io_line = text
+        .lines()
+        .find(|l| l.starts_with("io = "))
+        .unwrap()
+        .to_owned();
+    std::fs::write(
+        &cfg,
+        text.replace(&io_line, &format!("io = \"{}\"", io_path.display())),
+    )
+    .unwrap();
+    let mut serve = common::serve(&cfg);
+    let stop = Arc::new(AtomicBool::new(false));
+    let sub = subscribe(&prefix, stop.clone());
+    std::thread::sleep(Duration::from_millis(300));
+    let record = scratch(test).join("drive.csv");
+    drive(port, "sequential-read-write", 2.5, &record);
+    stop.store(true, Ordering::Relaxed);
+    let published = sub.join().unwrap();
+    let (_, log) = serve.terminate();
+    sim.terminate();
+    assert!(
+        log.lines().any(
+            |l| l.contains("board missing from the console's traffic") && l.contains("board=8")
+        ),
+        "board 8 not named: {log}"
+    );
+    assert!(
+        !log.lines()
+            .any(|l| l.contains("board missing") && l.contains("board=6")),
+        "board 6 is in the traffic: {log}"
+    );
+    assert!(!published.is_empty());
+    assert!(
+        published.iter().all(|m| m.header.valid == 0),
+        "a sample without board 8 was valid"
+    );
+}
+
 /// The stand-in discovers the emulator on 0.0.0.0 the way the dVRK host library does (subnet
 /// broadcast, then multicast or per-board unicast, reference §3.3, §10), in both modes. No
 /// capture, so no root needed.
