@@ -3,7 +3,9 @@
 #![no_main]
 
 use dvrk_io::port::{EthPort, Link, Port, PortError};
-use dvrk_io::wire::{BlockLayout, BoardKind, EthReply, FeedbackBlock, HubLayout, HubView, ResponseRepr};
+use dvrk_io::wire::{
+    BlockLayout, BoardKind, EthReply, FeedbackBlock, HubLayout, HubView, ResponseRepr,
+};
 use libfuzzer_sys::fuzz_target;
 
 struct Canned<'a>(&'a [u8]);
@@ -24,7 +26,12 @@ fuzz_target!(|data: &[u8]| {
         && let Some(p) = r.packet
     {
         let _ = ResponseRepr::parse(&p);
-        let _ = (p.payload(), p.computed_header_crc(), p.computed_data_crc(), r.extra.packet_dropped());
+        let _ = (
+            p.payload(),
+            p.computed_header_crc(),
+            p.computed_data_crc(),
+            r.extra.packet_dropped(),
+        );
     }
     let mut port = EthPort::new(Canned(data));
     let _ = port.read_quadlet(6, 0);
@@ -34,7 +41,12 @@ fuzz_target!(|data: &[u8]| {
         && let Ok(b) = FeedbackBlock::new_checked(&blk[..], l)
     {
         for i in 0..5 {
-            let _ = (b.adc(i), b.encoder_position(i), b.encoder_period(i), b.motor_status(i));
+            let _ = (
+                b.adc(i),
+                b.encoder_position(i),
+                b.encoder_period(i),
+                b.motor_status(i),
+            );
         }
     }
     for fw in 7..=9 {
