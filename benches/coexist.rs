@@ -270,6 +270,9 @@ fn run_case(case: Case, protocol: &str, ethernet: &str, secs: f64, dir: &Path) -
     let recs = parse_record(&std::fs::read_to_string(&record).unwrap_or_default());
     let (mut sample_age, mut publish_age) = (Vec::new(), Vec::new());
     let valid: Vec<&JointStateV1> = published.iter().filter(|m| m.header.valid == 1).collect();
+    // Matches are looked for at most 200 reads (~130 ms) ahead of the last one: while the arm
+    // stands still (e.g. its watchdog tripped during a stall of the stand-in) identical counts
+    // and near-identical timestamps could otherwise match a read far ahead and hide the rest.
     if case == Case::Tap {
         let io = dvrk_sidecar::config::load_io(&repo().join("config/io/psm-classic.toml"))
             .map_err(|e| format!("{e:#}"))?;
@@ -278,7 +281,9 @@ fn run_case(case: Case, protocol: &str, ethernet: &str, secs: f64, dir: &Path) -
             let ts = m.header.board_timestamps();
             let counts: [i32; 3] =
                 std::array::from_fn(|j| io.actuators()[j].position_to_counts(m.position[j]));
-            if let Some(i) = (next..recs.len()).find(|&i| recs[i].2 == ts && recs[i].3 == counts) {
+            if let Some(i) =
+                (next..recs.len().min(next + 200)).find(|&i| recs[i].2 == ts && recs[i].3 == counts)
+            {
                 sample_age.push(m.header.sample_t_ns as i64 - recs[i].1 as i64);
                 publish_age.push(m.header.publish_t_ns as i64 - recs[i].1 as i64);
                 next = i + 1;
