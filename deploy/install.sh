@@ -5,19 +5,22 @@
 #   sudo deploy/install.sh                 # build (release) from this checkout and install
 #   sudo deploy/install.sh --binary PATH   # install a binary built elsewhere
 #   sudo deploy/install.sh --no-enable     # install without enabling/starting the unit
+#   sudo deploy/install.sh --tap           # source = "tap:IFACE": grant CAP_NET_RAW (drop-in)
 set -euo pipefail
 
 here="$(cd "$(dirname "$0")" && pwd)"
 repo="$(cd "$here/.." && pwd)"
 binary=""
 enable=1
+tap=0
 prefix="${DESTDIR:-}"
 
 while [ $# -gt 0 ]; do
     case "$1" in
         --binary) binary="$2"; shift 2 ;;
         --no-enable) enable=0; shift ;;
-        -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+        --tap) tap=1; shift ;;
+        -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
         *) echo "install.sh: unknown option $1" >&2; exit 2 ;;
     esac
 done
@@ -47,6 +50,13 @@ for f in "$repo"/config/io/*.toml; do copy_config "$f" "$etc/io/$(basename "$f")
 for f in "$repo"/config/sim/*.toml; do copy_config "$f" "$etc/sim/$(basename "$f")"; done
 
 install -D -m 0644 "$here/dvrk-sidecar.service" "$prefix/etc/systemd/system/dvrk-sidecar.service"
+# CAP_NET_RAW for the passive tap only; any other install removes a drop-in left from before.
+dropin="$prefix/etc/systemd/system/dvrk-sidecar.service.d/tap-mode.conf"
+if [ "$tap" -eq 1 ]; then
+    install -D -m 0644 "$here/tap-mode.conf" "$dropin"
+else
+    rm -f "$dropin"
+fi
 
 if [ -n "$prefix" ]; then
     echo "staged install in $prefix (no user, no systemctl)"

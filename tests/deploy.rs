@@ -67,6 +67,53 @@ fn the_unit_keeps_what_iceoryx2_and_firewire_need() {
     }
 }
 
+/// CAP_NET_RAW only in tap mode: the unit grants no capability, the tap drop-in exactly one,
+/// and systemd accepts the unit with the drop-in.
+#[test]
+fn cap_net_raw_only_with_the_tap_drop_in() {
+    let unit = std::fs::read_to_string(repo().join("deploy/dvrk-sidecar.service")).unwrap();
+    let lines = |text: &str, key: &str| -> Vec<String> {
+        text.lines()
+            .map(str::trim)
+            .filter(|l| !l.starts_with('#'))
+            .filter_map(|l| l.strip_prefix(&format!("{key}=")).map(str::to_owned))
+            .collect()
+    };
+    assert_eq!(lines(&unit, "CapabilityBoundingSet"), [""]);
+    assert_eq!(lines(&unit, "AmbientCapabilities"), [""]);
+    assert!(
+        !unit.contains("CAP_NET_RAW")
+            && !lines(&unit, "RestrictAddressFamilies")[0].contains("AF_PACKET")
+    );
+    let dropin = std::fs::read_to_string(repo().join("deploy/tap-mode.conf")).unwrap();
+    assert_eq!(lines(&dropin, "CapabilityBoundingSet"), ["CAP_NET_RAW"]);
+    assert_eq!(lines(&dropin, "AmbientCapabilities"), ["CAP_NET_RAW"]);
+    assert_eq!(lines(&dropin, "RestrictAddressFamilies"), ["AF_PACKET"]);
+
+    // Staged: --tap installs the drop-in, a plain install removes it again.
+    let dest = scratch("install-tap");
+    let dropin_path = dest.join("etc/systemd/system/dvrk-sidecar.service.d/tap-mode.conf");
+    let out = Command::new("bash")
+        .arg(repo().join("deploy/install.sh"))
+        .args(["--tap", "--binary"])
+        .arg(sidecar_bin())
+        .env("DESTDIR", &dest)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(dropin_path.exists());
+    assert!(staged_install(&dest).status.success());
+    assert!(
+        !dropin_path.exists(),
+        "a shared-mode install keeps CAP_NET_RAW"
+    );
+    let _ = std::fs::remove_dir_all(&dest);
+}
+
 /// Runs deploy/install.sh with the built binary, staged under `dest` (DESTDIR).
 fn staged_install(dest: &std::path::Path) -> std::process::Output {
     Command::new("bash")

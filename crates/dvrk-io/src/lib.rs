@@ -8,6 +8,7 @@
 //! - [`convert`]: conversion config ([`IoConfig`], from TOML or sawRobotIO1394 JSON v6) and
 //!   the pure raw-to-SI functions producing an [`ArmSample`].
 //! - [`reader`]: [`ArmReader`], one call per cycle, in shared or exclusive access mode.
+//! - [`tap`]: [`TapDecoder`], the pure decoder of a passive tap of the console's own traffic.
 //!
 //! Facts and constants come from `shared/reference/dvrk-board-protocol.md`; doc comments cite
 //! its sections as "reference §N".
@@ -38,6 +39,7 @@
 pub mod convert;
 pub mod plausibility;
 pub mod port;
+pub mod tap;
 pub mod wire;
 
 pub use convert::{
@@ -45,4 +47,5 @@ pub use convert::{
 };
 pub use port::{EthPort, Link, Port, PortError, UdpLink, UdpPort, WriteAccess};
 pub use reader::{AccessMode, ArmReader, ReadError};
+pub use tap::{LinkType, TapDecoder, TapEvent};
 pub mod reader;

@@ -131,6 +131,9 @@ pub enum Source {
     Udp(SocketAddr),
     /// Controller boards over FireWire (port number), feature `firewire`.
     Firewire(u32),
+    /// Passive tap of the console's own traffic on a network interface (`tap:IFACE`, or
+    /// `tap:IFACE:PORT` when the boards answer on another port than 1394, as an emulator may).
+    Tap { iface: String, port: u16 },
 }
 
 impl Source {
@@ -153,7 +156,30 @@ impl Source {
                 .map(Source::Firewire)
                 .map_err(|_| anyhow::anyhow!("source \"{s}\": \"{rest}\" is not a port number"));
         }
-        bail!("source \"{s}\" is not one of sim, udp:IP[:PORT], fw:N")
+        if let Some(rest) = s.strip_prefix("tap:") {
+            let (iface, port) = match rest.rsplit_once(':') {
+                Some((i, p)) => (
+                    i,
+                    p.parse::<u16>().map_err(|_| {
+                        anyhow::anyhow!("source \"{s}\": \"{p}\" is not a UDP port number")
+                    })?,
+                ),
+                None => (rest, BOARD_UDP_PORT),
+            };
+            // Linux interface names: 1-15 bytes, no '/', ':' or whitespace.
+            if iface.is_empty()
+                || iface.len() > 15
+                || iface.contains(['/', ':'])
+                || iface.chars().any(char::is_whitespace)
+            {
+                bail!("source \"{s}\": \"{iface}\" is not a network interface name");
+            }
+            return Ok(Source::Tap {
+                iface: iface.to_owned(),
+                port,
+            });
+        }
+        bail!("source \"{s}\" is not one of sim, udp:IP[:PORT], fw:N, tap:IFACE")
     }
 }
 
@@ -163,6 +189,8 @@ impl fmt::Display for Source {
             Source::Sim => f.write_str("sim"),
             Source::Udp(a) => write!(f, "udp:{a}"),
             Source::Firewire(n) => write!(f, "fw:{n}"),
+            Source::Tap { iface, port } if *port == BOARD_UDP_PORT => write!(f, "tap:{iface}"),
+            Source::Tap { iface, port } => write!(f, "tap:{iface}:{port}"),
         }
     }
 }
@@ -329,6 +357,28 @@ mod tests {
         );
         assert_eq!(Source::parse("fw:0").unwrap(), Source::Firewire(0));
         for bad in ["", "udp:", "udp:nohost", "fw:x", "tcp:1.2.3.4", "SIM"] {
+            let e = Source::parse(bad).unwrap_err().to_string();
+            assert!(e.contains(bad), "error for {bad:?} names it: {e}");
+        }
+    }
+
+    #[test]
+    fn tap_source_names_an_interface() {
+        let tap = |i: &str, port| Source::Tap {
+            iface: i.to_owned(),
+            port,
+        };
+        assert_eq!(Source::parse("tap:eth1").unwrap(), tap("eth1", 1394));
+        assert_eq!(Source::parse("tap:lo:15394").unwrap(), tap("lo", 15394));
+        assert_eq!(tap("lo", 1394).to_string(), "tap:lo");
+        assert_eq!(tap("lo", 15394).to_string(), "tap:lo:15394");
+        for bad in [
+            "tap:",
+            "tap:lo:x",
+            "tap:a/b",
+            "tap:sixteen-chars-xy",
+            "tap:lo:70000",
+        ] {
             let e = Source::parse(bad).unwrap_err().to_string();
             assert!(e.contains(bad), "error for {bad:?} names it: {e}");
         }

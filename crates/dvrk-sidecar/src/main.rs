@@ -2,7 +2,7 @@
 //! backlash (Chrysilla et al.), and publishes raw and compensated joint and tip states over
 //! iceoryx2 shared memory. Also carries the offline tools of the paper's workflow.
 
-use dvrk_sidecar::{bridge_cmd, calib, echo, offline, serve, simcmd};
+use dvrk_sidecar::{bridge_cmd, calib, drive, echo, offline, serve, simcmd};
 
 use std::path::PathBuf;
 
@@ -37,6 +37,9 @@ enum Command {
     Correct(offline::CorrectArgs),
     /// Run the board emulator of the simulated PSM on a UDP socket until SIGTERM/SIGINT.
     Sim(simcmd::SimArgs),
+    /// Console stand-in for tests and benches: discover the emulated boards, then read them and
+    /// write zero current every cycle like the dVRK console (loopback only).
+    Drive(drive::DriveArgs),
     /// Run a calibration procedure on the simulator, or record one from a real robot.
     Calibrate(calib::CalibrateArgs),
     /// Fit compliance parameters from calibration data (paper sections 3-4).
@@ -122,6 +125,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Fk(args) => offline::fk(&args),
         Command::Correct(args) => offline::correct(&args),
         Command::Sim(args) => simcmd::run(&args),
+        Command::Drive(args) => drive::run(&args),
         Command::Calibrate(args) => calib::run_calibrate(&args),
         Command::Fit(args) => calib::run_fit(&args),
         Command::Evaluate(args) => calib::run_evaluate(&args),

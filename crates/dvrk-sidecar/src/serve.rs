@@ -72,6 +72,10 @@ pub fn preflight(cfg: &SidecarConfig) -> Result<()> {
             UdpLink::connect(*addr).with_context(|| format!("opening a UDP socket to {addr}"))?;
         }
         Source::Firewire(n) => firewire_check(*n)?,
+        Source::Tap { iface, port } => {
+            // The interface exists and this process may capture on it (CAP_NET_RAW).
+            crate::tap::Capture::open(iface, *port, crate::tap::Direction::Replies)?;
+        }
     }
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
@@ -218,6 +222,10 @@ pub fn run(path: &Path) -> Result<()> {
             run_loop(&cfg, reader, &stop)
         }
         Source::Firewire(n) => firewire(&cfg, n, &stop),
+        Source::Tap { iface, port } => {
+            let source = crate::tap::TapSource::open(&iface, port, cfg.io.clone())?;
+            run_loop(&cfg, source, &stop)
+        }
     }
 }
 

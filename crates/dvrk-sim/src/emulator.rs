@@ -1,5 +1,6 @@
-//! Emulator of the two QLA boards of a Classic PSM1 (board ids 6 and 7, firmware Rev 9, FPGA V2
-//! with Ethernet), driven by the physics.
+//! Emulator of the two QLA boards of a Classic PSM1 (board ids 6 and 7, firmware Rev 9; FPGA V2
+//! bridging Ethernet to FireWire, or FPGA V3 Ethernet-only as the scenario's `ethernet` field
+//! says), driven by the physics.
 //!
 //! [`Emulator::handle`] takes one host datagram (2-byte control word + FireWire request, reference
 //! dvrk-board-protocol.md §3.1) and writes the FPGA's reply (FireWire response + 8 bytes of extra
@@ -12,7 +13,8 @@
 //!   counter, motor config/status), of the query register and of hub memory (§1.2);
 //! - block reads of the feedback block at address 0: **each takes a new sample and resets the
 //!   board timestamp**, as the FPGA does (§2.3, §8); block reads of hub memory (0x1000) after a
-//!   broadcast query (0x1800 write, §3.4);
+//!   broadcast query (0x1800 write, §3.4); in Ethernet-only mode the query itself is answered
+//!   with the hub data, unasked, as the Rev 9 V3 hub does;
 //! - quadlet and block writes: control/status, watchdog period, IP, PHY request, DAC/amp enable,
 //!   encoder preload, the Rev 8+ command block (single board or broadcast). Writes get no reply
 //!   over Ethernet.
@@ -46,7 +48,7 @@ use dvrk_io::IoConfig;
 use crate::SimError;
 use crate::measure::{ActuatorScales, Sensors};
 use crate::physics::{NUM_JOINTS, SimPsm};
-use crate::scenario::{MotionDriver, Scenario};
+use crate::scenario::{EthernetMode, MotionDriver, Scenario};
 
 /// Firmware version the boards report (register 7).
 pub const FIRMWARE_VERSION: u32 = 9;
@@ -60,6 +62,8 @@ pub const MAX_REPLY_BYTES: usize = 20 + MAX_BLOCK_BYTES + 4 + 8;
 pub const BUS_GENERATION: u8 = 1;
 /// Ethernet-status register (12): bit 31 set = FPGA V2 (100 Mb Ethernet, FireWire bridge).
 pub const ETH_STATUS_V2: u32 = 0x8000_0000;
+/// Ethernet-status register (12): bits 31:30 = 01 = FPGA V3 (Zynq, Ethernet-only capable).
+pub const ETH_STATUS_V3: u32 = 0x4000_0000;
 /// Git-description register (15): an arbitrary fixed value.
 pub const GIT_DESCRIPTION: u32 = 0x5349_4D39; // "SIM9"
 /// Longest stretch of simulated time one `advance_to` call catches up; beyond it the simulation
@@ -257,6 +261,8 @@ pub struct EmulatorCounters {
     pub hub_reads: u64,
     /// Broadcast queries (writes to 0x1800).
     pub broadcast_queries: u64,
+    /// Hub data sent unasked after a query (Ethernet-only mode, reference §3.4).
+    pub unsolicited_hub_replies: u64,
     /// Samples taken by the boards (block reads of address 0 and queries, per board).
     pub samples: u64,
     /// Datagrams that could not be parsed or failed a check (no reply).
@@ -410,6 +416,7 @@ pub struct Emulator {
     map: ActuatorMap,
     layout: BlockLayout,
     hub_layout: HubLayout,
+    ethernet: EthernetMode,
     boards: [Board; 2],
     hub: [u8; 512],
     hub_sequence: u16,
@@ -451,6 +458,7 @@ impl Emulator {
             map,
             layout,
             hub_layout,
+            ethernet: scenario.ethernet,
             boards: [
                 Board::new(BOARD_IDS[0], &map),
                 Board::new(BOARD_IDS[1], &map),
@@ -487,6 +495,16 @@ impl Emulator {
 
     pub fn counters(&self) -> EmulatorCounters {
         self.counters
+    }
+
+    /// FPGA V2 bridge (default) or V3 Ethernet-only, as the scenario chose.
+    pub fn ethernet_mode(&self) -> EthernetMode {
+        self.ethernet
+    }
+
+    /// Present the boards as FPGA V2 bridge or V3 Ethernet-only from now on.
+    pub fn set_ethernet_mode(&mut self, mode: EthernetMode) {
+        self.ethernet = mode;
     }
 
     pub fn actuator_map(&self) -> &ActuatorMap {
@@ -683,6 +701,12 @@ impl Emulator {
                     }
                     if addr == QUERY_ADDRESS {
                         self.broadcast_query(data, now);
+                        if self.ethernet == EthernetMode::EthernetOnly {
+                            // Rev 9 Ethernet-only: the hub sends the data unasked, as a block
+                            // response carrying the query's label (reference §3.4).
+                            self.sync_amps();
+                            return self.unsolicited_hub_reply(&repr, &extra, reply);
+                        }
                     }
                 } else {
                     self.write_register(target, addr, data, now);
@@ -815,7 +839,10 @@ impl Emulator {
                 7 => FIRMWARE_VERSION,
                 10 => 0,
                 11 => b.ip,
-                12 => ETH_STATUS_V2,
+                12 => match self.ethernet {
+                    EthernetMode::Bridge => ETH_STATUS_V2,
+                    EthernetMode::EthernetOnly => ETH_STATUS_V3,
+                },
                 15 => GIT_DESCRIPTION,
                 _ => 0,
             };
@@ -988,6 +1015,28 @@ impl Emulator {
         }
     }
 
+    /// The hub's block response to a broadcast query in Ethernet-only mode: hub memory for
+    /// every board plus the timing quadlet, from the hub board's node, with the query's label.
+    fn unsolicited_hub_reply(
+        &mut self,
+        query: &RequestRepr,
+        extra: &ExtraData,
+        reply: &mut [u8],
+    ) -> Option<usize> {
+        let n = self.hub_layout.len_bytes().min(self.hub.len());
+        let len = u16::try_from(n).ok()?;
+        self.counters.unsolicited_hub_replies += 1;
+        self.counters.hub_reads += 1;
+        let resp = ResponseRepr {
+            dest_id: query.src_id,
+            src_id: node_id(self.boards[0].id),
+            label: query.label,
+            rcode: 0,
+            kind: ResponseKind::Block { len },
+        };
+        EthReply::emit(reply, &resp, self.hub.get(..n)?, extra).ok()
+    }
+
     /// Fill `self.scratch[..len]` for a block read of `addr` on `board`.
     fn fill_block(&mut self, board: usize, addr: u16, len: usize) {
         let len = len.min(self.scratch.len());
@@ -1016,5 +1065,97 @@ impl Emulator {
             };
             self.scratch[4 * k..4 * k + 4].copy_from_slice(&v.to_be_bytes());
         }
+    }
+}
+
+#[cfg(test)]
+mod ethernet_mode_tests {
+    //! FPGA V2 bridge vs V3 Ethernet-only: the Ethernet-status register and the broadcast read.
+    use super::*;
+    use dvrk_io::wire::ControlWord;
+
+    const IO: &str = include_str!("../../../config/io/psm-classic.toml");
+    const IDLE: &str = include_str!("../../../config/sim/idle.toml");
+
+    fn emulator(mode: EthernetMode) -> Emulator {
+        let io = IoConfig::from_params(toml::from_str(IO).unwrap()).unwrap();
+        let mut scenario = Scenario::from_params(toml::from_str(IDLE).unwrap()).unwrap();
+        scenario.ethernet = mode;
+        let mut e = Emulator::new(&scenario, &io).unwrap();
+        e.advance_to(1_000_000);
+        e.advance_to(2_000_000);
+        e
+    }
+
+    fn request(node: u8, label: u8, addr: u16, kind: RequestKind) -> Vec<u8> {
+        let req = RequestRepr::host(node, label, u64::from(addr), kind);
+        let mut buf = vec![0u8; 64];
+        let n = EthRequest::emit(&mut buf, ControlWord::new(true, 0), &req, &[]).unwrap();
+        buf.truncate(n);
+        buf
+    }
+
+    fn quadlet(e: &mut Emulator, addr: u16) -> u32 {
+        let mut reply = [0u8; MAX_REPLY_BYTES];
+        let n = e
+            .handle(&request(6, 1, addr, RequestKind::QuadletRead), &mut reply)
+            .unwrap();
+        EthReply::parse(&reply[..n])
+            .unwrap()
+            .packet
+            .unwrap()
+            .quadlet_data()
+    }
+
+    #[test]
+    fn ethernet_status_says_v2_or_v3() {
+        assert_eq!(
+            quadlet(&mut emulator(EthernetMode::Bridge), 12),
+            ETH_STATUS_V2
+        );
+        let mut e = emulator(EthernetMode::EthernetOnly);
+        assert_eq!(quadlet(&mut e, 12), ETH_STATUS_V3);
+        assert_eq!(
+            quadlet(&mut e, 12) >> 30,
+            0b01,
+            "bits 31:30 = 01 is V3 (reference §1.1)"
+        );
+        assert_eq!(quadlet(&mut e, 7), 9);
+    }
+
+    #[test]
+    fn bridge_query_gets_no_reply_ethernet_only_query_gets_the_hub_data() {
+        let q = RequestKind::QuadletWrite {
+            data: (0x0123 << 16) | 0x00C0,
+        };
+        let mut reply = [0u8; MAX_REPLY_BYTES];
+        let mut b = emulator(EthernetMode::Bridge);
+        assert_eq!(
+            b.handle(&request(0x3F, 17, QUERY_ADDRESS, q), &mut reply),
+            None
+        );
+        assert_eq!(b.counters().unsolicited_hub_replies, 0);
+
+        let mut e = emulator(EthernetMode::EthernetOnly);
+        let n = e
+            .handle(&request(0x3F, 17, QUERY_ADDRESS, q), &mut reply)
+            .expect("the Ethernet-only hub answers the query with its data");
+        let r = EthReply::parse(&reply[..n]).unwrap();
+        let p = r.packet.unwrap();
+        assert_eq!(p.tcode(), Tcode::BlockResponse);
+        assert_eq!(p.label(), 17, "the query's label");
+        assert_eq!(p.src_node(), 6, "from the hub board");
+        // Two QLA Rev 9 blocks of 32 quadlets, a header each, and the timing quadlet: 67.
+        assert_eq!(usize::from(p.data_length()), 67 * 4);
+        let lay = BlockLayout::new(9, BoardKind::Qla).unwrap();
+        let hl = HubLayout::new(&[(6, lay), (7, lay)]).unwrap();
+        let hub = HubView::new_checked(p.payload(), hl).unwrap();
+        for (i, id) in [6u8, 7].into_iter().enumerate() {
+            let h = hub.header(i).unwrap();
+            assert_eq!(h.sequence_lsb(), 0x23);
+            assert!(!h.sequence_mismatch());
+            assert_eq!(hub.block(i).unwrap().status().board_id(), id);
+        }
+        assert_eq!(e.counters().unsolicited_hub_replies, 1);
     }
 }

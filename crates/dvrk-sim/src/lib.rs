@@ -28,7 +28,7 @@ pub use physics::{
     Environment, FrictionParams, JointState, PhysicsParams, ShaftParams, SimPsm, Truth,
 };
 pub use rng::SimRng;
-pub use scenario::{Motion, MotionDriver, Scenario, ScenarioParams};
+pub use scenario::{EthernetMode, Motion, MotionDriver, Scenario, ScenarioParams};
 
 /// Errors of dvrk-sim (setup only: the step and the emulator's request handling cannot fail).
 #[derive(Debug, thiserror::Error)]

@@ -138,6 +138,22 @@ pub struct ScenarioParams {
     pub shaft: Option<ShaftSection>,
     #[serde(default)]
     pub transmission: Option<TransmissionSection>,
+    /// How the emulated boards present themselves on Ethernet (default `bridge`).
+    #[serde(default)]
+    pub ethernet: EthernetMode,
+}
+
+/// How the emulated boards present themselves on Ethernet (reference §3.3 step 5, §3.4).
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum EthernetMode {
+    /// FPGA V2 (100 Mb Ethernet) bridging to FireWire: the host talks to the hub, and reads
+    /// hub memory explicitly after a broadcast query.
+    #[default]
+    Bridge,
+    /// FPGA V3 with firmware Rev 9: the host unicasts to each board, and the hub sends the
+    /// broadcast-read data unasked after the query.
+    EthernetOnly,
 }
 
 /// What the stand-in console commands over time.
@@ -194,6 +210,7 @@ pub struct Scenario {
     pub motion: Motion,
     pub noise: NoiseParams,
     pub physics: PhysicsParams,
+    pub ethernet: EthernetMode,
 }
 
 fn invalid(
@@ -470,6 +487,7 @@ impl Scenario {
             motion,
             noise,
             physics,
+            ethernet: p.ethernet,
         })
     }
 

@@ -1,0 +1,324 @@
+//! Decoder tests on frames built with the wire emitters: the three read protocols, pairing by
+//! host, label and node, and hostile bytes.
+
+use std::net::SocketAddrV4;
+
+use super::*;
+use crate::wire::block::status_bits;
+use crate::wire::firewire::node_id;
+use crate::wire::{
+    BoardKind, ControlWord, EncoderPosition, ExtraData, HubLayout, HubView, Timestamp,
+};
+
+const PSM_CLASSIC: &str = include_str!("../../../../config/io/psm-classic.toml");
+
+fn cfg() -> IoConfig {
+    IoConfig::from_params(toml::from_str(PSM_CLASSIC).unwrap()).unwrap()
+}
+
+fn lay() -> BlockLayout {
+    BlockLayout::new(9, BoardKind::Qla).unwrap()
+}
+
+const CONSOLE: &str = "127.0.0.1:40000";
+const OTHER: &str = "127.0.0.1:40001";
+
+fn host(s: &str) -> SocketAddrV4 {
+    s.parse().unwrap()
+}
+
+fn board_addr(node: u8) -> SocketAddrV4 {
+    SocketAddrV4::new([127, 0, 0, 1 + node.min(200)].into(), BOARD_PORT)
+}
+
+/// A feedback block of `board` whose encoder 0 reads `counts` and timestamp `ts`.
+fn block(board: u8, counts: i32, ts: u32) -> Vec<u8> {
+    let mut b = vec![0u8; lay().len_bytes()];
+    let mut v = FeedbackBlock::new_checked(&mut b[..], lay()).unwrap();
+    v.set_timestamp(Timestamp(ts));
+    v.set_status(BoardStatus::board_id_bits(board) | status_bits::POWER_ENABLE);
+    for e in 0..4 {
+        v.set_encoder_position(e, EncoderPosition::from_counts(counts + e as i32))
+            .unwrap();
+    }
+    b
+}
+
+fn frame(src: SocketAddrV4, dst: SocketAddrV4, payload: &[u8]) -> Vec<u8> {
+    let mut buf = vec![0u8; payload.len() + 64];
+    let n = emit_frame(&mut buf, LinkType::Ethernet, src, dst, payload).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+fn request(from: &str, node: u8, label: u8, addr: u16, kind: RequestKind) -> Vec<u8> {
+    let req = RequestRepr::host(node, label, u64::from(addr), kind);
+    let mut buf = vec![0u8; 64];
+    let n = EthRequest::emit(&mut buf, ControlWord::new(true, 0), &req, &[]).unwrap();
+    frame(host(from), board_addr(node), &buf[..n])
+}
+
+fn block_reply(to: &str, node: u8, label: u8, data: &[u8]) -> Vec<u8> {
+    let resp = ResponseRepr {
+        dest_id: 0xFFD0,
+        src_id: node_id(node),
+        label,
+        rcode: 0,
+        kind: ResponseKind::Block {
+            len: data.len() as u16,
+        },
+    };
+    let mut buf = vec![0u8; data.len() + 64];
+    let n = EthReply::emit(&mut buf, &resp, data, &ExtraData::default()).unwrap();
+    frame(board_addr(node), host(to), &buf[..n])
+}
+
+fn hub_data(seq: u16, boards: &[(u8, i32, u32)]) -> Vec<u8> {
+    let hl = HubLayout::new(&boards.iter().map(|b| (b.0, lay())).collect::<Vec<_>>()).unwrap();
+    let mut mem = vec![0u8; hl.len_bytes()];
+    let mut view = HubView::new_checked(&mut mem[..], hl).unwrap();
+    for (i, &(id, counts, ts)) in boards.iter().enumerate() {
+        view.set_header(i, HubHeader::new(lay().len_quadlets() as u8, seq, false, 0))
+            .unwrap();
+        let b = block(id, counts, ts);
+        view.block_mut(i).unwrap().into_inner().copy_from_slice(&b);
+    }
+    mem
+}
+
+fn push(d: &mut TapDecoder, f: &[u8], out: &mut ArmSample) -> TapEvent {
+    d.push(f, LinkType::Ethernet, 7, out)
+}
+
+fn counts0(cfg: &IoConfig, s: &ArmSample) -> i32 {
+    // Joint 1 is actuator 1 (board 6, axis 0), uncoupled.
+    cfg.actuators()[0].position_to_counts(s.position[0])
+}
+
+#[test]
+fn sequential_reads_give_one_sample_per_cycle() {
+    let c = cfg();
+    let mut d = TapDecoder::new(c.clone());
+    let mut out = ArmSample::default();
+    let len = lay().len_bytes() as u16;
+    for cycle in 0..3u8 {
+        let l6 = cycle * 2;
+        let l7 = cycle * 2 + 1;
+        let e = push(
+            &mut d,
+            &request(CONSOLE, 6, l6, 0, RequestKind::BlockRead { len }),
+            &mut out,
+        );
+        assert_eq!(e, TapEvent::Consumed);
+        let e = push(
+            &mut d,
+            &block_reply(CONSOLE, 6, l6, &block(6, 100 + i32::from(cycle), 1000)),
+            &mut out,
+        );
+        assert_eq!(e, TapEvent::Consumed);
+        push(
+            &mut d,
+            &request(CONSOLE, 7, l7, 0, RequestKind::BlockRead { len }),
+            &mut out,
+        );
+        let e = push(
+            &mut d,
+            &block_reply(CONSOLE, 7, l7, &block(7, 5, 2000)),
+            &mut out,
+        );
+        assert_eq!(e, TapEvent::Sample, "cycle {cycle}");
+        assert!(out.valid);
+        assert_eq!(out.t_ns, 7);
+        assert_eq!(counts0(&c, &out), 100 + i32::from(cycle));
+        assert_eq!(out.board_timestamp, [1000, 2000]);
+    }
+    assert_eq!(d.counters().samples, 3);
+    assert_eq!(d.blocks_seen(), [3, 3]);
+}
+
+#[test]
+fn replies_pair_by_host_label_and_node() {
+    let c = cfg();
+    let mut d = TapDecoder::new(c);
+    let mut out = ArmSample::default();
+    let len = lay().len_bytes() as u16;
+    push(
+        &mut d,
+        &request(CONSOLE, 6, 5, 0, RequestKind::BlockRead { len }),
+        &mut out,
+    );
+    // Same label, other host: not this request's reply.
+    let e = push(&mut d, &block_reply(OTHER, 6, 5, &block(6, 1, 1)), &mut out);
+    assert_eq!(e, TapEvent::Skipped(Skip::Unpaired));
+    // Right host, wrong label.
+    let e = push(
+        &mut d,
+        &block_reply(CONSOLE, 6, 6, &block(6, 1, 1)),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Skipped(Skip::Unpaired));
+    // Right host and label, another node answering.
+    let e = push(
+        &mut d,
+        &block_reply(CONSOLE, 7, 5, &block(7, 1, 1)),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Skipped(Skip::Unpaired));
+    let e = push(
+        &mut d,
+        &block_reply(CONSOLE, 6, 5, &block(6, 1, 1)),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Consumed);
+    // A second reply to the same request is not paired again.
+    let e = push(
+        &mut d,
+        &block_reply(CONSOLE, 6, 5, &block(6, 1, 1)),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Skipped(Skip::Unpaired));
+    assert_eq!(d.counters().skipped_unpaired, 4);
+}
+
+#[test]
+fn bridge_broadcast_query_then_hub_read() {
+    let c = cfg();
+    let mut d = TapDecoder::new(c.clone());
+    let mut out = ArmSample::default();
+    let q = RequestKind::QuadletWrite {
+        data: (9 << 16) | 0x00C0,
+    };
+    assert_eq!(
+        push(
+            &mut d,
+            &request(CONSOLE, 0x3F, 1, QUERY_ADDRESS, q),
+            &mut out
+        ),
+        TapEvent::Consumed
+    );
+    let hub = hub_data(9, &[(6, 42, 111), (7, 43, 222)]);
+    let len = hub.len() as u16;
+    push(
+        &mut d,
+        &request(CONSOLE, 6, 2, HUB_ADDRESS, RequestKind::BlockRead { len }),
+        &mut out,
+    );
+    let e = push(&mut d, &block_reply(CONSOLE, 6, 2, &hub), &mut out);
+    assert_eq!(e, TapEvent::Sample);
+    assert_eq!(counts0(&c, &out), 42);
+    assert_eq!(out.board_timestamp, [111, 222]);
+    assert_eq!(d.counters().unsolicited_hub, 0);
+}
+
+#[test]
+fn ethernet_only_unsolicited_hub_data_in_any_order() {
+    let c = cfg();
+    let mut d = TapDecoder::new(c.clone());
+    let mut out = ArmSample::default();
+    let q = RequestKind::QuadletWrite {
+        data: (300 << 16) | 0x00C0,
+    };
+    push(
+        &mut d,
+        &request(CONSOLE, 0x3F, 33, QUERY_ADDRESS, q),
+        &mut out,
+    );
+    // Board 7 first: the Ethernet-only hub does not order the boards (§3.4).
+    let hub = hub_data(300, &[(7, 8, 20), (6, -77, 10)]);
+    let e = push(&mut d, &block_reply(CONSOLE, 7, 33, &hub), &mut out);
+    assert_eq!(e, TapEvent::Sample);
+    assert_eq!(counts0(&c, &out), -77);
+    assert_eq!(out.board_timestamp, [10, 20]);
+    assert_eq!(d.counters().unsolicited_hub, 1);
+}
+
+#[test]
+fn hub_slot_with_wrong_sequence_is_not_a_sample() {
+    let c = cfg();
+    let mut d = TapDecoder::new(c);
+    let mut out = ArmSample::default();
+    let q = RequestKind::QuadletWrite { data: 4 << 16 };
+    push(
+        &mut d,
+        &request(CONSOLE, 0x3F, 3, QUERY_ADDRESS, q),
+        &mut out,
+    );
+    let hub = hub_data(5, &[(6, 1, 1), (7, 1, 1)]);
+    let e = push(&mut d, &block_reply(CONSOLE, 6, 3, &hub), &mut out);
+    assert_eq!(e, TapEvent::Consumed);
+    assert_eq!(d.counters().bad_hub_slots, 2);
+    assert_eq!(d.counters().incomplete_cycles, 1);
+}
+
+#[test]
+fn a_board_missing_from_the_traffic_gives_no_sample_and_is_counted() {
+    let mut d = TapDecoder::new(cfg());
+    let mut out = ArmSample::default();
+    let len = lay().len_bytes() as u16;
+    for l in 0..4u8 {
+        push(
+            &mut d,
+            &request(CONSOLE, 6, l, 0, RequestKind::BlockRead { len }),
+            &mut out,
+        );
+        let e = push(
+            &mut d,
+            &block_reply(CONSOLE, 6, l, &block(6, 1, 1)),
+            &mut out,
+        );
+        assert_eq!(e, TapEvent::Consumed);
+    }
+    assert_eq!(d.blocks_seen(), [4, 0]);
+    assert_eq!(d.counters().incomplete_cycles, 3);
+    assert_eq!(d.counters().samples, 0);
+}
+
+#[test]
+fn quadlet_traffic_and_writes_are_not_feedback() {
+    let mut d = TapDecoder::new(cfg());
+    let mut out = ArmSample::default();
+    let e = push(
+        &mut d,
+        &request(CONSOLE, 6, 1, 0x15, RequestKind::QuadletRead),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Skipped(Skip::NoFeedback));
+    let e = push(
+        &mut d,
+        &request(CONSOLE, 6, 2, 0, RequestKind::QuadletWrite { data: 1 }),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Skipped(Skip::NoFeedback));
+}
+
+#[test]
+fn hostile_bytes_never_panic() {
+    let mut d = TapDecoder::new(cfg());
+    let mut out = ArmSample::default();
+    let len = lay().len_bytes() as u16;
+    let good_req = request(CONSOLE, 6, 1, 0, RequestKind::BlockRead { len });
+    let good_rep = block_reply(CONSOLE, 6, 1, &block(6, 1, 1));
+    // Every truncation and a sweep of single-byte corruptions of a request and its reply.
+    for f in [&good_req, &good_rep] {
+        for cut in 0..f.len() {
+            d.push(&f[..cut], LinkType::Ethernet, 0, &mut out);
+            d.push(&f[..cut], LinkType::Ip, 0, &mut out);
+        }
+        for i in 0..f.len() {
+            for v in [0u8, 0xFF, 0x3F, 0x80] {
+                let mut g = f.clone();
+                g[i] = v;
+                d.push(&g, LinkType::Ethernet, 0, &mut out);
+            }
+        }
+    }
+    // Hub data whose header sizes point past the end, or are huge.
+    let q = RequestKind::QuadletWrite { data: 0 };
+    push(
+        &mut d,
+        &request(CONSOLE, 0x3F, 9, QUERY_ADDRESS, q),
+        &mut out,
+    );
+    let bad = [0xFFu8; 64];
+    push(&mut d, &block_reply(CONSOLE, 6, 9, &bad), &mut out);
+}
