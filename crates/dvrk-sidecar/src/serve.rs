@@ -562,7 +562,11 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             // notification per cycle, until another process happened to reap them.
             let r = pipe.publisher.reap_dead_nodes();
             if r.reaped > 0 || r.failed > 0 {
-                info!(reaped = r.reaped, failed = r.failed, "removed dead subscriber nodes");
+                info!(
+                    reaped = r.reaped,
+                    failed = r.failed,
+                    "removed dead subscriber nodes"
+                );
             }
             next_reap = rt::monotonic_ns() + REAP_PERIOD_NS;
         }
