@@ -44,6 +44,8 @@ fuzz_target!(|data: &[u8]| {
         },
         tau_min_nm: vec![0.1, 0.2],
         font: common::scratch_dir().join("no-font.ttf"),
+        dynamics: None,
+        gate_sigmas: 4.0,
     };
     let _ = compute(&args);
 });
