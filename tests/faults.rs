@@ -29,20 +29,11 @@ use common::proxy::{FaultProxy, Faults, ProxyCounters};
 use common::*;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{CompensationStatusV2, JointStateV1, ServiceNames, Topic, flags, qos};
+use dvrk_sidecar::rt::monotonic_ns;
 
 /// A liveness bound for recovery, not a speed claim (the goal, 100 ms, is recorded from the
 /// printed figures in RELIABILITY.md).
 const RECOVERY_BOUND: Duration = Duration::from_secs(2);
-
-fn now_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: valid timespec, CLOCK_MONOTONIC exists.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-}
 
 #[derive(Clone, Copy, Debug)]
 struct Rec {
@@ -443,7 +434,7 @@ fn steady_faults_never_publish_a_wrong_sample_as_valid() {
         rig.proxy.set_faults(faults);
         std::thread::sleep(Duration::from_secs(3));
         rig.proxy.set_faults(Faults::default());
-        let t_clear = now_ns();
+        let t_clear = monotonic_ns();
         let back = rig
             .collector
             .first_valid_after(t_clear, Duration::from_secs(30))
@@ -523,7 +514,7 @@ fn a_stall_of_the_boards_is_recovered() {
         rig.emulator.signal(libc::SIGSTOP);
         std::thread::sleep(stall);
         rig.emulator.signal(libc::SIGCONT);
-        let t_cont = now_ns();
+        let t_cont = monotonic_ns();
         let back = rig
             .collector
             .first_valid_after(t_cont, Duration::from_secs(30))
@@ -570,7 +561,7 @@ fn an_emulator_restart_is_recovered() {
     rig.emulator.wait_timeout(Duration::from_secs(5));
     std::thread::sleep(Duration::from_millis(500));
     rig.emulator = emulator(rig.emulator_port, "divot-push.toml");
-    let t_up = now_ns();
+    let t_up = monotonic_ns();
     let back = rig
         .collector
         .first_valid_after(t_up, Duration::from_secs(30))
@@ -622,7 +613,7 @@ fn starts_under_loss_ten_of_ten() {
             "divot-push.toml",
         );
         let collector = Collector::start(&prefix);
-        let t0 = now_ns();
+        let t0 = monotonic_ns();
         let mut serve = serve(&cfg);
         let first = collector.first_valid_after(0, Duration::from_secs(30));
         let alive = serve.wait_timeout(Duration::from_millis(1)).is_none();

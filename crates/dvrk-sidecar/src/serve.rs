@@ -287,10 +287,8 @@ fn firewire(cfg: &SidecarConfig, n: u32, stop: &StopFlag) -> Result<()> {
 
 #[cfg(not(feature = "firewire"))]
 fn firewire(_cfg: &SidecarConfig, n: u32, _stop: &StopFlag) -> Result<()> {
-    anyhow::bail!(
-        "source fw:{n}: this binary was built without FireWire support; rebuild with \
-         `cargo build --release -p dvrk-sidecar --features firewire` (needs libraw1394-dev)"
-    )
+    // preflight() has refused this already; the one message lives in firewire_check.
+    firewire_check(n)
 }
 
 /// Counters of the loop, kept for the 1 Hz summary and the status message.
