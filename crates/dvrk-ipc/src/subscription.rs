@@ -9,6 +9,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::SynchronousMultiplexing;
 use iceoryx2::service::Service;
 use iceoryx2::service::port_factory::PortFactory as _;
+use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 use crate::error::{IpcError, SubscriptionError};
@@ -214,6 +215,10 @@ pub struct Subscription<T: Message, S: Service = iceoryx2::service::ipc::Service
     publisher_seen: bool,
     last_dead_check_ns: Option<u64>,
     stats: SubscriptionStats,
+    /// The cycle event's service, to count its listeners (`None` for `Spin`).
+    event: Option<EventFactory<S>>,
+    /// CPUs this process may run on, read once at creation.
+    cores: usize,
 }
 
 /// Where a predictive wait started polling, to grade the prediction when the sample comes.
@@ -268,17 +273,18 @@ where
                     service: service_name.clone(),
                     source,
                 })?;
-        let listener =
+        let (listener, event) =
             if options.wait.uses_event() {
                 let event = open_cycle_event(node, names)?;
-                Some(event.listener_builder().create().map_err(|source| {
+                let listener = event.listener_builder().create().map_err(|source| {
                     IpcError::CreateListener {
                         service: names.cycle().as_str().to_owned(),
                         source,
                     }
-                })?)
+                })?;
+                (Some(listener), Some(event))
             } else {
-                None
+                (None, None)
             };
         let timer = if options.wait == WaitStrategy::Predictive {
             sys::minimise_timer_slack().map_err(|source| IpcError::Timer {
@@ -312,6 +318,8 @@ where
             publisher_seen,
             last_dead_check_ns: None,
             stats: SubscriptionStats::default(),
+            event,
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
         })
     }
 
@@ -451,16 +459,26 @@ where
         let polling = if wake_at > sys::monotonic_ns() {
             let timer = self.timer.as_ref().ok_or(SubscriptionError::NoTimer)?;
             timer.arm_at(wake_at).map_err(SubscriptionError::Timer)?;
-            match self.sleep_on_event_or_timer(stale_at)? {
-                Ready::Interrupted => return Ok(Update::Interrupted),
-                Ready::TimedOut => return Ok(self.stale_or_terminated()),
-                Ready::Timer => Polling::OnTimer(sys::monotonic_ns()),
-                Ready::Event => Polling::Late,
+            loop {
+                match self.sleep_on_event_or_timer(stale_at)? {
+                    Ready::Interrupted => return Ok(Update::Interrupted),
+                    Ready::TimedOut => return Ok(self.stale_or_terminated()),
+                    Ready::Timer => break Polling::OnTimer(sys::monotonic_ns()),
+                    Ready::Event => {}
+                }
+                // The event came first: the sample is there (the timer was late), or this is the
+                // notification of the cycle already taken by polling, sent after the cycle's
+                // last message. Then consume it and sleep again: the timer stays armed.
+                if let Some(v) = self.take_pending(each)? {
+                    self.grade(&v, Polling::Late);
+                    return Ok(Update::Fresh(v));
+                }
             }
         } else {
             // Called after the wake-up point: poll right away.
             Polling::OnTimer(sys::monotonic_ns())
         };
+        let crowded = self.crowded();
         // The first look tells whether the sample was already there when polling started.
         if let Some(v) = self.drain(each)? {
             self.grade(&v, Polling::Late);
@@ -474,7 +492,14 @@ where
             if sys::monotonic_ns() >= spin_until {
                 break;
             }
-            core::hint::spin_loop();
+            if crowded {
+                // More pollers than cores: give the CPU to whatever else is runnable on it (the
+                // publisher about to send, the other subscribers), else they wait for this
+                // one's time slice to end. Returns at once when nothing else is runnable.
+                std::thread::yield_now();
+            } else {
+                core::hint::spin_loop();
+            }
         }
         // The sample is later than the spin window allows (a publisher overrun or stall): sleep
         // on the event for the rest of the deadline. Its arrival still teaches the predictor.
@@ -509,6 +534,15 @@ where
             return self.drain(each);
         }
         Ok(None)
+    }
+
+    /// Whether the cycle event has at least as many listeners (event and predictive
+    /// subscribers, of every process) as this process has CPUs: then polling must yield. Reads
+    /// shared memory; no system call.
+    fn crowded(&self) -> bool {
+        self.event
+            .as_ref()
+            .is_some_and(|e| e.dynamic_config().number_of_listeners() >= self.cores)
     }
 
     fn listener_fd(&self) -> Result<i32, SubscriptionError> {
