@@ -675,7 +675,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("PSM3") && e.contains("PSM1, PSM2") && e.contains("c.json"),
+            e.contains("PSM3") && e.contains("PSM2, PSM1") && e.contains("c.json"),
             "{e}"
         );
         let system = console
