@@ -7,7 +7,8 @@
 //!   `/PSM1/compensated/local/measured_cp` and `/PSM1/compensated/measured_cp`
 //!   (`geometry_msgs/PoseStamped`), `/PSM1/compensated/measured_js` (6 joints) and
 //!   `/PSM1/compensated/jaw/measured_js` (`sensor_msgs/JointState`), and
-//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]), with
+//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]; the ROS 2
+//!   interface package is in `ros2/dvrk_sidecar_msgs` for a colcon workspace), with
 //!   RustDDS (RTPS in pure Rust) and hand-written CDR ([`cdr`]). QoS is ROS 2's sensor-data
 //!   profile by default. It never publishes under the console's own names.
 //! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads).
