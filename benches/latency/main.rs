@@ -16,7 +16,10 @@
 //! cargo build --release -p dvrk-sidecar && cargo bench --bench latency
 //! cargo bench --bench latency -- --seconds 5 --subscribers 1,4,16 --json
 //! cargo bench --bench latency -- --seconds 2 --subscribers 1,4 --check-lost   # CI: exit 1 on loss
+//! cargo bench --bench latency -- --topic measured_js   # another topic (default compensated/local/measured_cp)
 //! ```
+//! The shared-memory figures include the publisher's sends of the topics before the measured
+//! one in the cycle's publishing order ([`Topic::ALL`]); `--topic` shows what that order costs.
 //! Prints a markdown table (with the publisher's own share, `publish_t_ns - sample_t_ns`, and the
 //! hand-off, receipt - `publish_t_ns`), or with `--json` one line per case:
 //! `{"subscribers":N,"path":"event|predictive|spin|json_udp","samples":..,"p50_us":..,"p99_us":..,
@@ -31,8 +34,8 @@ use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    NOMINAL_PERIOD, PoseV2, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
-    WaitStrategy,
+    CompensationStatusV3, JawStateV1, JointStateV2, Message, NOMINAL_PERIOD, PoseV2, ServiceNames,
+    SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
 };
 use dvrk_sidecar::config::SidecarConfig;
 use dvrk_sidecar::cycle::{self, ReadOutcome};
@@ -51,7 +54,19 @@ fn main() -> Res<()> {
         .filter(|a| a != "--bench")
         .collect();
     match args.first().map(String::as_str) {
-        Some("--sub-shm") => sub_shm(&args[1], args[2].parse()?, args[3].parse()?),
+        Some("--sub-shm") => {
+            let topic = Topic::from_suffix(&args[4]).ok_or("unknown topic")?;
+            let (prefix, seconds, wait) = (&args[1], args[2].parse()?, args[3].parse()?);
+            if topic.carries::<PoseV2>() {
+                sub_shm::<PoseV2>(prefix, seconds, wait, topic)
+            } else if topic.carries::<JointStateV2>() {
+                sub_shm::<JointStateV2>(prefix, seconds, wait, topic)
+            } else if topic.carries::<JawStateV1>() {
+                sub_shm::<JawStateV1>(prefix, seconds, wait, topic)
+            } else {
+                sub_shm::<CompensationStatusV3>(prefix, seconds, wait, topic)
+            }
+        }
         Some("--sub-json") => sub_json(args[1].parse()?, args[2].parse()?),
         Some("--json-streamer") => json_streamer(Path::new(&args[1]), &args[2], args[3].parse()?),
         _ => orchestrate(&args),
@@ -105,7 +120,7 @@ impl CpuWindow {
     }
 }
 
-fn sub_shm(prefix: &str, seconds: f64, wait: WaitStrategy) -> Res<()> {
+fn sub_shm<T: Message>(prefix: &str, seconds: f64, wait: WaitStrategy, topic: Topic) -> Res<()> {
     let node = dvrk_ipc::create_node::<Service>("latency-sub", None)?;
     let names = ServiceNames::new(prefix)?;
     let options = SubscribeOptions {
@@ -113,12 +128,7 @@ fn sub_shm(prefix: &str, seconds: f64, wait: WaitStrategy) -> Res<()> {
         wait,
         deadline: None,
     };
-    let mut sub = Subscription::<PoseV2, Service>::with_options(
-        &node,
-        &names,
-        Topic::CompensatedLocalMeasuredCp,
-        options,
-    )?;
+    let mut sub = Subscription::<T, Service>::with_options(&node, &names, topic, options)?;
     let capacity = (seconds * 2000.0) as usize;
     let mut lat = Vec::with_capacity(capacity);
     let mut publisher = Vec::with_capacity(capacity);
@@ -128,8 +138,9 @@ fn sub_shm(prefix: &str, seconds: f64, wait: WaitStrategy) -> Res<()> {
         let update = sub.wait_with(|m| {
             let now = rt::monotonic_ns();
             window.mark(now);
-            lat.push(now.saturating_sub(m.header.sample_t_ns));
-            publisher.push(m.header.publish_t_ns.saturating_sub(m.header.sample_t_ns));
+            let h = m.header();
+            lat.push(now.saturating_sub(h.sample_t_ns));
+            publisher.push(h.publish_t_ns.saturating_sub(h.sample_t_ns));
         })?;
         if window.start.is_some() {
             // Gaps before the first sample (joining mid-stream) are not losses.
@@ -346,6 +357,9 @@ struct Options {
     json: bool,
     check_lost: bool,
     paths: Vec<String>,
+    /// The topic the shared-memory subscribers take (the JSON path always carries the
+    /// compensated pose).
+    topic: Topic,
 }
 
 fn parse_options(args: &[String]) -> Res<Options> {
@@ -357,6 +371,7 @@ fn parse_options(args: &[String]) -> Res<Options> {
         paths: ["event", "predictive", "spin", "json_udp"]
             .map(String::from)
             .to_vec(),
+        topic: Topic::CompensatedLocalMeasuredCp,
     };
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -377,6 +392,10 @@ fn parse_options(args: &[String]) -> Res<Options> {
                     .split(',')
                     .map(String::from)
                     .collect()
+            }
+            "--topic" => {
+                let t = it.next().ok_or("--topic compensated/local/measured_cp")?;
+                o.topic = Topic::from_suffix(t).ok_or_else(|| format!("unknown topic {t:?}"))?;
             }
             "--json" => o.json = true,
             "--check-lost" => o.check_lost = true,
@@ -437,8 +456,11 @@ fn orchestrate(args: &[String]) -> Res<()> {
         .unwrap_or_default();
     if !o.json {
         println!(
-            "# latency, {} s per case, 1500 Hz, {cores} CPUs ({cpu})\n",
-            o.seconds
+            "# latency, {} s per case, 1500 Hz, {cores} CPUs ({cpu}), shared memory: {} ({} of {} messages per cycle)\n",
+            o.seconds,
+            o.topic,
+            o.topic.index() + 1,
+            Topic::ALL.len()
         );
         println!(
             "| subscribers | path | samples | p50 µs | p99 µs | p99.9 µs | max µs | lost | CPU % per subscriber | publisher's share p50 µs | hand-off p50 µs | predicted on time |"
@@ -480,6 +502,7 @@ fn orchestrate(args: &[String]) -> Res<()> {
                     .map(|_| {
                         Command::new(&me)
                             .args(["--sub-shm", &prefix, &o.seconds.to_string(), wait.name()])
+                            .arg(o.topic.suffix())
                             .stdout(Stdio::piped())
                             .spawn()
                     })

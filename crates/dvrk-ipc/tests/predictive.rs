@@ -15,7 +15,7 @@ use common::Domain;
 use dvrk_ipc::iceoryx2::prelude::PortFactory as _;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    JointStateV1, SubscribeOptions, Subscription, Topic, Update, WaitStrategy, create_node,
+    JointStateV2, SubscribeOptions, Subscription, Topic, Update, WaitStrategy, create_node,
     monotonic_ns, open_cycle_event, open_topic,
 };
 
@@ -47,7 +47,7 @@ fn a_cycle_event_without_a_new_sample_does_not_start_polling() {
     let d = Domain::new("predictive_bare_event");
     let node = create_node::<ipc::Service>("pred_pub", Some(&d.config)).unwrap();
     let topic =
-        open_topic::<JointStateV1, ipc::Service>(&node, &d.names, Topic::MeasuredJs).unwrap();
+        open_topic::<JointStateV2, ipc::Service>(&node, &d.names, Topic::MeasuredJs).unwrap();
     let publisher = topic.publisher_builder().create().unwrap();
     let event = open_cycle_event(&node, &d.names).unwrap();
     let notifier = event.notifier_builder().create().unwrap();
@@ -64,7 +64,7 @@ fn a_cycle_event_without_a_new_sample_does_not_start_polling() {
             deadline: Some(Duration::from_secs(5)),
         };
         let mut sub =
-            Subscription::<JointStateV1>::with_options(&node, &names, Topic::MeasuredJs, options)
+            Subscription::<JointStateV2>::with_options(&node, &names, Topic::MeasuredJs, options)
                 .unwrap();
         tx.send((0, 0)).unwrap();
         loop {
@@ -93,7 +93,7 @@ fn a_cycle_event_without_a_new_sample_does_not_start_polling() {
     }
     let send = |seq: u64| {
         let now = monotonic_ns();
-        let mut m = JointStateV1::default();
+        let mut m = JointStateV2::default();
         m.header.seq = seq;
         m.header.sample_t_ns = now;
         m.header.publish_t_ns = now;
