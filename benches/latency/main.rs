@@ -29,7 +29,7 @@
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
@@ -67,7 +67,7 @@ fn main() -> Res<()> {
                 sub_shm::<CompensationStatusV3>(prefix, seconds, wait, topic)
             }
         }
-        Some("--sub-json") => sub_json(args[1].parse()?, args[2].parse()?),
+        Some("--sub-json") => sub_json(args[1].parse()?),
         Some("--json-streamer") => json_streamer(Path::new(&args[1]), &args[2], args[3].parse()?),
         _ => orchestrate(&args),
     }
@@ -168,8 +168,11 @@ fn sub_shm<T: Message>(prefix: &str, seconds: f64, wait: WaitStrategy, topic: To
     Ok(())
 }
 
-fn sub_json(port: u16, seconds: f64) -> Res<()> {
-    let sock = UdpSocket::bind(("127.0.0.1", port))?;
+/// Binds a port of its own (a port picked by the orchestrator could be taken by another process
+/// before the subscriber binds it) and prints it as its first line.
+fn sub_json(seconds: f64) -> Res<()> {
+    let sock = UdpSocket::bind(("127.0.0.1", 0))?;
+    println!("PORT {}", sock.local_addr()?.port());
     sock.set_read_timeout(Some(Duration::from_millis(200)))?;
     let mut buf = [0u8; 2048];
     let capacity = (seconds * 2000.0) as usize;
@@ -310,15 +313,19 @@ struct Case {
     on_time: (u64, u64),
 }
 
-fn collect(children: Vec<Child>) -> Res<Case> {
+/// A subscriber process and its standard output.
+type Sub = (Child, BufReader<ChildStdout>);
+
+fn sub_process(mut c: Child) -> Res<Sub> {
+    let out = c.stdout.take().ok_or("no stdout")?;
+    Ok((c, BufReader::new(out)))
+}
+
+fn collect(children: Vec<Sub>) -> Res<Case> {
     let mut case = Case::default();
     let n = children.len();
-    for mut c in children {
-        let out = c.stdout.take().ok_or("no stdout")?;
-        let line = BufReader::new(out)
-            .lines()
-            .next()
-            .ok_or("subscriber printed nothing")??;
+    for (mut c, out) in children {
+        let line = out.lines().next().ok_or("subscriber printed nothing")??;
         let v: serde_json::Value = serde_json::from_str(&line)?;
         let nums = |key: &str| -> Vec<u64> {
             v[key]
@@ -498,32 +505,44 @@ fn orchestrate(args: &[String]) -> Res<()> {
                     .spawn()?,
             );
             for wait in shm_paths {
-                let subs: Vec<Child> = (0..n)
+                let subs: Vec<Sub> = (0..n)
                     .map(|_| {
-                        Command::new(&me)
-                            .args(["--sub-shm", &prefix, &o.seconds.to_string(), wait.name()])
-                            .arg(o.topic.suffix())
-                            .stdout(Stdio::piped())
-                            .spawn()
+                        sub_process(
+                            Command::new(&me)
+                                .args(["--sub-shm", &prefix, &o.seconds.to_string(), wait.name()])
+                                .arg(o.topic.suffix())
+                                .stdout(Stdio::piped())
+                                .spawn()?,
+                        )
                     })
-                    .collect::<Result<_, _>>()?;
+                    .collect::<Res<_>>()?;
                 results.push((wait.name().to_owned(), collect(subs)?));
             }
             drop(serve);
         }
         if o.paths.iter().any(|p| p == "json_udp") {
             // JSON over UDP: the streamer + n subscriber processes.
-            let ports: Vec<u16> = (0..n).map(|_| free_port()).collect();
-            let subs: Vec<Child> = ports
-                .iter()
-                .map(|p| {
-                    Command::new(&me)
-                        .args(["--sub-json", &p.to_string(), &o.seconds.to_string()])
-                        .stdout(Stdio::piped())
-                        .spawn()
+            let mut subs: Vec<Sub> = (0..n)
+                .map(|_| {
+                    sub_process(
+                        Command::new(&me)
+                            .args(["--sub-json", &o.seconds.to_string()])
+                            .stdout(Stdio::piped())
+                            .spawn()?,
+                    )
                 })
-                .collect::<Result<_, _>>()?;
-            std::thread::sleep(Duration::from_millis(200));
+                .collect::<Res<_>>()?;
+            let mut ports = Vec::with_capacity(n);
+            for (_, out) in &mut subs {
+                let mut line = String::new();
+                out.read_line(&mut line)?;
+                let port: u16 = line
+                    .strip_prefix("PORT ")
+                    .ok_or_else(|| format!("JSON subscriber printed {line:?}, not its port"))?
+                    .trim()
+                    .parse()?;
+                ports.push(port);
+            }
             let targets = ports
                 .iter()
                 .map(u16::to_string)
