@@ -50,7 +50,10 @@ pub enum WaitStrategy {
     /// Learn the publisher's period and phase from the samples' publish times, sleep until
     /// shortly before the next sample is due (or until the cycle event, whichever comes first),
     /// then poll. Close to `Spin` in latency at a fraction of its CPU, and never later than
-    /// `Event`. Sets the calling thread's timer slack to 1 ns (`PR_SET_TIMERSLACK`).
+    /// `Event`. A cycle event that brings no new sample (the notification of a cycle already
+    /// taken by polling) sends it back to sleep. Polling yields the CPU while the cycle event
+    /// has at least as many listeners as the process has CPUs. Sets the calling thread's timer
+    /// slack to 1 ns (`PR_SET_TIMERSLACK`).
     Predictive,
 }
 
