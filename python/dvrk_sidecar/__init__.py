@@ -14,7 +14,7 @@ from .arm import Arm, Header, InvalidSample, pose_matrix
 from .ipc import WAIT_STRATEGIES, ConfigError, DvrkSidecarError, NoSample
 from .msg import FLAG_NAMES, JOINT_NAMES, TOPICS
 
-__version__ = "0.2.0"
+__version__ = "0.1.0"
 
 __all__ = [
     "Arm",

@@ -206,8 +206,14 @@ class Arm(_ArmView):
     def wait_strategy(self) -> str:
         return self._waiter.strategy
 
+    def _reader(self, topic):
+        try:
+            return self._readers[topic]
+        except KeyError:
+            raise ipc.DvrkSidecarError(f"{self!r} is closed") from None
+
     def _read(self, topic, age, wait, convert, extra):
-        reader = self._readers[topic]
+        reader = self._reader(topic)
         age = self.age if age is None else age
         wait = self.timeout if wait is None else wait
         value = reader.take_newest()
@@ -232,7 +238,7 @@ class Arm(_ArmView):
         """Waits for the next cycle the sidecar publishes (its last message, the status, has
         arrived) and returns that cycle's Header (valid or not); None after `timeout` seconds
         (default: the Arm's)."""
-        reader = self._readers["compensated/status"]
+        reader = self._reader("compensated/status")
         reader.take_newest()  # what has already arrived is not the next cycle
         timeout = self.timeout if timeout is None else timeout
         value = self._waiter.wait_for(reader.take_newest, time.monotonic_ns() + int(timeout * 1e9))
