@@ -20,7 +20,7 @@ use common::*;
 use dvrk_ipc::iceoryx2::prelude::ZeroCopySend;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, HeaderV2, JawStateV1,
+    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1,
     JointStateV2, Message, PoseV2, ServiceNames, create_node, domain_config, flags,
 };
 use serde_json::Value;
@@ -142,13 +142,12 @@ impl LineProc {
     }
 }
 
-fn rust_echo(service: &str, count: Option<u64>) -> LineProc {
-    let mut c = Command::new(sidecar_bin());
-    c.args(["echo", service, "--json"]);
-    if let Some(n) = count {
-        c.args(["--count", &n.to_string()]);
-    }
-    LineProc::spawn("rust echo", &mut c)
+/// `dvrk-sidecar echo SERVICE --json` until stopped.
+fn rust_echo(service: &str) -> LineProc {
+    LineProc::spawn(
+        "rust echo",
+        Command::new(sidecar_bin()).args(["echo", service, "--json"]),
+    )
 }
 
 fn by_seq(lines: Vec<Value>) -> BTreeMap<u64, Value> {
@@ -171,7 +170,7 @@ macro_rules! fields {
 
 fn rust_layout<T: ZeroCopySend>(type_name: &str, fields: Vec<(&str, usize, usize)>) -> Value {
     // SAFETY: `type_name` is unsafe only because implementors promise a unique name.
-    let declared = unsafe { T::type_name() };
+    let declared = unsafe { <T as ZeroCopySend>::type_name() };
     assert_eq!(declared, type_name, "Message::TYPE_NAME vs the derive");
     serde_json::json!({
         "type_name": type_name,
@@ -202,9 +201,9 @@ fn python_layouts_match_the_rust_types() {
         }
     }
     let rust = vec![
-        rust_layout::<HeaderV2>(
+        rust_layout::<Header>(
             "dvrk::HeaderV2",
-            fields!(HeaderV2; seq, sample_t_ns, sample_realtime_ns, board_timestamp, publish_t_ns, valid, flags),
+            fields!(Header; seq, sample_t_ns, sample_realtime_ns, board_timestamp, publish_t_ns, valid, flags),
         ),
         rust_layout::<JointStateV2>(
             JointStateV2::TYPE_NAME,
@@ -302,10 +301,12 @@ fn python_echo_prints_what_rust_echo_prints() {
     for (i, topic) in topics.iter().enumerate() {
         let wait = waits[i % waits.len()];
         let service = format!("{prefix}/{topic}");
-        let rust = rust_echo(&service, Some(400));
+        // The Rust echo runs from before the Python one starts until after it ends.
+        let rust = rust_echo(&service);
+        let first = rust.first_line(Duration::from_secs(30));
         let py = LineProc::spawn(
             "python echo",
-            python(
+            &mut python(
                 "pyecho",
                 &[
                     "-m",
@@ -320,11 +321,11 @@ fn python_echo_prints_what_rust_echo_prints() {
                     "--timeout-s",
                     "30",
                 ],
-            )
-            .as_mut(),
+            ),
         );
-        let rust = by_seq(rust.finish(Duration::from_secs(60)));
         let py = py.finish(Duration::from_secs(60));
+        let mut rust = by_seq(rust.stop());
+        rust.insert(first["header"]["seq"].as_u64().unwrap(), first);
         assert_eq!(py.len(), 400, "{service}");
         let mut same = 0;
         for p in &py {
@@ -334,8 +335,10 @@ fn python_echo_prints_what_rust_echo_prints() {
                 same += 1;
             }
         }
+        // Both print every sample; a process stalled for longer than its 256-sample buffer
+        // (170 ms) on this loaded machine loses some.
         assert!(
-            same >= 100,
+            same >= 300,
             "{service}: only {same} of 400 Python samples had a Rust echo of the same seq"
         );
         // The sim publishes valid samples of a simulated arm.
@@ -404,7 +407,7 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
     ];
     let echoes: Vec<LineProc> = compared
         .iter()
-        .map(|t| rust_echo(&format!("{prefix}/{t}"), None))
+        .map(|t| rust_echo(&format!("{prefix}/{t}")))
         .collect();
     for e in &echoes {
         e.first_line(Duration::from_secs(30));
@@ -414,11 +417,10 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
     for wait in ["event", "spin", "predictive"] {
         let p = LineProc::spawn(
             "arm_probe",
-            python(
+            &mut python(
                 "pyarm",
                 &[probe.to_str().unwrap(), "cycles", &prefix, wait, "40"],
-            )
-            .as_mut(),
+            ),
         );
         let lines = p.finish(Duration::from_secs(60));
         assert_eq!(lines.len(), 40, "wait {wait}");
@@ -499,12 +501,12 @@ impl Drop for DomainFiles {
 }
 
 fn invalid_cycle(seq: u64) -> CycleMessages {
-    let header = HeaderV2 {
+    let header = Header {
         seq,
         sample_t_ns: dvrk_ipc::monotonic_ns(),
         valid: 0,
         flags: flags::BOARD_TIMEOUT | flags::HELD,
-        ..HeaderV2::default()
+        ..Header::default()
     };
     let mut state = ArmState::default();
     state.measured_js.header = header;
@@ -534,7 +536,7 @@ fn python_arm_raises_on_invalid_samples_and_names_a_missing_publisher() {
     let probe = repo().join("python/tests/arm_probe.py");
     let mut p = LineProc::spawn(
         "arm_probe invalid",
-        python(
+        &mut python(
             "pyinvalid",
             &[
                 probe.to_str().unwrap(),
@@ -545,8 +547,7 @@ fn python_arm_raises_on_invalid_samples_and_names_a_missing_publisher() {
                 "--root",
                 ROOT,
             ],
-        )
-        .as_mut(),
+        ),
     );
     // Publish a cycle every millisecond until the probe is done (ports are !Send: this thread).
     let start = Instant::now();

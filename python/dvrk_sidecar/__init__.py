@@ -10,9 +10,18 @@ published over iceoryx2 shared memory.
 `dvrk-sidecar echo --json`; `python -m dvrk_sidecar layout` prints the message layouts.
 """
 
-from .arm import Arm, Header, InvalidSample, pose_matrix
 from .ipc import WAIT_STRATEGIES, ConfigError, DvrkSidecarError, NoSample
 from .msg import FLAG_NAMES, JOINT_NAMES, TOPICS
+
+
+def __getattr__(name):
+    # The Arm API needs numpy; the message layouts, `layout` and `echo` do not, so numpy is
+    # imported only when the Arm API is first used.
+    if name in ("Arm", "Header", "InvalidSample", "pose_matrix"):
+        from . import arm
+
+        return getattr(arm, name)
+    raise AttributeError(f"module 'dvrk_sidecar' has no attribute {name!r}")
 
 __version__ = "0.1.0"
 

@@ -39,8 +39,9 @@ def _text(service: str, m) -> str:
 
 def echo(args) -> int:
     try:
-        prefix, topic = msg.split_service(args.service)
+        prefix, topic = msg.split_service(args.service, args.prefix)
         ipc.check_prefix(prefix)
+        service = f"{prefix}/{topic}"
         node = ipc.create_node("dvrk-sidecar-py-echo", args.domain, args.root)
         reader = ipc.Reader(node, prefix, topic, buffer=ipc.QOS_SUBSCRIBER_MAX_BUFFER_SIZE)
         waiter = ipc.Waiter(node, prefix, args.wait)
@@ -75,9 +76,9 @@ def echo(args) -> int:
                 if printed >= limit:
                     break
                 if args.json:
-                    line = json.dumps(msg.to_json(args.service, m), sort_keys=True, separators=(",", ":"))
+                    line = json.dumps(msg.to_json(service, m), sort_keys=True, separators=(",", ":"))
                 else:
-                    line = _text(args.service, m)
+                    line = _text(service, m)
                 out.write(line + "\n")
                 printed += 1
             batch.clear()
@@ -85,7 +86,7 @@ def echo(args) -> int:
             last_fresh = time.monotonic_ns()
             seen_publisher = True
             if gone:
-                print(f"a publisher of {args.service} is back", file=sys.stderr)
+                print(f"a publisher of {service} is back", file=sys.stderr)
                 gone = False
             continue
         # A second without a sample: say once that the publisher went away, keep waiting
@@ -94,7 +95,7 @@ def echo(args) -> int:
         if publishers > 0:
             seen_publisher = True
         elif seen_publisher and not gone:
-            print(f"publisher of {args.service} is gone; waiting for a new one", file=sys.stderr)
+            print(f"publisher of {service} is gone; waiting for a new one", file=sys.stderr)
             gone = True
         waited = (time.monotonic_ns() - last_fresh) / 1e9
         if args.timeout_s is not None and waited >= args.timeout_s:
@@ -112,7 +113,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dvrk_sidecar", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     e = sub.add_parser("echo", help="print samples of one service, like `dvrk-sidecar echo`")
-    e.add_argument("service", help="full service name, e.g. PSM1/compensated/local/measured_cp")
+    e.add_argument(
+        "service",
+        help="service as the dVRK names the topic (PSM1/measured_js, /PSM1/local/measured_cp), "
+        "or a bare topic under --prefix",
+    )
+    e.add_argument("--prefix", default="PSM1", help="prefix of a bare topic name (default PSM1)")
     e.add_argument("--count", type=int, help="stop after this many samples (default: until Ctrl-C)")
     e.add_argument("--json", action="store_true", help="one JSON object per line")
     e.add_argument("--wait", default="event", choices=ipc.WAIT_STRATEGIES, help="how to wait (default event)")

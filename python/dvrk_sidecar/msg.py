@@ -185,27 +185,29 @@ def layouts() -> list:
     return [layout(t) for t in MESSAGE_TYPES]
 
 
-def split_service(service: str):
-    """`"PSM1/compensated/measured_cp"` -> `("PSM1", "compensated/measured_cp")`.
+def split_service(service: str, default_prefix: str = "PSM1"):
+    """`"PSM1/compensated/measured_cp"` -> `("PSM1", "compensated/measured_cp")`, as
+    `dvrk-sidecar echo` reads it: a leading '/' (ROS style) is dropped, a bare topic
+    (`local/measured_cp`) is under `default_prefix`.
 
     The topic is the longest known suffix, so prefixes with slashes work. Raises ValueError
     naming the service and the known topics otherwise."""
+    service = service.lstrip("/")
+    if service in TOPICS:
+        return default_prefix, service
     for topic in sorted(TOPICS, key=len, reverse=True):
         if service.endswith("/" + topic) and len(service) > len(topic) + 1:
             return service[: -len(topic) - 1], topic
     raise ValueError(
-        f'"{service}" is not a dvrk-sidecar service; expected <prefix>/<topic> with topic one '
-        f"of: {', '.join(TOPICS)}"
+        f'"{service}" is not a dvrk-sidecar service; expected <prefix>/<topic> (e.g. '
+        f"PSM1/measured_js) with topic one of: {', '.join(TOPICS)}"
     )
 
 
 def flag_names(flags: int) -> list:
-    """The names of the bits set in `flags`, bit 0 first (unknown bits as `BIT<n>`)."""
-    names = []
-    for bit in range(32):
-        if flags & (1 << bit):
-            names.append(FLAG_NAMES[bit] if bit < len(FLAG_NAMES) else f"BIT{bit}")
-    return names
+    """The names of the defined bits set in `flags`, bit 0 first; reserved bits are skipped, as
+    dvrk_ipc::flags::names does."""
+    return [name for bit, name in enumerate(FLAG_NAMES) if flags & (1 << bit)]
 
 
 def _num(x):

@@ -84,8 +84,8 @@ class JsonShape(unittest.TestCase):
         self.assertEqual(j["cycles_total"], 3)
         self.assertEqual(len(j), 2 + len(msg.CompensationStatusV3._fields_) - 2)
 
-    def test_unknown_flag_bits_are_named_by_number(self):
-        self.assertEqual(msg.flag_names((1 << 0) | (1 << 20)), ["BOARD_TIMEOUT", "BIT20"])
+    def test_reserved_flag_bits_are_skipped_as_in_rust(self):
+        self.assertEqual(msg.flag_names((1 << 0) | (1 << 20) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
 
 
 class Names(unittest.TestCase):
@@ -100,7 +100,12 @@ class Names(unittest.TestCase):
         with self.assertRaisesRegex(ValueError, '"PSM1/measured_xx" is not a dvrk-sidecar service'):
             msg.split_service("PSM1/measured_xx")
         with self.assertRaises(ValueError):
-            msg.split_service("measured_js")
+            msg.split_service("PSM1")
+
+    def test_split_service_reads_ros_names_and_bare_topics(self):
+        self.assertEqual(msg.split_service("/PSM2/jaw/measured_js"), ("PSM2", "jaw/measured_js"))
+        self.assertEqual(msg.split_service("local/measured_cp"), ("PSM1", "local/measured_cp"))
+        self.assertEqual(msg.split_service("measured_js", "PSM3"), ("PSM3", "measured_js"))
 
     def test_bad_domain_and_prefix_are_named(self):
         with self.assertRaisesRegex(ipc.ConfigError, "domain 'a/b'"):
