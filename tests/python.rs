@@ -174,9 +174,9 @@ fn python_arm_example_prints_what_serve_publishes() {
         let flags: Vec<&str> = dvrk_ipc::flags::names(r.header.flags).collect();
         assert_eq!(l["flags"], serde_json::json!(flags), "seq {seq}");
         let m: Vec<Vec<f64>> = l["matrix"].as_array().unwrap().iter().map(floats).collect();
-        for i in 0..3 {
-            assert_eq!(m[i][..3], r.rotation[3 * i..3 * i + 3], "seq {seq} row {i}");
-            assert_eq!(m[i][3], r.position_m[i], "seq {seq} position {i}");
+        for (i, row) in m.iter().take(3).enumerate() {
+            assert_eq!(row[..3], r.rotation[3 * i..3 * i + 3], "seq {seq} row {i}");
+            assert_eq!(row[3], r.position_m[i], "seq {seq} position {i}");
         }
         assert_eq!(m[3], [0.0, 0.0, 0.0, 1.0], "seq {seq}");
     }

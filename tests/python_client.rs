@@ -20,8 +20,8 @@ use common::*;
 use dvrk_ipc::iceoryx2::prelude::ZeroCopySend;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1,
-    JointStateV2, Message, PoseV2, ServiceNames, create_node, domain_config, flags,
+    ArmPublisher, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2, Message,
+    PoseV2, ServiceNames, create_node, domain_config, flags,
 };
 use serde_json::Value;
 
@@ -109,7 +109,11 @@ impl LineProc {
         let st = self.proc.wait_timeout(limit);
         let name = self.proc.name.clone();
         let st = st.unwrap_or_else(|| panic!("{name} did not finish within {limit:?}"));
-        assert!(st.success(), "{name} exited with {st}: {}", self.proc.stderr_text());
+        assert!(
+            st.success(),
+            "{name} exited with {st}: {}",
+            self.proc.stderr_text()
+        );
         self.json()
     }
 
@@ -270,7 +274,13 @@ fn python_unit_tests_pass() {
     assert!(err.contains("\nOK"), "{err}");
     let ran = err
         .lines()
-        .find_map(|l| l.strip_prefix("Ran ")?.split(' ').next()?.parse::<u32>().ok())
+        .find_map(|l| {
+            l.strip_prefix("Ran ")?
+                .split(' ')
+                .next()?
+                .parse::<u32>()
+                .ok()
+        })
         .unwrap_or(0);
     assert!(ran >= 10, "only {ran} Python unit tests ran:\n{err}");
 }
@@ -370,7 +380,9 @@ fn assert_rigid(m: &Value, what: &str) {
     assert!(rows.iter().all(|r| r.len() == 4), "{what}");
     assert_eq!(rows[3], [0.0, 0.0, 0.0, 1.0], "{what}: last row");
     let r = nalgebra::Matrix3::from_fn(|i, j| rows[i][j]);
-    let err = (r.transpose() * r - nalgebra::Matrix3::identity()).abs().max();
+    let err = (r.transpose() * r - nalgebra::Matrix3::identity())
+        .abs()
+        .max();
     assert!(err < 1e-9, "{what}: R^T R differs from I by {err}");
     let det = r.determinant();
     assert!((det - 1.0).abs() < 1e-9, "{what}: det R = {det}");
@@ -466,7 +478,10 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
             .as_u64()
             .unwrap();
         let stamp = rec["stamp"].as_f64().unwrap();
-        assert!((stamp - ns as f64 * 1e-9).abs() < 1e-6, "stamp {stamp} vs {ns} ns");
+        assert!(
+            (stamp - ns as f64 * 1e-9).abs() < 1e-6,
+            "stamp {stamp} vs {ns} ns"
+        );
     }
     assert!(
         matched * 10 >= total * 8,
@@ -508,19 +523,11 @@ fn invalid_cycle(seq: u64) -> CycleMessages {
         flags: flags::BOARD_TIMEOUT | flags::HELD,
         ..Header::default()
     };
-    let mut state = ArmState::default();
-    state.measured_js.header = header;
-    state.measured_js.position = [0.1, -0.2, 0.15, 0.3, -0.4, 0.5];
-    state.jaw_measured_js.header = header;
-    state.local_measured_cp.header = header;
-    state.measured_cp.header = header;
-    let mut status = CompensationStatusV3::default();
-    status.header = header;
-    CycleMessages {
-        measured: state,
-        compensated: state,
-        status,
-    }
+    let mut cycle = CycleMessages::default();
+    cycle.set_header(header);
+    // The value an InvalidSample carries for whoever wants it anyway.
+    cycle.measured.measured_js.position = [0.1, -0.2, 0.15, 0.3, -0.4, 0.5];
+    cycle
 }
 
 #[test]
