@@ -256,7 +256,7 @@ fn python_layouts_match_the_rust_types() {
 }
 
 #[test]
-fn python_unit_tests_pass() {
+fn python_package_tests_pass() {
     if !python_client_ready() {
         return;
     }
@@ -269,7 +269,7 @@ fn python_unit_tests_pass() {
     .output()
     .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "python unit tests failed:\n{err}");
+    assert!(out.status.success(), "the Python package tests failed:\n{err}");
     // `discover` passes when it finds nothing: make sure it ran them.
     assert!(err.contains("\nOK"), "{err}");
     let ran = err
@@ -282,7 +282,7 @@ fn python_unit_tests_pass() {
                 .ok()
         })
         .unwrap_or(0);
-    assert!(ran >= 10, "only {ran} Python unit tests ran:\n{err}");
+    assert!(ran >= 20, "only {ran} Python tests ran:\n{err}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ published over iceoryx2 shared memory.
 `dvrk-sidecar echo --json`; `python -m dvrk_sidecar layout` prints the message layouts.
 """
 
-from .ipc import WAIT_STRATEGIES, ConfigError, DvrkSidecarError, NoSample
+from .ipc import WAIT_STRATEGIES, ConfigError, DvrkSidecarError, NoSample, OpenError
 from .msg import FLAG_NAMES, JOINT_NAMES, TOPICS
 
 
@@ -34,6 +34,7 @@ __all__ = [
     "InvalidSample",
     "JOINT_NAMES",
     "NoSample",
+    "OpenError",
     "TOPICS",
     "WAIT_STRATEGIES",
     "pose_matrix",

@@ -70,7 +70,10 @@ def echo(args) -> int:
     seen_publisher = False
     out = sys.stdout
     while printed < limit:
-        got = waiter.wait_for(poll, time.monotonic_ns() + _SILENCE_REPORT_NS)
+        until = time.monotonic_ns() + _SILENCE_REPORT_NS
+        if args.timeout_s is not None:
+            until = min(until, last_fresh + int(args.timeout_s * 1e9))
+        got = waiter.wait_for(poll, until)
         if got is not None:
             for m in batch:
                 if printed >= limit:

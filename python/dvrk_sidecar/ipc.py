@@ -48,6 +48,23 @@ class ConfigError(DvrkSidecarError, ValueError):
     """A bad argument: names the argument and the value."""
 
 
+class OpenError(DvrkSidecarError):
+    """A service could not be opened or created; the message names it and iceoryx2's reason."""
+
+
+def _hint(reason: str) -> str:
+    if "IncompatibleTypes" in reason:
+        return (
+            ": the publisher uses another message type or version; run the dvrk-sidecar and the "
+            "dvrk_sidecar package of the same release"
+        )
+    if "Permission" in reason or "InsufficientPermissions" in reason:
+        return ": permission denied on the shared memory (is your user in the sidecar's group?)"
+    if "DoesNotSupport" in reason or "Exceeds" in reason:
+        return ": the service was created with another QoS, or is full"
+    return ""
+
+
 class NoSample(DvrkSidecarError, TimeoutError):
     """No fresh sample arrived in time; the message says whether a publisher is connected."""
 
@@ -79,13 +96,24 @@ def create_node(name, domain=None, root=None):
     """An iceoryx2 node with signal handling left to Python. iceoryx2's own log level is Fatal
     unless IOX2_LOG_LEVEL says otherwise (its failures come back here as exceptions)."""
     iox2.set_log_level_from_env_or(iox2.LogLevel.Fatal)
-    return (
-        iox2.NodeBuilder.new()
-        .name(iox2.NodeName.new(name))
-        .config(domain_config(domain, root))
-        .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
-        .create(iox2.ServiceType.Ipc)
-    )
+    config = domain_config(domain, root)
+    try:
+        return (
+            iox2.NodeBuilder.new()
+            .name(iox2.NodeName.new(name))
+            .config(config)
+            .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+            .create(iox2.ServiceType.Ipc)
+        )
+    except Exception as e:
+        where = f"domain {domain!r}" if domain else "the default domain"
+        reason = str(e)
+        hint = _hint(reason) or (
+            ": often a permission problem on the shared memory or on the domain's root path"
+            if "InternalError" in reason
+            else ""
+        )
+        raise OpenError(f"creating an iceoryx2 node in {where}: {reason}{hint}") from e
 
 
 def check_prefix(prefix: str) -> str:
@@ -101,6 +129,17 @@ def open_topic(node, prefix: str, topic: str):
     """Opens or creates `<prefix>/<topic>` with the project's QoS."""
     if topic not in msg.TOPICS:
         raise ConfigError(f"topic {topic!r}: expected one of {', '.join(msg.TOPICS)}")
+    try:
+        return _open_topic(node, prefix, topic)
+    except Exception as e:
+        name = f"{prefix}/{topic}"
+        reason = str(e)
+        raise OpenError(
+            f"opening {name} as {msg.TOPICS[topic].type_name()}: {reason}{_hint(reason)}"
+        ) from e
+
+
+def _open_topic(node, prefix, topic):
     return (
         node.service_builder(iox2.ServiceName.new(f"{prefix}/{topic}"))
         .publish_subscribe(msg.TOPICS[topic])
@@ -117,14 +156,18 @@ def open_topic(node, prefix: str, topic: str):
 
 def open_cycle_event(node, prefix: str):
     """Opens or creates the event `<prefix>/cycle` with the project's QoS."""
-    return (
-        node.service_builder(iox2.ServiceName.new(f"{prefix}/{msg.CYCLE_EVENT}"))
-        .event()
-        .max_notifiers(QOS_EVENT_MAX_NOTIFIERS)
-        .max_listeners(QOS_EVENT_MAX_LISTENERS)
-        .max_nodes(QOS_MAX_NODES)
-        .open_or_create()
-    )
+    try:
+        return (
+            node.service_builder(iox2.ServiceName.new(f"{prefix}/{msg.CYCLE_EVENT}"))
+            .event()
+            .max_notifiers(QOS_EVENT_MAX_NOTIFIERS)
+            .max_listeners(QOS_EVENT_MAX_LISTENERS)
+            .max_nodes(QOS_MAX_NODES)
+            .open_or_create()
+        )
+    except Exception as e:
+        reason = str(e)
+        raise OpenError(f"opening the event {prefix}/{msg.CYCLE_EVENT}: {reason}{_hint(reason)}") from e
 
 
 class Reader:
@@ -187,6 +230,28 @@ def _socket_fds() -> set:
         except OSError:
             pass
     return fds
+
+
+def _event_socket_fds(fds) -> set:
+    """Those of `fds` that are unix sockets bound to an iceoryx2 event path (`*.event`): a
+    listener's. A notifier's sockets (e.g. of a publisher in this process) are not bound."""
+    inodes = {}
+    for fd in fds:
+        try:
+            link = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        inodes[link[len("socket:["):-1]] = fd
+    found = set()
+    try:
+        with open("/proc/net/unix") as table:
+            for line in table:
+                parts = line.split()
+                if len(parts) >= 8 and parts[6] in inodes and parts[7].endswith(".event"):
+                    found.add(inodes[parts[6]])
+    except OSError:
+        pass
+    return found
 
 
 def _minimise_timer_slack() -> None:
@@ -288,14 +353,14 @@ class Waiter:
         before = _socket_fds()
         self.listener = self.event.listener_builder().create()
         if strategy == "predictive":
-            # iceoryx2's Python API does not expose the listener's descriptor; it is the one unix
-            # socket that creating the listener opened.
-            new = _socket_fds() - before
+            # iceoryx2's Python API does not expose the listener's descriptor; it is the unix
+            # socket that creating the listener opened and bound to the event's path.
+            new = _event_socket_fds(_socket_fds() - before)
             if len(new) != 1:
                 self.listener.delete()
                 raise DvrkSidecarError(
                     f"wait 'predictive': cannot find the socket of {prefix}/cycle "
-                    f"({len(new)} new sockets); use wait='event'"
+                    f"({len(new)} new event sockets); use wait='event'"
                 )
             self.fd = new.pop()
             _minimise_timer_slack()
