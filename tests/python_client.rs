@@ -269,7 +269,10 @@ fn python_package_tests_pass() {
     .output()
     .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "the Python package tests failed:\n{err}");
+    assert!(
+        out.status.success(),
+        "the Python package tests failed:\n{err}"
+    );
     // `discover` passes when it finds nothing: make sure it ran them.
     assert!(err.contains("\nOK"), "{err}");
     let ran = err
