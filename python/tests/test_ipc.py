@@ -113,6 +113,17 @@ class IsolatedDomain(unittest.TestCase):
                     self.assertGreaterEqual(h.seq, header.seq, wait)
                     self.assertEqual(tip[0, 3], float(h.seq), wait)
                     self.assertEqual(tip.shape, (4, 4))
+                # The other getters: numpy arrays of the joints, the status as a dict.
+                self.assertEqual(arm.measured_jp().shape, (6,))
+                self.assertEqual(arm.compensated.measured_jf().shape, (6,))
+                self.assertEqual(arm.jaw.measured_jv().shape, (1,))
+                jaw, header = arm.compensated.jaw.measured_jp(extra=True)
+                self.assertEqual((jaw.shape, header.valid), ((1,), True))
+                status = arm.compensated.status()
+                self.assertNotIn("_reserved", status)
+                self.assertEqual(status["tau_ext_nm"].shape, (2,))
+                base = arm.measured_cp()
+                self.assertEqual(base[0, 3], -1.0)  # not the compensated local pose
 
 
 if __name__ == "__main__":
