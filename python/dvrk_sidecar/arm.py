@@ -18,6 +18,7 @@ No sample in time raises `NoSample` (a `TimeoutError`), saying whether a publish
 
 import ctypes
 import dataclasses
+import math
 import time
 
 import numpy
@@ -193,8 +194,9 @@ class Arm(_ArmView):
         super().__init__(self, "")
         self.name = ipc.check_prefix(name)
         for what, v in (("age", age), ("timeout", timeout), ("period_s", period_s)):
-            if not isinstance(v, (int, float)) or v < 0 or (what == "period_s" and v == 0):
-                raise ipc.ConfigError(f"{what} {v!r}: must be a number of seconds >= 0")
+            number = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not number or v < 0 or (what == "period_s" and v == 0):
+                raise ipc.ConfigError(f"{what} {v!r}: must be a finite number of seconds >= 0")
         self.age = float(age)
         self.timeout = float(timeout)
         self.compensated = _CompensatedView(self, "compensated/")

@@ -161,6 +161,13 @@ class Predicting(unittest.TestCase):
 
 
 class Arguments(unittest.TestCase):
+    def test_bad_arm_arguments_are_named_before_any_iceoryx2_call(self):
+        for kw, what in (({"age": float("nan")}, "age nan"), ({"timeout": -1}, "timeout -1"), ({"period_s": 0}, "period_s 0")):
+            with self.assertRaisesRegex(ipc.ConfigError, what):
+                arm.Arm("PSM1", **kw)
+        with self.assertRaisesRegex(ipc.ConfigError, "arm name ''"):
+            arm.Arm("")
+
     def test_unknown_wait_strategy_is_refused_before_any_iceoryx2_call(self):
         with self.assertRaisesRegex(ipc.ConfigError, "wait 'sleepy'"):
             ipc.Waiter(None, "PSM1", "sleepy")
