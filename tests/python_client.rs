@@ -447,6 +447,7 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
 
     let mut matched = 0;
     let mut total = 0;
+    let mut snapshots = 0;
     for rec in &records {
         let wait = rec["wait"].as_str().unwrap();
         assert_rigid(
@@ -476,6 +477,18 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
                 assert_matrix_is_pose(&got["matrix"], want, &what);
             }
         }
+        // read_cycle: joints and compensated RCM pose of one and the same cycle.
+        let snap = &rec["read_cycle"];
+        let seq = snap["seq"].as_u64().unwrap();
+        if let (Some(js), Some(cp)) = (seen[0].get(&seq), seen[2].get(&seq)) {
+            snapshots += 1;
+            assert_eq!(
+                floats(&snap["position"]),
+                floats(&js["position"]),
+                "read_cycle seq {seq}"
+            );
+            assert_matrix_is_pose(&snap["matrix"], cp, &format!("read_cycle seq {seq}"));
+        }
         // The stamp is the ROS time of the sample, in seconds.
         let ns = rec["measured_js"]["header"]["sample_realtime_ns"]
             .as_u64()
@@ -489,6 +502,11 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
     assert!(
         matched * 10 >= total * 8,
         "only {matched} of {total} Python reads had a Rust echo of the same seq"
+    );
+    assert!(
+        snapshots * 10 >= records.len() * 8,
+        "only {snapshots} of {} read_cycle results had Rust echoes of the same seq",
+        records.len()
     );
 }
 

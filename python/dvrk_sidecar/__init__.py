@@ -17,7 +17,7 @@ from .msg import FLAG_NAMES, JOINT_NAMES, TOPICS
 def __getattr__(name):
     # The Arm API needs numpy; the message layouts, `layout` and `echo` do not, so numpy is
     # imported only when the Arm API is first used.
-    if name in ("Arm", "Header", "InvalidSample", "pose_matrix"):
+    if name in ("Arm", "Cycle", "Header", "InvalidSample", "pose_matrix"):
         from . import arm
 
         return getattr(arm, name)
@@ -27,6 +27,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Arm",
+    "Cycle",
     "ConfigError",
     "DvrkSidecarError",
     "FLAG_NAMES",

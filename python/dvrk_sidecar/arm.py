@@ -5,6 +5,7 @@
     tip = arm.compensated.local.measured_cp()          # 4x4 numpy array, RCM frame
     jaw, _, _ = arm.jaw.measured_js()
     p, v, e, header = arm.measured_js(extra=True)      # header.seq, header.stamp, header.flags
+    cycle = arm.read_cycle()                           # the nine messages of one cycle
 
 Getters follow the crtk Python client: `age` is the oldest cached sample (seconds since it was
 sampled) a call accepts without waiting, `wait` is how long it then waits for a new one; both
@@ -246,6 +247,24 @@ class Arm(_ArmView):
         value = self._waiter.wait_for(reader.take_newest, time.monotonic_ns() + int(timeout * 1e9))
         return None if value is None else Header.from_msg(value.header)
 
+    def read_cycle(self, timeout=None):
+        """Waits for the next cycle and returns all nine of its messages as a `Cycle` (the same
+        getters as the Arm, every one of the same seq); None after `timeout` seconds. A cycle of
+        which a message was overwritten before it was read (the caller was descheduled for
+        several cycles) is skipped for the next one."""
+        timeout = self.timeout if timeout is None else timeout
+        deadline = time.monotonic() + timeout
+        while True:
+            header = self.wait_for_cycle(max(0.0, deadline - time.monotonic()))
+            if header is None:
+                return None
+            messages = {}
+            for topic, reader in self._readers.items():
+                reader.take_newest()
+                messages[topic] = reader.find(header.seq)
+            if all(m is not None for m in messages.values()):
+                return Cycle(self.name, messages)
+
     def close(self) -> None:
         """Releases the subscribers and the listener (the node goes with the Arm)."""
         for r in self._readers.values():
@@ -262,3 +281,31 @@ class Arm(_ArmView):
 
     def __repr__(self) -> str:
         return f"Arm({self.name!r}, wait={self.wait_strategy!r})"
+
+
+class Cycle(_ArmView):
+    """The nine messages of one cycle, read by `Arm.read_cycle()`: the Arm's getters
+    (`measured_js()`, `jaw.measured_js()`, `local.measured_cp()`, `compensated...`,
+    `compensated.status()`; their `age` and `wait` are ignored), all of cycle `seq`. A getter of
+    an invalid message raises InvalidSample as the Arm's do."""
+
+    def __init__(self, name: str, messages: dict):
+        super().__init__(self, "")
+        self.compensated = _CompensatedView(self, "compensated/")
+        self.name = name
+        self._messages = messages
+        self.header = Header.from_msg(messages["compensated/status"].header)
+        self.seq = self.header.seq
+
+    def _read(self, topic, age, wait, convert, extra):
+        value = self._messages[topic]
+        header = Header.from_msg(value.header)
+        result = convert(value)
+        if not header.valid:
+            raise InvalidSample(f"{self.name}/{topic}", header, result)
+        if extra:
+            return (*result, header) if isinstance(result, tuple) else (result, header)
+        return result
+
+    def __repr__(self) -> str:
+        return f"Cycle({self.name!r}, seq={self.seq})"

@@ -173,17 +173,23 @@ def open_cycle_event(node, prefix: str):
 class Reader:
     """A subscriber of one topic that copies samples out of shared memory at once.
 
-    `buffer=1` keeps only the newest sample (the Arm's getters); `buffer=256` keeps every sample
-    of the last 170 ms (`echo`, which prints them all)."""
+    It buffers `buffer` samples and remembers as many of the last it took: 4 for the Arm (the
+    newest, plus the few before it to find one cycle's messages), 256 for `echo`, which prints
+    every sample of the last 170 ms."""
 
-    def __init__(self, node, prefix: str, topic: str, buffer: int = 1):
+    def __init__(self, node, prefix: str, topic: str, buffer: int = 4):
         self.service_name = f"{prefix}/{topic}"
         self.topic = topic
         self.payload = msg.TOPICS[topic]
         self.service = open_topic(node, prefix, topic)
         self.subscriber = self.service.subscriber_builder().buffer_size(buffer).create()
-        self.last = None
-        """The newest sample received so far (a ctypes copy), or None."""
+        self.recent = collections.deque(maxlen=min(buffer, 4))
+        """The last samples taken (ctypes copies), oldest first."""
+
+    @property
+    def last(self):
+        """The newest sample taken so far, or None."""
+        return self.recent[-1] if self.recent else None
 
     def take(self):
         """The oldest buffered sample as a copy, or None; releases its shared-memory slot now."""
@@ -192,8 +198,15 @@ class Reader:
             return None
         value = self.payload.from_buffer_copy(sample.payload().contents)
         sample.delete()
-        self.last = value
+        self.recent.append(value)
         return value
+
+    def find(self, seq: int):
+        """The remembered sample of cycle `seq`, or None."""
+        for value in self.recent:
+            if value.header.seq == seq:
+                return value
+        return None
 
     def take_newest(self):
         """Drains the buffer; returns the newest sample received by this call, or None."""

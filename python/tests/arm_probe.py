@@ -52,6 +52,15 @@ def cycles(arm, count):
             if not isinstance(m, numpy.ndarray) or m.shape != (4, 4):
                 print(f"{name} measured_cp is not a 4x4 array", file=sys.stderr)
                 return 1
+        snapshot = arm.read_cycle(timeout=5.0)
+        if snapshot is None:
+            print("read_cycle timed out", file=sys.stderr)
+            return 1
+        snap_js = snapshot.measured_js(extra=True)
+        snap_local = snapshot.compensated.local.measured_cp(extra=True)
+        if {snap_js[-1].seq, snap_local[-1].seq, snapshot.seq} != {snapshot.seq}:
+            print(f"read_cycle mixed cycles: {snap_js[-1].seq}, {snap_local[-1].seq}", file=sys.stderr)
+            return 1
         record = {
             "wait": arm.wait_strategy,
             "cycle": header(cycle),
@@ -60,6 +69,11 @@ def cycles(arm, count):
             "compensated/local/measured_cp": {"header": header(hl), "matrix": local.tolist()},
             "compensated/measured_cp": {"header": header(hb), "matrix": base.tolist()},
             "stamp": hj.stamp,
+            "read_cycle": {
+                "seq": snapshot.seq,
+                "position": snap_js[0].tolist(),
+                "matrix": snap_local[0].tolist(),
+            },
         }
         print(json.dumps(record), flush=True)
     return 0

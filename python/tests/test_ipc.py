@@ -124,6 +124,21 @@ class IsolatedDomain(unittest.TestCase):
                 self.assertEqual(status["tau_ext_nm"].shape, (2,))
                 base = arm.measured_cp()
                 self.assertEqual(base[0, 3], -1.0)  # not the compensated local pose
+                # One cycle's nine messages, all of the same seq.
+                for _ in range(10):
+                    cycle = arm.read_cycle()
+                    self.assertIsNotNone(cycle, wait)
+                    seqs = {
+                        cycle.measured_js(extra=True)[-1].seq,
+                        cycle.jaw.measured_js(extra=True)[-1].seq,
+                        cycle.local.measured_cp(extra=True)[-1].seq,
+                        cycle.compensated.measured_js(extra=True)[-1].seq,
+                        cycle.compensated.jaw.measured_jp(extra=True)[-1].seq,
+                        cycle.compensated.measured_cp(extra=True)[-1].seq,
+                        cycle.compensated.status(extra=True)[-1].seq,
+                    }
+                    self.assertEqual(seqs, {cycle.seq}, wait)
+                    self.assertEqual(cycle.compensated.local.measured_cp()[0, 3], float(cycle.seq))
 
 
 if __name__ == "__main__":
