@@ -46,6 +46,7 @@
 //! Everything is generic over the iceoryx2 service variant `S` (default `ipc::Service`, across
 //! processes; `local::Service` works inside one process, e.g. for benchmarks).
 
+pub mod access;
 mod error;
 pub mod flags;
 mod msg;
