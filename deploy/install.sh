@@ -203,7 +203,16 @@ fi
 # The installed default refuses to start until the lab names its source: say what to do.
 config_ok=1
 echo "checking $etc/sidecar.toml:"
-if ! "$bin_path" check-config --config "$etc/sidecar.toml"; then
+check=("$bin_path" check-config --config "$etc/sidecar.toml")
+if [ -z "$root" ]; then
+    # As the service's user and group, never as root: check-config creates iceoryx2's files
+    # (/tmp/iceoryx2), and files made by root would lock the service's user out of them. With
+    # --tap, with the capability the tap drop-in grants.
+    caps=()
+    [ "$tap" -eq 0 ] || caps=(--inh-caps=+net_raw --ambient-caps=+net_raw)
+    check=(setpriv --reuid="${user:-dvrk-sidecar}" --regid=dvrk --init-groups "${caps[@]}" "${check[@]}")
+fi
+if ! "${check[@]}"; then
     config_ok=0
 fi
 
@@ -215,7 +224,7 @@ fi
 echo "installed $bin_path, the unit $unit and the configuration in $etc"
 if [ "$config_ok" -eq 0 ]; then
     echo "NOT started: edit $etc/sidecar.toml (above all \`source\`), then:"
-    echo "    sudo $bin_path check-config --config $etc/sidecar.toml"
+    echo "    sudo -u ${user:-dvrk-sidecar} -g dvrk $bin_path check-config --config $etc/sidecar.toml"
     echo "    sudo systemctl enable --now dvrk-sidecar"
 fi
 echo "Consumers must run as the service's user (${user:-dvrk-sidecar}): see deploy/README.md, \"Consumers\"."

@@ -103,12 +103,30 @@ fn user_name(uid: u32) -> String {
         .unwrap_or_else(|| format!("uid {uid}"))
 }
 
+/// What to do when a file of `owner` is in the way.
+pub fn hint(owner: &str) -> String {
+    if owner == "root" {
+        // Nothing of the project runs as root on purpose: a program run with sudo left it.
+        "A program using iceoryx2 was run as root (e.g. with sudo) and left it: when no \
+         dvrk-sidecar and no consumer runs, remove it (sudo rm -rf /tmp/iceoryx2 /dev/shm/iox2_*), \
+         and run iceoryx2 programs as the service's user; see deploy/README.md, \"Consumers\""
+            .to_owned()
+    } else {
+        format!(
+            "Run this program as {owner} (e.g. sudo -u {owner} -g dvrk ...), or install the \
+             sidecar to run as your user (sudo deploy/install.sh --binary ... --user $USER); \
+             see deploy/README.md, \"Consumers\""
+        )
+    }
+}
+
 /// `err` unchanged, or [`IpcError::PermissionDenied`] when a file of the domain is the cause.
 /// `during` says what failed ("creating the iceoryx2 node \"x\"").
 pub(crate) fn explain(err: IpcError, config: &Config, during: String) -> IpcError {
     match find_inaccessible(config) {
         Some(Inaccessible { path, owner, mode }) => IpcError::PermissionDenied {
             during,
+            hint: hint(&owner),
             path,
             owner,
             mode,
@@ -128,6 +146,16 @@ mod tests {
         let cfg =
             crate::domain_config("acc_unit_", Some("/tmp/dvrk-ipc-access-unit-none/")).unwrap();
         assert_eq!(find_inaccessible(&cfg), None);
+    }
+
+    #[test]
+    fn the_hint_for_root_owned_leftovers_is_to_remove_them() {
+        assert!(hint("root").contains("sudo rm -rf /tmp/iceoryx2"));
+        let h = hint("dvrk-sidecar");
+        assert!(
+            h.contains("sudo -u dvrk-sidecar") && h.contains("--user $USER"),
+            "{h}"
+        );
     }
 
     #[test]

@@ -109,10 +109,7 @@ pub enum IpcError {
     /// (iceoryx2 0.10 opens what it creates to its owner only): see [`crate::access`].
     #[error(
         "permission denied on the shared memory of the dVRK sidecar while {during}: {} belongs \
-         to user {owner} (mode {mode:04o}) and iceoryx2 0.10 lets only its owner use it. Run this \
-         program as {owner} (e.g. sudo -u {owner} ...), or install the sidecar to run as your \
-         user (sudo deploy/install.sh --binary ... --user $USER); see deploy/README.md, \
-         \"Consumers\"",
+         to user {owner} (mode {mode:04o}) and iceoryx2 0.10 lets only its owner use it. {hint}",
         path.display()
     )]
     PermissionDenied {
@@ -120,6 +117,8 @@ pub enum IpcError {
         path: std::path::PathBuf,
         owner: String,
         mode: u32,
+        /// What to do, in a sentence (see [`crate::access::hint`]).
+        hint: String,
         #[source]
         source: Box<IpcError>,
     },
