@@ -9,7 +9,7 @@ use std::time::Duration;
 use common::*;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    JointStateV1, NOMINAL_PERIOD, PoseV1, ServiceNames, Subscription, Topic, Update, flags,
+    JointStateV2, NOMINAL_PERIOD, PoseV2, ServiceNames, Subscription, Topic, Update, flags,
 };
 use serde_json::Value;
 
@@ -68,17 +68,17 @@ fn udp_emulator_every_seq_in_order_exclusive() {
 }
 
 /// Collects `n` cycles of two topics by seq, in this process.
-fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV1, JointStateV1, PoseV1, PoseV1)> {
+fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV2, JointStateV2, PoseV2, PoseV2)> {
     let node = dvrk_ipc::create_node::<Service>("e2e-check", None).unwrap();
     let names = ServiceNames::new(prefix).unwrap();
-    let mut raw = Subscription::<JointStateV1, Service>::new(
+    let mut raw = Subscription::<JointStateV2, Service>::new(
         &node,
         &names,
         Topic::MeasuredJs,
         NOMINAL_PERIOD,
     )
     .unwrap();
-    let mut comp = Subscription::<JointStateV1, Service>::new(
+    let mut comp = Subscription::<JointStateV2, Service>::new(
         &node,
         &names,
         Topic::CompensatedMeasuredJs,
@@ -86,12 +86,12 @@ fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV1, JointStateV1, Pos
     )
     .unwrap();
     let mut raw_cp =
-        Subscription::<PoseV1, Service>::new(&node, &names, Topic::MeasuredCp, NOMINAL_PERIOD)
+        Subscription::<PoseV2, Service>::new(&node, &names, Topic::LocalMeasuredCp, NOMINAL_PERIOD)
             .unwrap();
-    let mut comp_cp = Subscription::<PoseV1, Service>::new(
+    let mut comp_cp = Subscription::<PoseV2, Service>::new(
         &node,
         &names,
-        Topic::CompensatedMeasuredCp,
+        Topic::CompensatedLocalMeasuredCp,
         NOMINAL_PERIOD,
     )
     .unwrap();
@@ -167,7 +167,7 @@ fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
             c.active[1]
         );
         active += usize::from(c.active[0] || c.active[1]);
-        let fk = |p: &[f64; 7]| {
+        let fk = |p: &[f64; 6]| {
             kin.forward(&[p[0], p[1], p[2], p[3], p[4], p[5]])
                 .translation
                 .vector

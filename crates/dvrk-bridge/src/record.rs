@@ -6,7 +6,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use dvrk_ipc::{CompensationStatusV2, JointStateV1, PoseV1};
+use dvrk_ipc::{CompensationStatusV3, JawStateV1, JointStateV2, PoseV2};
 use mcap::records::MessageHeader;
 
 use crate::convert::{Encoder, OutTopic};
@@ -146,7 +146,7 @@ impl McapSink {
 
     fn write(&mut self, t: OutTopic, header: &dvrk_ipc::Header) -> Result<(), BridgeError> {
         let i = OutTopic::ALL.iter().position(|&x| x == t).unwrap_or(0);
-        let stamp = self.encoder.stamp(header).as_unix_ns();
+        let stamp = crate::convert::ros_time(header).as_unix_ns();
         let time = u64::try_from(stamp).unwrap_or(0);
         self.payload.clear();
         self.payload
@@ -172,23 +172,22 @@ impl McapSink {
 }
 
 impl Sink for McapSink {
-    fn pose(&mut self, p: &PoseV1) -> Result<(), BridgeError> {
-        for t in [OutTopic::LocalMeasuredCp, OutTopic::MeasuredCp] {
-            self.encoder.pose(t, p);
-            self.write(t, &p.header)?;
-        }
-        Ok(())
+    fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
+        self.encoder.pose(topic, p);
+        self.write(topic, &p.header)
     }
 
-    fn joints(&mut self, js: &JointStateV1) -> Result<(), BridgeError> {
-        for t in [OutTopic::MeasuredJs, OutTopic::JawMeasuredJs] {
-            self.encoder.joints(t, js);
-            self.write(t, &js.header)?;
-        }
-        Ok(())
+    fn joints(&mut self, js: &JointStateV2) -> Result<(), BridgeError> {
+        self.encoder.joints(js);
+        self.write(OutTopic::MeasuredJs, &js.header)
     }
 
-    fn status(&mut self, s: &CompensationStatusV2) -> Result<(), BridgeError> {
+    fn jaw(&mut self, jaw: &JawStateV1) -> Result<(), BridgeError> {
+        self.encoder.jaw(jaw);
+        self.write(OutTopic::JawMeasuredJs, &jaw.header)
+    }
+
+    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
         self.encoder.status(s);
         self.write(OutTopic::Status, &s.header)
     }

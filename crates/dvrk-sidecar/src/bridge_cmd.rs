@@ -14,9 +14,13 @@ pub struct SourceArgs {
     /// Arm name: the ROS namespace and frame names (topics /<ARM>/compensated/...).
     #[arg(long, default_value = "PSM1")]
     prefix: String,
-    /// Shared-memory prefix of the running `serve` (default: dvrk/<ARM>).
+    /// Shared-memory prefix of the running `serve` (default: <ARM>, as `serve` names it).
     #[arg(long)]
     shm_prefix: Option<String>,
+    /// Frame id of measured_cp: the reference frame of the arm's base frame in the console's
+    /// configuration (e.g. ECM). Default: <ARM>_base.
+    #[arg(long)]
+    base_frame_id: Option<String>,
     /// Publish at most this many cycles per second (default: every cycle).
     #[arg(long)]
     rate: Option<f64>,
@@ -27,6 +31,7 @@ impl SourceArgs {
         SourceOptions {
             arm: self.prefix.clone(),
             shm_prefix: self.shm_prefix.clone(),
+            base_frame_id: self.base_frame_id.clone(),
             rate_hz: self.rate,
         }
     }

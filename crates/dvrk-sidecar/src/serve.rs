@@ -47,10 +47,24 @@ pub fn check_config(path: &Path) -> Result<()> {
     println!("  compliance  {}", cfg.compliance_path.display());
     println!("  rate        {}", cfg.rate);
     println!("  prefix      {}", cfg.prefix);
+    println!("  base frame  {}", cfg.base_frame_origin);
     if let Some(p) = &cfg.scenario_path {
         println!("  scenario    {}", p.display());
     }
+    for w in compliance_warnings(&cfg) {
+        eprintln!("warning: {w}");
+    }
     Ok(())
+}
+
+/// [`crate::config::compliance_warnings`] for the loaded configuration.
+fn compliance_warnings(cfg: &SidecarConfig) -> Vec<String> {
+    let text = std::fs::read_to_string(&cfg.compliance_path).unwrap_or_default();
+    crate::config::compliance_warnings(
+        &cfg.source,
+        &text,
+        &cfg.compliance_path.display().to_string(),
+    )
 }
 
 /// Every check `serve` makes before its loop, without starting anything: the real-time
@@ -201,6 +215,10 @@ impl SampleSource for SimSource {
 pub fn run(path: &Path) -> Result<()> {
     let cfg = SidecarConfig::load(path)?;
     preflight(&cfg).with_context(|| format!("{}", path.display()))?;
+    for w in compliance_warnings(&cfg) {
+        warn!("{w}");
+    }
+    info!(base_frame = %cfg.base_frame_origin, "measured_cp = base frame x local/measured_cp");
     let stop = StopFlag::install()?;
     match cfg.source.clone() {
         Source::Sim => {
@@ -331,6 +349,8 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     /// reset by every invalid sample.
     compensator: dvrk_compliance::Compensator,
     held: Option<cycle::Held>,
+    /// The arm's base frame: `measured_cp = base_frame × local/measured_cp`.
+    base_frame: nalgebra::Isometry3<f64>,
     last_duration_ns: u64,
     last_sample_t_ns: Option<u64>,
 }
@@ -355,6 +375,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             check: None,
             compensator: dvrk_compliance::Compensator::new(),
             held: None,
+            base_frame: nalgebra::Isometry3::identity(),
             last_duration_ns: 0,
             last_sample_t_ns: None,
         }
@@ -364,6 +385,12 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
     /// is published as valid; `io` converts joint values back to actuator space.
     pub fn with_check(mut self, check: SampleCheck, io: &'a IoConfig) -> Self {
         self.check = Some((check, io));
+        self
+    }
+
+    /// Publishes `measured_cp` (raw and compensated) in `base_frame` (default: identity).
+    pub fn with_base_frame(mut self, base_frame: nalgebra::Isometry3<f64>) -> Self {
+        self.base_frame = base_frame;
         self
     }
 
@@ -385,6 +412,8 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         let c = &mut self.counters;
         let mut read = self.source.read(t_start, &mut self.sample);
         let t_sample = clock();
+        // The same instant on the realtime (ROS) clock: one vDSO read, tens of ns later.
+        let t_sample_real = dvrk_ipc::clock::realtime_ns();
         if read == ReadOutcome::Ok
             && self.sample.valid
             && let Some((check, io)) = self.check.as_mut()
@@ -445,6 +474,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         let timing = CycleTiming {
             seq: c.cycles,
             sample_t_ns: t_sample,
+            sample_realtime_ns: t_sample_real,
             publish_t_ns,
             cycle_period_ns: self
                 .last_sample_t_ns
@@ -458,14 +488,8 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             publish_late_ns: self.late_ns,
             implausible_total: c.implausible,
         };
-        let msgs = cycle::messages(&sample, &result, &timing);
-        let sent = self.publisher.publish_cycle(
-            &msgs.measured_js,
-            &msgs.measured_cp,
-            &msgs.compensated_js,
-            &msgs.compensated_cp,
-            &msgs.status,
-        );
+        let msgs = cycle::messages(&sample, &result, &timing, &self.base_frame);
+        let sent = self.publisher.publish_cycle(&msgs);
         if sent.is_err() {
             c.publish_failures += 1;
         }
@@ -511,7 +535,8 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         publisher,
         period_ns,
     )
-    .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io);
+    .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io)
+    .with_base_frame(cfg.base_frame);
     let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
     let mut hist = DurationHistogram::new();
 
