@@ -9,6 +9,8 @@
 #   --binary PATH    the dvrk-sidecar binary to install (required for an install)
 #   --io-json PATH   copy the lab's sawRobotIO1394 JSON (e.g. sawRobotIO1394-PSM1-12345.json) to
 #                    /etc/dvrk-sidecar/io/ and point a fresh sidecar.toml's `io` at the copy
+#   --dvrk-json PATH copy the lab's dVRK console/system JSON (it holds the arm's base-frame) to
+#                    /etc/dvrk-sidecar/dvrk/ and point a fresh sidecar.toml's [base_frame] at it
 #   --user NAME      run the service as this existing account instead of the system user
 #                    dvrk-sidecar (consumers must run as the service's user: deploy/README.md)
 #   --tap            source = "tap:IFACE": grant CAP_NET_RAW through a drop-in
@@ -24,6 +26,7 @@ here="$(cd "$(dirname "$0")" && pwd)"
 repo="$(cd "$here/.." && pwd)"
 binary=""
 io_json=""
+dvrk_json=""
 user=""
 enable=1
 tap=0
@@ -38,13 +41,14 @@ while [ $# -gt 0 ]; do
     case "$1" in
         --binary) need_arg "$@"; binary="$2"; shift 2 ;;
         --io-json) need_arg "$@"; io_json="$2"; shift 2 ;;
+        --dvrk-json) need_arg "$@"; dvrk_json="$2"; shift 2 ;;
         --user) need_arg "$@"; user="$2"; shift 2 ;;
         --root) need_arg "$@"; root="$2"; shift 2 ;;
         --no-enable) enable=0; shift ;;
         --tap) tap=1; shift ;;
         --uninstall) uninstall=1; shift ;;
         --purge) purge=1; shift ;;
-        -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h|--help) sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "install.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
 done
@@ -75,7 +79,7 @@ systemctl_or_skip() {
 
 # ---------------------------------------------------------------------------------------------
 if [ "$uninstall" -eq 1 ]; then
-    [ -z "$binary$io_json$user" ] || die "--uninstall takes no --binary, --io-json or --user"
+    [ -z "$binary$io_json$dvrk_json$user" ] || die "--uninstall takes no --binary, --io-json, --dvrk-json or --user"
     if [ -e "$unit" ]; then
         systemctl_or_skip disable --now dvrk-sidecar.service || true
     fi
@@ -124,6 +128,12 @@ if [ -n "$io_json" ]; then
     [[ "$io_name" =~ ^[A-Za-z0-9._-]+\.json$ ]] \
         || die "--io-json $io_json: the file name must end in .json and use only letters, digits, '.', '_' and '-'"
 fi
+if [ -n "$dvrk_json" ]; then
+    [ -f "$dvrk_json" ] && [ -r "$dvrk_json" ] || die "--dvrk-json $dvrk_json: not a readable file"
+    dvrk_name="$(basename "$dvrk_json")"
+    [[ "$dvrk_name" =~ ^[A-Za-z0-9._-]+\.json$ ]] \
+        || die "--dvrk-json $dvrk_json: the file name must end in .json and use only letters, digits, '.', '_' and '-'"
+fi
 if [ -n "$user" ] && [ -z "$root" ]; then
     getent passwd "$user" >/dev/null || die "--user $user: no such account"
 fi
@@ -133,7 +143,7 @@ install -D -m 0755 "$binary" "$bin_path"
 
 # Configuration: /etc/dvrk-sidecar, readable by the service and the group dvrk, never overwriting
 # a file the lab has (the lab's calibrated files and edits survive every later install).
-install -d -m 0750 "$etc" "$etc/compliance" "$etc/io" "$etc/sim"
+install -d -m 0750 "$etc" "$etc/compliance" "$etc/io" "$etc/sim" "$etc/dvrk"
 fresh_config=0
 copy_config() {
     local src="$1" dst="$2"
@@ -159,6 +169,18 @@ if [ -n "$io_json" ]; then
         echo "set io = \"io/$io_name\" in $etc/sidecar.toml"
     else
         echo "NOTE: $etc/sidecar.toml existed: set io = \"io/$io_name\" in it yourself"
+    fi
+fi
+
+if [ -n "$dvrk_json" ]; then
+    install -m 0640 "$dvrk_json" "$etc/dvrk/$dvrk_name"
+    echo "copied $dvrk_json to $etc/dvrk/$dvrk_name"
+    if [ "$fresh_config" -eq 1 ]; then
+        printf '\n# Written by install.sh --dvrk-json: the base frame of the arm named like the prefix\n# (add arm = "NAME" for another entry).\n[base_frame]\ndvrk_json = "dvrk/%s"\n' \
+            "$dvrk_name" >> "$etc/sidecar.toml"
+        echo "set [base_frame] dvrk_json = \"dvrk/$dvrk_name\" in $etc/sidecar.toml"
+    else
+        echo "NOTE: $etc/sidecar.toml existed: set [base_frame] dvrk_json = \"dvrk/$dvrk_name\" in it yourself"
     fi
 fi
 

@@ -164,9 +164,26 @@ fn install_refuses_until_the_source_is_named_then_serves_then_uninstalls() {
     let root = scratch("install-life");
     let _ = std::fs::remove_dir_all(&root);
     let json = repo().join("tests/data/io/sawRobotIO1394-PSM1-00000.json");
+    // A lab's console JSON with the arm's base frame (a translation of 0.1, 0.2, 0.3 m).
+    let console = scratch("install-life-src").join("console-PSM1.json");
+    std::fs::write(
+        &console,
+        r#"{ "arms": [ { "name": "PSM1", "type": "PSM",
+             "base-frame": { "reference-frame": "ECM",
+                             "transform": [[1.0, 0.0, 0.0, 0.1], [0.0, 1.0, 0.0, 0.2],
+                                           [0.0, 0.0, 1.0, 0.3], [0.0, 0.0, 0.0, 1.0]] } } ] }"#,
+    )
+    .unwrap();
     let out = install(
         &root,
-        &["--binary", bin_arg(), "--io-json", json.to_str().unwrap()],
+        &[
+            "--binary",
+            bin_arg(),
+            "--io-json",
+            json.to_str().unwrap(),
+            "--dvrk-json",
+            console.to_str().unwrap(),
+        ],
     );
     assert!(out.status.success(), "{}", text(&out));
     let log = text(&out);
@@ -178,7 +195,7 @@ fn install_refuses_until_the_source_is_named_then_serves_then_uninstalls() {
     assert!(log.contains("NOT started"), "{log}");
 
     let etc = root.join("etc/dvrk-sidecar");
-    let installed: [(&str, u32); 9] = [
+    let installed: [(&str, u32); 10] = [
         ("usr/local/bin/dvrk-sidecar", 0o755),
         ("etc/dvrk-sidecar", 0o750),
         ("etc/dvrk-sidecar/sidecar.toml", 0o640),
@@ -187,6 +204,7 @@ fn install_refuses_until_the_source_is_named_then_serves_then_uninstalls() {
         ("etc/dvrk-sidecar/compliance/paper-psm.toml", 0o640),
         ("etc/dvrk-sidecar/compliance/sim-psm.toml", 0o640),
         ("etc/dvrk-sidecar/sim/divot-push.toml", 0o640),
+        ("etc/dvrk-sidecar/dvrk/console-PSM1.json", 0o640),
         ("etc/systemd/system/dvrk-sidecar.service", 0o644),
     ];
     for (f, m) in installed {
@@ -242,15 +260,28 @@ fn install_refuses_until_the_source_is_named_then_serves_then_uninstalls() {
         );
     }
 
-    // Naming the source (the simulator here) and a prefix of this test makes it start.
+    // --dvrk-json pointed it at the copy of the console JSON.
+    assert!(
+        cfg.ends_with("[base_frame]\ndvrk_json = \"dvrk/console-PSM1.json\"\n"),
+        "{cfg}"
+    );
+
+    // Naming the source (the simulator here) and a prefix of this test makes it start; the
+    // prefix is not the arm's name, so the base frame's entry is named.
     let prefix = unique_prefix("deploy");
     let cfg = cfg
         .replace(r#"source = """#, r#"source = "sim""#)
-        .replace(r#"# prefix = "PSM2""#, &format!(r#"prefix = "{prefix}""#));
+        .replace(r#"# prefix = "PSM2""#, &format!(r#"prefix = "{prefix}""#))
+        + "arm = \"PSM1\"\n";
     assert!(cfg.contains(r#"source = "sim""#) && cfg.contains(&prefix));
     std::fs::write(&cfg_path, &cfg).unwrap();
     let out = check_config(&root);
     assert!(out.status.success(), "{}", text(&out));
+    let shown = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        shown.contains("console-PSM1.json") && !shown.contains("identity"),
+        "check-config does not show the console's base frame: {shown}"
+    );
     let mut serve = Proc::spawn(
         "installed serve",
         Command::new(root.join("usr/local/bin/dvrk-sidecar"))
@@ -287,6 +318,7 @@ fn install_refuses_until_the_source_is_named_then_serves_then_uninstalls() {
     assert!(out.status.success(), "{}", text(&out));
     assert!(!etc.exists(), "--purge kept {}", etc.display());
     let _ = std::fs::remove_dir_all(&root);
+    let _ = std::fs::remove_file(&console);
 }
 
 /// `--user NAME` runs the unit as the lab's account through a drop-in that uninstall removes.
