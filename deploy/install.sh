@@ -18,7 +18,7 @@
 #   --root DIR       install into the scratch root DIR (like DESTDIR): no users, groups or
 #                    systemctl; for trying the steps and for tests
 #   --uninstall      remove what an install added (the binary, the unit and its drop-ins, the
-#                    user and group it created); configs in /etc/dvrk-sidecar are kept
+#                    user and the group dvrk if it created them); /etc/dvrk-sidecar is kept
 #   --purge          with --uninstall: remove /etc/dvrk-sidecar as well
 set -euo pipefail
 
@@ -208,12 +208,12 @@ if [ -n "$root" ]; then
 else
     # dvrk: the service's group; it owns /etc/dvrk-sidecar. fpgaqla: the group the dVRK udev rule
     # gives /dev/fw*.
-    for g in dvrk fpgaqla; do
-        if ! getent group "$g" >/dev/null; then
-            groupadd --system "$g"
-            echo "created-group $g" >> "$state"
-        fi
-    done
+    if ! getent group dvrk >/dev/null; then
+        groupadd --system dvrk
+        echo "created-group dvrk" >> "$state"
+    fi
+    # fpgaqla belongs to the dVRK's own setup (its udev rule): created if missing, never removed.
+    getent group fpgaqla >/dev/null || groupadd --system fpgaqla
     if [ -z "$user" ] && ! getent passwd dvrk-sidecar >/dev/null; then
         useradd --system --gid dvrk --groups fpgaqla --no-create-home \
             --home-dir /nonexistent --shell /usr/sbin/nologin dvrk-sidecar
