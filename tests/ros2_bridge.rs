@@ -388,6 +388,7 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     let echo_js = echo_in_background(format!("{prefix}/compensated/measured_js"), 3000);
     let echo_jaw = echo_in_background(format!("{prefix}/compensated/jaw/measured_js"), 3000);
     let echo_st = echo_in_background(format!("{prefix}/compensated/status"), 3000);
+    let echo_raw = echo_in_background(format!("{prefix}/local/measured_cp"), 3000);
     let mut rec = Proc::spawn(
         "record",
         Command::new(sidecar_bin())
@@ -413,6 +414,7 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     let echo_js = echo_js.recv().unwrap();
     let echo_jaw = echo_jaw.recv().unwrap();
     let echo_st = echo_st.recv().unwrap();
+    let echo_raw = echo_raw.recv().unwrap();
     let (st, log) = serve.terminate();
     assert!(st.success(), "serve exited with {st}: {log}");
 
@@ -451,7 +453,43 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
             "/PSM1/compensated/measured_cp",
             "/PSM1/compensated/measured_js",
             "/PSM1/compensated/status",
+            "/PSM1/jaw/measured_js",
+            "/PSM1/local/measured_cp",
+            "/PSM1/measured_cp",
+            "/PSM1/measured_js",
         ]
+    );
+    // The uncompensated pose is what echo shows on the sidecar's local/measured_cp, and in a
+    // divot push the compensated one differs from it.
+    let raw_by_seq: BTreeMap<u64, &Value> = echo_raw
+        .iter()
+        .map(|e| (e["header"]["seq"].as_u64().unwrap(), e))
+        .collect();
+    let comp_by_seq: BTreeMap<u64, &Value> = per_topic["/PSM1/compensated/local/measured_cp"]
+        .iter()
+        .map(|m| (m["sequence"].as_u64().unwrap(), *m))
+        .collect();
+    let (mut raw_compared, mut differ) = (0, 0);
+    for m in &per_topic["/PSM1/local/measured_cp"] {
+        let seq = m["sequence"].as_u64().unwrap();
+        let p = &m["msg"]["pose"]["position"];
+        let pos = ["x", "y", "z"].map(|k| p[k].as_f64().unwrap()).to_vec();
+        if let Some(e) = raw_by_seq.get(&seq) {
+            assert_eq!(pos, f64s(&e["position_m"]), "raw seq {seq}");
+            raw_compared += 1;
+        }
+        if let Some(c) = comp_by_seq.get(&seq) {
+            let q = &c["msg"]["pose"]["position"];
+            differ += usize::from(["x", "y", "z"].map(|k| q[k].as_f64().unwrap()).to_vec() != pos);
+        }
+    }
+    assert!(
+        raw_compared >= 100,
+        "only {raw_compared} raw poses matched echo"
+    );
+    assert!(
+        differ > 0,
+        "the compensated pose never differs from the raw one"
     );
     let local = &per_topic["/PSM1/compensated/local/measured_cp"];
     assert!(
@@ -708,7 +746,7 @@ fn record_follows_a_restarted_serve() {
             .or_default()
             .push(m["sequence"].as_u64().unwrap());
     }
-    assert_eq!(per_topic.len(), 5, "{rec_log}");
+    assert_eq!(per_topic.len(), 9, "{rec_log}");
     for (t, seqs) in &per_topic {
         // The second serve counts from 1 again: the recording goes on after the drop.
         let drop = seqs

@@ -6,8 +6,10 @@ use dvrk_ipc::{CompensationStatusV3, JAW_NAME, JOINT_NAMES, JawStateV1, JointSta
 use crate::cdr::{self, CdrWriter, RosTime};
 use crate::msgdefs::{COMPENSATION_STATUS, JOINT_STATE, MsgType, POSE_STAMPED};
 
-/// The ROS 2 topics a bridge writes, all under `<arm>/compensated/`. None of them is a name the
-/// dVRK console publishes itself, so the bridge can run beside the console's ROS bridge.
+/// The ROS 2 topics of the bridges. The ROS 2 bridge publishes only [`OutTopic::ALL`], all under
+/// `<arm>/compensated/`: none of them is a name the dVRK console publishes itself, so it can run
+/// beside the console's ROS bridge. The recorder also writes [`OutTopic::RAW`], the sidecar's
+/// uncompensated topics under the console's names (a file clashes with nobody).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum OutTopic {
     /// `compensated/local/measured_cp`: tip pose in the RCM frame (frame id `<arm>_base`).
@@ -20,10 +22,40 @@ pub enum OutTopic {
     JawMeasuredJs,
     /// `compensated/status`.
     Status,
+    /// `local/measured_cp`, from the joints as read.
+    RawLocalMeasuredCp,
+    /// `measured_cp`, from the joints as read.
+    RawMeasuredCp,
+    /// `measured_js`, as read.
+    RawMeasuredJs,
+    /// `jaw/measured_js`, as read.
+    RawJawMeasuredJs,
 }
 
 impl OutTopic {
+    /// The compensated topics (what the ROS 2 bridge publishes).
     pub const ALL: [OutTopic; 5] = [
+        OutTopic::LocalMeasuredCp,
+        OutTopic::MeasuredCp,
+        OutTopic::MeasuredJs,
+        OutTopic::JawMeasuredJs,
+        OutTopic::Status,
+    ];
+
+    /// The uncompensated topics, under the console's names.
+    pub const RAW: [OutTopic; 4] = [
+        OutTopic::RawLocalMeasuredCp,
+        OutTopic::RawMeasuredCp,
+        OutTopic::RawMeasuredJs,
+        OutTopic::RawJawMeasuredJs,
+    ];
+
+    /// Every topic the recorder can write: [`OutTopic::RAW`] then [`OutTopic::ALL`].
+    pub const RECORDED: [OutTopic; 9] = [
+        OutTopic::RawLocalMeasuredCp,
+        OutTopic::RawMeasuredCp,
+        OutTopic::RawMeasuredJs,
+        OutTopic::RawJawMeasuredJs,
         OutTopic::LocalMeasuredCp,
         OutTopic::MeasuredCp,
         OutTopic::MeasuredJs,
@@ -39,14 +71,35 @@ impl OutTopic {
             OutTopic::MeasuredJs => "compensated/measured_js",
             OutTopic::JawMeasuredJs => "compensated/jaw/measured_js",
             OutTopic::Status => "compensated/status",
+            OutTopic::RawLocalMeasuredCp => "local/measured_cp",
+            OutTopic::RawMeasuredCp => "measured_cp",
+            OutTopic::RawMeasuredJs => "measured_js",
+            OutTopic::RawJawMeasuredJs => "jaw/measured_js",
         }
+    }
+
+    /// Whether this is one of the uncompensated topics.
+    pub const fn is_raw(self) -> bool {
+        matches!(
+            self,
+            OutTopic::RawLocalMeasuredCp
+                | OutTopic::RawMeasuredCp
+                | OutTopic::RawMeasuredJs
+                | OutTopic::RawJawMeasuredJs
+        )
     }
 
     /// The message type.
     pub const fn msg_type(self) -> MsgType {
         match self {
-            OutTopic::LocalMeasuredCp | OutTopic::MeasuredCp => POSE_STAMPED,
-            OutTopic::MeasuredJs | OutTopic::JawMeasuredJs => JOINT_STATE,
+            OutTopic::LocalMeasuredCp
+            | OutTopic::MeasuredCp
+            | OutTopic::RawLocalMeasuredCp
+            | OutTopic::RawMeasuredCp => POSE_STAMPED,
+            OutTopic::MeasuredJs
+            | OutTopic::JawMeasuredJs
+            | OutTopic::RawMeasuredJs
+            | OutTopic::RawJawMeasuredJs => JOINT_STATE,
             OutTopic::Status => COMPENSATION_STATUS,
         }
     }
@@ -116,12 +169,12 @@ impl Encoder {
         self.buf.body()
     }
 
-    /// `local/measured_cp` (from the sidecar's `compensated/local/measured_cp`) or `measured_cp`
-    /// (from its `compensated/measured_cp`, already in the base frame).
+    /// A `local/measured_cp` (RCM frame) or `measured_cp` (already in the base frame) pose,
+    /// compensated or raw as `topic` says.
     pub fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> &CdrWriter {
         let stamp = ros_time(&p.header);
         let frame = match topic {
-            OutTopic::MeasuredCp => &self.frames.base_frame_id,
+            OutTopic::MeasuredCp | OutTopic::RawMeasuredCp => &self.frames.base_frame_id,
             _ => &self.frames.local_frame_id,
         };
         self.buf.clear();
@@ -257,7 +310,19 @@ mod tests {
         for t in OutTopic::ALL {
             assert!(t.ros_name("PSM1").starts_with("/PSM1/compensated/"));
             assert!(t.dds_name("PSM1").starts_with("rt/PSM1/compensated/"));
+            assert!(!t.is_raw());
         }
+        for t in OutTopic::RAW {
+            assert!(t.is_raw() && !t.suffix().starts_with("compensated/"));
+            assert_eq!(t.msg_type().ros_name, {
+                let comp = OutTopic::ALL
+                    .into_iter()
+                    .find(|c| c.suffix() == format!("compensated/{}", t.suffix()))
+                    .unwrap();
+                comp.msg_type().ros_name
+            });
+        }
+        assert_eq!(&OutTopic::RECORDED[4..], &OutTopic::ALL);
         assert_eq!(
             OutTopic::LocalMeasuredCp.dds_name("PSM1"),
             "rt/PSM1/compensated/local/measured_cp"

@@ -184,14 +184,14 @@ impl Sink for DdsSink {
         self.write(Self::index(topic))
     }
 
-    fn joints(&mut self, js: &JointStateV2) -> Result<(), BridgeError> {
+    fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
         self.encoder.joints(js);
-        self.write(Self::index(OutTopic::MeasuredJs))
+        self.write(Self::index(topic))
     }
 
-    fn jaw(&mut self, jaw: &JawStateV1) -> Result<(), BridgeError> {
+    fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError> {
         self.encoder.jaw(jaw);
-        self.write(Self::index(OutTopic::JawMeasuredJs))
+        self.write(Self::index(topic))
     }
 
     fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {

@@ -7,10 +7,13 @@
 //!   `/PSM1/compensated/local/measured_cp` and `/PSM1/compensated/measured_cp`
 //!   (`geometry_msgs/PoseStamped`), `/PSM1/compensated/measured_js` (6 joints) and
 //!   `/PSM1/compensated/jaw/measured_js` (`sensor_msgs/JointState`), and
-//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]), with
+//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]; the ROS 2
+//!   interface package is in `ros2/dvrk_sidecar_msgs` for a colcon workspace), with
 //!   RustDDS (RTPS in pure Rust) and hand-written CDR ([`cdr`]). QoS is ROS 2's sensor-data
 //!   profile by default. It never publishes under the console's own names.
-//! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads).
+//! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads),
+//!   and the uncompensated ones under the console's names (`/PSM1/measured_js`,
+//!   `/PSM1/local/measured_cp`, ...) unless told to keep to the compensated ones.
 //!
 //! The shared memory already carries the dVRK's names and both clocks: each ROS 2 topic is the
 //! sidecar's topic of the same name (`compensated/measured_cp` is in the base frame the sidecar
@@ -111,7 +114,7 @@ pub fn run_ros2_bridge(
 ) -> Result<(RunStats, u64), BridgeError> {
     let period = src.validate()?;
     let mut sink = DdsSink::new(src.encoder()?, dds)?;
-    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-ros2-bridge")?;
+    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-ros2-bridge", false)?;
     tracing::info!(
         "ros2-bridge: {} -> DDS domain {} topics rt/{}/compensated/...",
         src.shm_prefix(),
@@ -128,6 +131,9 @@ pub struct RecordOptions {
     pub out: PathBuf,
     /// Stop after this long; `None`: until `stop`.
     pub seconds: Option<f64>,
+    /// Only the compensated topics; by default the uncompensated ones are recorded too, under
+    /// the console's names (`/PSM1/measured_js`, ...), so a recording holds both sides.
+    pub compensated_only: bool,
 }
 
 /// Records to an MCAP file until `stop` is raised or `--seconds` pass; returns the counters and
@@ -151,8 +157,9 @@ pub fn run_record(
             });
         }
     };
-    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record")?;
-    let mut sink = McapSink::create(src.encoder()?, &rec.out)?;
+    let raw = !rec.compensated_only;
+    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record", raw)?;
+    let mut sink = McapSink::create(src.encoder()?, &rec.out, raw)?;
     tracing::info!("record: {} -> {}", src.shm_prefix(), rec.out.display());
     match source.run(&mut sink, period, stop, until) {
         Ok(stats) => Ok((stats, sink.finish()?)),

@@ -18,13 +18,14 @@ use crate::error::BridgeError;
 
 /// Where the samples go.
 pub trait Sink {
-    /// A compensated pose of a valid cycle: `topic` is [`OutTopic::LocalMeasuredCp`] (RCM frame)
-    /// or [`OutTopic::MeasuredCp`] (base frame).
+    /// A pose of a valid cycle: `topic` is [`OutTopic::LocalMeasuredCp`] (RCM frame),
+    /// [`OutTopic::MeasuredCp`] (base frame) or their raw counterparts.
     fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError>;
-    /// Compensated joints of a valid cycle.
-    fn joints(&mut self, js: &JointStateV2) -> Result<(), BridgeError>;
-    /// The jaw of a valid cycle.
-    fn jaw(&mut self, jaw: &JawStateV1) -> Result<(), BridgeError>;
+    /// Joints of a valid cycle: `topic` is [`OutTopic::MeasuredJs`] (compensated) or
+    /// [`OutTopic::RawMeasuredJs`].
+    fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError>;
+    /// The jaw of a valid cycle: [`OutTopic::JawMeasuredJs`] or [`OutTopic::RawJawMeasuredJs`].
+    fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError>;
     /// The status of every cycle, valid or not.
     fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError>;
 }
@@ -87,9 +88,71 @@ impl<T: Message> Pending<T> {
     }
 }
 
-/// Subscriptions to the sidecar's compensated topics of one arm: `compensated/local/measured_cp`
-/// (woken by the cycle event) and, taken at the same wake, `compensated/measured_cp`,
-/// `compensated/measured_js`, `compensated/jaw/measured_js` and `compensated/status`.
+/// The four uncompensated topics, when they are passed on too.
+struct RawSubs {
+    local: Pending<PoseV2>,
+    base: Pending<PoseV2>,
+    joints: Pending<JointStateV2>,
+    jaw: Pending<JawStateV1>,
+}
+
+impl RawSubs {
+    fn new(node: &Node<Service>, names: &ServiceNames) -> Result<Self, BridgeError> {
+        Ok(RawSubs {
+            local: Pending::new(node, names, Topic::LocalMeasuredCp)?,
+            base: Pending::new(node, names, Topic::MeasuredCp)?,
+            joints: Pending::new(node, names, Topic::MeasuredJs)?,
+            jaw: Pending::new(node, names, Topic::JawMeasuredJs)?,
+        })
+    }
+
+    fn take(&mut self, names: &ServiceNames) -> Result<(), BridgeError> {
+        self.local.take(names)?;
+        self.base.take(names)?;
+        self.joints.take(names)?;
+        self.jaw.take(names)
+    }
+
+    fn first_seqs(&self) -> [Option<u64>; 4] {
+        [
+            self.local.first_seq(),
+            self.base.first_seq(),
+            self.joints.first_seq(),
+            self.jaw.first_seq(),
+        ]
+    }
+
+    fn keep_from(&mut self, start: u64) {
+        self.local.keep_from(start);
+        self.base.keep_from(start);
+        self.joints.keep_from(start);
+        self.jaw.keep_from(start);
+    }
+
+    fn clear(&mut self) {
+        self.local.items.clear();
+        self.base.items.clear();
+        self.joints.items.clear();
+        self.jaw.items.clear();
+    }
+
+    fn gaps(&self) -> u64 {
+        [
+            self.local.gaps.1,
+            self.base.gaps.1,
+            self.joints.gaps.1,
+            self.jaw.gaps.1,
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(0)
+    }
+}
+
+/// Subscriptions to the sidecar's topics of one arm: `compensated/local/measured_cp` (woken by
+/// the cycle event) and, taken at the same wake, `compensated/measured_cp`,
+/// `compensated/measured_js`, `compensated/jaw/measured_js`, `compensated/status` and, when
+/// asked for, the four uncompensated topics.
 pub struct ShmSource {
     names: ServiceNames,
     pose: Subscription<PoseV2, Service>,
@@ -97,6 +160,7 @@ pub struct ShmSource {
     joints: Pending<JointStateV2>,
     jaw: Pending<JawStateV1>,
     status: Pending<CompensationStatusV3>,
+    raw: Option<RawSubs>,
     poses: Vec<PoseV2>,
     upto_seq: Option<u64>,
     /// First cycle passed on (see [`ShmSource::run`]).
@@ -129,8 +193,8 @@ fn subscriber<T: Message>(
 
 impl ShmSource {
     /// Subscribes under the shared-memory prefix `shm_prefix` (e.g. `PSM1`) with an iceoryx2
-    /// node named `node_name`.
-    pub fn new(shm_prefix: &str, node_name: &str) -> Result<Self, BridgeError> {
+    /// node named `node_name`; `raw`: also the uncompensated topics ([`OutTopic::RAW`]).
+    pub fn new(shm_prefix: &str, node_name: &str, raw: bool) -> Result<Self, BridgeError> {
         let names = ServiceNames::new(shm_prefix)?;
         let node = dvrk_ipc::create_node::<Service>(node_name, None)?;
         let pose = Subscription::<PoseV2, Service>::new(
@@ -144,6 +208,11 @@ impl ShmSource {
             joints: Pending::new(&node, &names, Topic::CompensatedMeasuredJs)?,
             jaw: Pending::new(&node, &names, Topic::CompensatedJawMeasuredJs)?,
             status: Pending::new(&node, &names, Topic::CompensatedStatus)?,
+            raw: if raw {
+                Some(RawSubs::new(&node, &names)?)
+            } else {
+                None
+            },
             names,
             pose,
             poses: Vec::with_capacity(dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
@@ -159,6 +228,9 @@ impl ShmSource {
         self.joints.items.clear();
         self.jaw.items.clear();
         self.status.items.clear();
+        if let Some(r) = &mut self.raw {
+            r.clear();
+        }
     }
 
     /// Passes every cycle to `sink` until `stop` is raised or `until` passes. `rate_period_ns`
@@ -171,7 +243,7 @@ impl ShmSource {
         until: Option<Instant>,
     ) -> Result<RunStats, BridgeError> {
         let mut stats = RunStats::default();
-        let mut dec = [Decimator::new(rate_period_ns); 5];
+        let mut dec = [Decimator::new(rate_period_ns); 9];
         let mut silent_since: Option<Instant> = None;
         while !stop.load(Ordering::Relaxed) && until.is_none_or(|u| Instant::now() < u) {
             self.poses.clear();
@@ -220,6 +292,9 @@ impl ShmSource {
             self.joints.take(&self.names)?;
             self.jaw.take(&self.names)?;
             self.status.take(&self.names)?;
+            if let Some(r) = &mut self.raw {
+                r.take(&self.names)?;
+            }
             // A serve that restarted before the subscription noticed starts its seq at 1 again:
             // drop this wake's samples (they may mix both runs) and align anew.
             if let (Some(p), Some(u)) = (self.poses.first(), self.upto_seq)
@@ -239,8 +314,15 @@ impl ShmSource {
                     self.jaw.first_seq(),
                     self.status.first_seq(),
                 ];
-                if firsts.iter().all(Option::is_some) {
-                    self.start_seq = firsts.iter().flatten().max().copied();
+                let raw_firsts = self.raw.as_ref().map(RawSubs::first_seqs);
+                let raw_ok = raw_firsts.is_none_or(|f| f.iter().all(Option::is_some));
+                if firsts.iter().all(Option::is_some) && raw_ok {
+                    self.start_seq = firsts
+                        .iter()
+                        .chain(raw_firsts.iter().flatten())
+                        .flatten()
+                        .max()
+                        .copied();
                 } else {
                     self.clear_pending();
                 }
@@ -250,6 +332,9 @@ impl ShmSource {
             self.joints.keep_from(start);
             self.jaw.keep_from(start);
             self.status.keep_from(start);
+            if let Some(r) = &mut self.raw {
+                r.keep_from(start);
+            }
             for p in self.poses.iter().filter(|p| p.header.seq >= start) {
                 if !dec[0].accept(p.header.sample_t_ns) {
                     continue;
@@ -282,7 +367,7 @@ impl ShmSource {
                     return;
                 }
                 if js.header.valid != 0 {
-                    err = sink.joints(js).err();
+                    err = sink.joints(OutTopic::MeasuredJs, js).err();
                 } else {
                     stats.invalid_skipped += 1;
                 }
@@ -292,11 +377,45 @@ impl ShmSource {
                     return;
                 }
                 if jaw.header.valid != 0 {
-                    err = sink.jaw(jaw).err();
+                    err = sink.jaw(OutTopic::JawMeasuredJs, jaw).err();
                 } else {
                     stats.invalid_skipped += 1;
                 }
             });
+            if let Some(r) = &mut self.raw {
+                let mut valid = |h: &dvrk_ipc::Header, d: &mut Decimator| {
+                    if !d.accept(h.sample_t_ns) {
+                        return false;
+                    }
+                    if h.valid == 0 {
+                        stats.invalid_skipped += 1;
+                    }
+                    h.valid != 0
+                };
+                let [d5, d6, d7, d8] = &mut dec[5..9] else {
+                    unreachable!("nine decimators")
+                };
+                release(&mut r.local.items, upto, |p| {
+                    if err.is_none() && valid(&p.header, d5) {
+                        err = sink.pose(OutTopic::RawLocalMeasuredCp, p).err();
+                    }
+                });
+                release(&mut r.base.items, upto, |p| {
+                    if err.is_none() && valid(&p.header, d6) {
+                        err = sink.pose(OutTopic::RawMeasuredCp, p).err();
+                    }
+                });
+                release(&mut r.joints.items, upto, |js| {
+                    if err.is_none() && valid(&js.header, d7) {
+                        err = sink.joints(OutTopic::RawMeasuredJs, js).err();
+                    }
+                });
+                release(&mut r.jaw.items, upto, |jaw| {
+                    if err.is_none() && valid(&jaw.header, d8) {
+                        err = sink.jaw(OutTopic::RawJawMeasuredJs, jaw).err();
+                    }
+                });
+            }
             release(&mut self.status.items, upto, |st| {
                 if err.is_some() {
                     return;
@@ -317,6 +436,7 @@ impl ShmSource {
                 self.joints.gaps.1,
                 self.jaw.gaps.1,
                 self.status.gaps.1,
+                self.raw.as_ref().map_or(0, RawSubs::gaps),
             ]
             .into_iter()
             .max()

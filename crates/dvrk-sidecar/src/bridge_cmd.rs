@@ -63,6 +63,10 @@ pub struct RecordArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
+    /// Record only the compensated topics (by default the uncompensated ones are recorded too,
+    /// as /<ARM>/measured_js, /<ARM>/local/measured_cp, ...).
+    #[arg(long)]
+    compensated_only: bool,
 }
 
 pub fn run_ros2_bridge(args: &Ros2BridgeArgs) -> Result<()> {
@@ -95,6 +99,7 @@ pub fn run_record(args: &RecordArgs) -> Result<()> {
     let rec = RecordOptions {
         out: args.out.clone(),
         seconds: args.seconds,
+        compensated_only: args.compensated_only,
     };
     let (stats, written) = dvrk_bridge::run_record(&args.source.options(), &rec, stop.as_atomic())
         .with_context(|| format!("recording to {}", args.out.display()))?;
