@@ -44,14 +44,12 @@ fn python_client_ready() -> bool {
                 Ok(o) => String::from_utf8_lossy(&o.stderr).into_owned(),
                 Err(e) => e.to_string(),
             };
-            // CI installs them (.ci/python-deps), so there this is a failure, not a skip.
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "python3 with iceoryx2, numpy and the dvrk_sidecar package is required in CI \
-                 (bash .ci/python-deps): {why}"
+            // The build script saw the package (or CI requires it): it must import now.
+            panic!(
+                "python3 with iceoryx2, numpy and the dvrk_sidecar package is required \
+                 (bash .ci/python-deps, or python3 -m pip install ./python; then `touch build.rs` \
+                 if the test should be ignored instead): {why}"
             );
-            eprintln!("skipped: python3 -m pip install ./python to run this test ({why})");
-            return false;
         }
     };
     let src = repo().join("python/dvrk_sidecar");
@@ -184,6 +182,10 @@ fn rust_layout<T: ZeroCopySend>(type_name: &str, fields: Vec<(&str, usize, usize
     })
 }
 
+#[cfg_attr(
+    not(has_py_dvrk_sidecar),
+    ignore = "needs python3 with iceoryx2, numpy and this package: python3 -m pip install ./python, then touch build.rs"
+)]
 #[test]
 fn python_layouts_match_the_rust_types() {
     if !python_client_ready() {
@@ -255,6 +257,10 @@ fn python_layouts_match_the_rust_types() {
     );
 }
 
+#[cfg_attr(
+    not(has_py_dvrk_sidecar),
+    ignore = "needs python3 with iceoryx2, numpy and this package: python3 -m pip install ./python, then touch build.rs"
+)]
 #[test]
 fn python_package_tests_pass() {
     if !python_client_ready() {
@@ -291,6 +297,10 @@ fn python_package_tests_pass() {
 // ---------------------------------------------------------------------------------------------
 // Against serve
 
+#[cfg_attr(
+    not(has_py_dvrk_sidecar),
+    ignore = "needs python3 with iceoryx2, numpy and this package: python3 -m pip install ./python, then touch build.rs"
+)]
 #[test]
 fn python_echo_prints_what_rust_echo_prints() {
     if !python_client_ready() {
@@ -407,6 +417,10 @@ fn assert_matrix_is_pose(m: &Value, pose: &Value, what: &str) {
     }
 }
 
+#[cfg_attr(
+    not(has_py_dvrk_sidecar),
+    ignore = "needs python3 with iceoryx2, numpy and this package: python3 -m pip install ./python, then touch build.rs"
+)]
 #[test]
 fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
     if !python_client_ready() {
@@ -551,6 +565,10 @@ fn invalid_cycle(seq: u64) -> CycleMessages {
     cycle
 }
 
+#[cfg_attr(
+    not(has_py_dvrk_sidecar),
+    ignore = "needs python3 with iceoryx2, numpy and this package: python3 -m pip install ./python, then touch build.rs"
+)]
 #[test]
 fn python_arm_raises_on_invalid_samples_and_names_a_missing_publisher() {
     if !python_client_ready() {
