@@ -98,10 +98,8 @@ pub fn preflight(cfg: &SidecarConfig) -> Result<()> {
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
     let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar-check", None)
-        .map_err(|e| anyhow::anyhow!("{e}"))
         .context(shm_hint())?;
     dvrk_ipc::ArmServices::open_or_create(&node, &names)
-        .map_err(|e| anyhow::anyhow!("{e}"))
         .with_context(|| format!("opening the services under {}; {}", cfg.prefix, shm_hint()))?;
     Ok(())
 }
