@@ -41,8 +41,12 @@ const MAX_MARGIN_DIVISOR: f64 = 8.0;
 /// Recent arrivals whose low quantile gives the phase: short, because the publisher restarts
 /// its grid after every stall longer than a period (often, on a loaded PC).
 const WINDOW: usize = 16;
-/// Weight of a new period measurement once learnt.
-const PERIOD_ALPHA: f64 = 1.0 / 64.0;
+/// The period is the mean of the gaps measured so far (the nominal period counting as one),
+/// then a running mean over about this many gaps. Every arrival is projected up to `WINDOW`
+/// periods ahead, so the estimate's noise is multiplied by up to 16: with a weight of 1/64 and
+/// ±50 µs of arrival jitter it wandered by ±10 µs (661-676 µs for 666.7 µs, 2026-11-23), which put
+/// the prediction about 100 µs early and the polling window closed before most samples came.
+const PERIOD_GAPS: f64 = 1024.0;
 /// The quantile (percent) of recent arrivals that is predicted.
 const PHASE_QUANTILE_PERCENT: usize = 10;
 
@@ -50,6 +54,8 @@ const PHASE_QUANTILE_PERCENT: usize = 10;
 pub struct Predictor {
     nominal_ns: f64,
     period_ns: f64,
+    /// Gaps averaged into `period_ns` since the last restart.
+    period_gaps: f64,
     /// The newest samples (seq, ns), a ring of `filled` entries.
     recent: [(u64, u64); WINDOW],
     filled: usize,
@@ -67,6 +73,7 @@ impl Predictor {
         Self {
             nominal_ns: p,
             period_ns: p,
+            period_gaps: 0.0,
             recent: [(0, 0); WINDOW],
             filled: 0,
             next: 0,
@@ -100,6 +107,7 @@ impl Predictor {
 
     fn restart(&mut self) {
         self.period_ns = self.nominal_ns;
+        self.period_gaps = 0.0;
         self.filled = 0;
         self.next = 0;
         self.observed = 0;
@@ -128,7 +136,8 @@ impl Predictor {
             let d = (t_ns - last_t) as f64;
             let nominal = self.nominal_ns;
             if (0.8 * nominal..=1.2 * nominal).contains(&d) {
-                self.period_ns += (d - self.period_ns) * PERIOD_ALPHA;
+                self.period_gaps = (self.period_gaps + 1.0).min(PERIOD_GAPS);
+                self.period_ns += (d - self.period_ns) / (self.period_gaps + 1.0);
             }
         }
         self.recent[self.next] = (seq, t_ns);
@@ -229,6 +238,26 @@ mod tests {
             p.observe(k + 1, t);
         }
         assert!((30..=90).contains(&early), "{early} of 610 early");
+    }
+
+    #[test]
+    fn the_period_estimate_does_not_wander_with_the_arrival_jitter() {
+        // Publish delays 0..120 µs after an exact grid, pseudo-random: every arrival is projected
+        // up to 16 periods ahead, so a period off by 1 µs misplaces the prediction by 16 µs.
+        let mut p = Predictor::new(P);
+        let mut x = 12345u64;
+        let mut worst = 0.0f64;
+        for k in 0..20_000u64 {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let delay = (x >> 33) % 120_000;
+            p.observe(k + 1, 1_000_000_000 + k * P + delay);
+            if k >= 2000 {
+                worst = worst.max((p.period_ns() as f64 - P as f64).abs());
+            }
+        }
+        assert!(worst < 300.0, "period off by up to {worst} ns");
     }
 
     #[test]
