@@ -141,6 +141,108 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
         .context("writing to stdout")
 }
 
+/// `calibrate record --dynamics`: subscribes to `<prefix>/measured_js` of the running service
+/// and keeps every valid sample as a dynamics row until `--seconds` of samples, `--rows` rows or
+/// Ctrl-C; then writes the file atomically. The time of a row is the sample's own monotonic stamp
+/// (`sample_t_ns`) from the first kept sample, so the fit's filter sees the true spacing.
+pub fn record_live(
+    a: &super::calibrate::RecordArgs,
+    prefix: &str,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    use dvrk_ipc::iceoryx2::service::ipc::Service;
+    use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+
+    super::data::check_output_path(&a.out)?;
+    let seconds = a.seconds.unwrap_or(f64::INFINITY);
+    if seconds.is_nan() || seconds <= 0.0 {
+        bail!("--seconds {seconds}: must be a positive number of seconds");
+    }
+    let limit = a.rows.unwrap_or(usize::MAX);
+    let names = ServiceNames::new(prefix).with_context(|| format!("prefix {prefix}"))?;
+    let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
+        .context("creating the iceoryx2 node")?;
+    let mut sub = Subscription::<JointStateV1, Service>::new(
+        &node,
+        &names,
+        Topic::MeasuredJs,
+        NOMINAL_PERIOD,
+    )
+    .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
+    let service = names.topic(Topic::MeasuredJs);
+    eprintln!(
+        "recording dynamics rows from {}; run the excitation with the dVRK console (free space, \
+         joints 1 and 2), Ctrl-C to stop",
+        service.as_str()
+    );
+    let mut rows: Vec<DynamicsSample> = Vec::new();
+    let mut t0_ns: Option<u64> = None;
+    let mut invalid = 0u64;
+    let mut last_t = f64::NEG_INFINITY;
+    let mut next_report = 5.0;
+    let mut silence = crate::watch::SilenceReporter::default();
+    let mut done = false;
+    while !done && !stop.load(Ordering::Relaxed) {
+        let update = sub
+            .wait_with(|msg| {
+                if done {
+                    return;
+                }
+                let h = &msg.header;
+                let sample = [
+                    msg.position[0],
+                    msg.position[1],
+                    msg.position[2],
+                    msg.effort[0],
+                    msg.effort[1],
+                ];
+                if h.valid == 0 || !sample.iter().all(|v| v.is_finite()) {
+                    invalid += 1;
+                    return;
+                }
+                let t0 = *t0_ns.get_or_insert(h.sample_t_ns);
+                let t = h.sample_t_ns.saturating_sub(t0) as f64 * 1e-9;
+                // A repeated or older stamp (a restarted service) cannot go into one time axis.
+                if t <= last_t {
+                    return;
+                }
+                last_t = t;
+                rows.push(DynamicsSample {
+                    t_s: t,
+                    position: [sample[0], sample[1], sample[2]],
+                    effort_nm: [sample[3], sample[4]],
+                });
+                done = t >= seconds || rows.len() >= limit;
+            })
+            .context("waiting for samples")?;
+        silence.report(&update, service.as_str());
+        if last_t >= next_report {
+            eprintln!(
+                "{:.0} s recorded: {} rows, {invalid} invalid samples skipped",
+                last_t,
+                rows.len()
+            );
+            next_report += 5.0;
+        }
+    }
+    if rows.is_empty() {
+        bail!(
+            "no valid sample arrived on {}; nothing written to {}",
+            service.as_str(),
+            a.out.display()
+        );
+    }
+    super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+    let segments = segments(&rows).len();
+    eprintln!(
+        "wrote {} rows ({last_t:.1} s, {segments} segment(s), {invalid} invalid samples skipped) \
+         to {}",
+        rows.len(),
+        a.out.display()
+    );
+    Ok(())
+}
+
 /// Reads a dynamics file; every error names the file, line and column.
 pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
     let text =
