@@ -52,6 +52,10 @@ pub enum Procedure {
     /// Free-space multi-sine excitation of joints 1 and 2 at a few depths (about a minute): the
     /// rows `fit --dynamics` identifies the internal-torque model from (issue 10).
     Dynamics(super::dynamics_cmd::DynamicsArgs),
+    /// Write the `calibrate dynamics` excitation as a trajectory file (time, joint positions and
+    /// velocities) for a lab to replay on a real arm with the console (e.g. a crtk servo_jp
+    /// script) while `calibrate record --dynamics` records it.
+    Trajectory(super::dynamics_cmd::TrajectoryArgs),
     /// Real robot: record from the running sidecar's measured_js while the dVRK's own tools move
     /// the arm. Without --dynamics: averaged rows, one per still step of --joint (clamp or sweep
     /// data for `fit --clamp/--torque-offset`). With --dynamics: one row per valid sample, the
@@ -444,6 +448,7 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
         Procedure::Divot(a) => run_sim_procedure(SimKind::Divot, a, stop),
         Procedure::Record(r) => run_record(r, stop),
         Procedure::Dynamics(a) => super::dynamics_cmd::run(a, stop),
+        Procedure::Trajectory(a) => super::dynamics_cmd::run_trajectory(a),
     }
 }
 
