@@ -314,9 +314,11 @@ pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
         bail!("--rate-hz {}: must be within 10..=20000", a.rate_hz);
     }
     let limits = dvrk_sim::PhysicsParams::CLASSIC;
-    for j in 0..2 {
-        let c = a.center.get(j).copied().unwrap_or(0.0);
-        let reach: f64 = amplitude[j].iter().sum();
+    let [c1, c2] = a.center[..] else {
+        bail!("--center: give two angles, q1,q2 (rad)");
+    };
+    for (j, (c, amp)) in [c1, c2].into_iter().zip(amplitude.iter()).enumerate() {
+        let reach: f64 = amp.iter().sum();
         let (lo, hi) = (limits.position_min[j], limits.position_max[j]);
         if !(c.is_finite() && c - reach >= lo && c + reach <= hi) {
             bail!(
@@ -326,7 +328,7 @@ pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
             );
         }
     }
-    let center = [a.center[0], a.center[1]];
+    let center = [c1, c2];
     let seg = a.seconds_per_depth;
     let n_depths = a.depths.len();
     let total = n_depths as f64 * seg + (n_depths - 1) as f64 * DEPTH_MOVE_S;
@@ -380,9 +382,9 @@ pub fn run_trajectory(a: &TrajectoryArgs) -> anyhow::Result<()> {
         rows.len(),
         rows.last().map_or(0.0, |r| r[0]),
         a.out.display(),
-        a.center[0],
-        a.center[1],
-        a.depths[0]
+        rows[0][1],
+        rows[0][2],
+        rows[0][3]
     );
     std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
         .context("writing to stdout")
