@@ -26,7 +26,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
 
 type Res<T> = Result<T, Box<dyn std::error::Error>>;
 
@@ -105,7 +105,7 @@ fn serve_config(dir: &Path, case: Case, port: u16, prefix: &str) -> Res<PathBuf>
     Ok(p)
 }
 
-fn subscribe(prefix: String, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Vec<JointStateV1>> {
+fn subscribe(prefix: String, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Vec<JointStateV2>> {
     std::thread::spawn(move || {
         let Ok(node) = dvrk_ipc::create_node::<Service>("coexist", None) else {
             return Vec::new();
@@ -117,7 +117,7 @@ fn subscribe(prefix: String, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<V
         let mut sub = None;
         while !stop.load(Ordering::Relaxed) {
             if sub.is_none() {
-                sub = Subscription::<JointStateV1, Service>::new(
+                sub = Subscription::<JointStateV2, Service>::new(
                     &node,
                     &names,
                     Topic::MeasuredJs,
@@ -269,7 +269,7 @@ fn run_case(case: Case, protocol: &str, ethernet: &str, secs: f64, dir: &Path) -
         .join(", ");
     let recs = parse_record(&std::fs::read_to_string(&record).unwrap_or_default());
     let (mut sample_age, mut publish_age) = (Vec::new(), Vec::new());
-    let valid: Vec<&JointStateV1> = published.iter().filter(|m| m.header.valid == 1).collect();
+    let valid: Vec<&JointStateV2> = published.iter().filter(|m| m.header.valid == 1).collect();
     // Matches are looked for at most 200 reads (~130 ms) ahead of the last one: while the arm
     // stands still (e.g. its watchdog tripped during a stall of the stand-in) identical counts
     // and near-identical timestamps could otherwise match a read far ahead and hide the rest.

@@ -60,14 +60,8 @@ fn bench_cycle(c: &mut Criterion) {
                 seq,
                 ..Default::default()
             };
-            let m = dvrk_sidecar::cycle::messages(&sample, &r, &t);
-            black_box(publisher.publish_cycle(
-                &m.measured_js,
-                &m.measured_cp,
-                &m.compensated_js,
-                &m.compensated_cp,
-                &m.status,
-            ))
+            let m = dvrk_sidecar::cycle::messages(&sample, &r, &t, &cfg.base_frame);
+            black_box(publisher.publish_cycle(&m))
         })
     });
     group.finish();

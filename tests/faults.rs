@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 use common::proxy::{FaultProxy, Faults, ProxyCounters};
 use common::*;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{CompensationStatusV2, JointStateV1, ServiceNames, Topic, flags, qos};
+use dvrk_ipc::{CompensationStatusV3, JointStateV2, ServiceNames, Topic, flags, qos};
 use dvrk_sidecar::rt::monotonic_ns;
 
 /// A liveness bound for recovery, not a speed claim (the goal, 100 ms, is recorded from the
@@ -40,14 +40,14 @@ struct Rec {
     seq: u64,
     valid: bool,
     flags: u32,
-    position: [f64; 7],
+    position: [f64; 6],
     sample_t_ns: u64,
 }
 
 /// Reads `measured_js` and `compensated/status` of `prefix` in a thread, every cycle.
 struct Collector {
     js: Arc<Mutex<Vec<Rec>>>,
-    status: Arc<Mutex<Vec<CompensationStatusV2>>>,
+    status: Arc<Mutex<Vec<CompensationStatusV3>>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
@@ -62,13 +62,13 @@ impl Collector {
             let node = dvrk_ipc::create_node::<Service>("fault-suite", None).unwrap();
             let names = ServiceNames::new(&prefix).unwrap();
             let js_sub =
-                dvrk_ipc::open_topic::<JointStateV1, Service>(&node, &names, Topic::MeasuredJs)
+                dvrk_ipc::open_topic::<JointStateV2, Service>(&node, &names, Topic::MeasuredJs)
                     .unwrap()
                     .subscriber_builder()
                     .buffer_size(qos::SUBSCRIBER_MAX_BUFFER_SIZE)
                     .create()
                     .unwrap();
-            let st_sub = dvrk_ipc::open_topic::<CompensationStatusV2, Service>(
+            let st_sub = dvrk_ipc::open_topic::<CompensationStatusV3, Service>(
                 &node,
                 &names,
                 Topic::CompensatedStatus,
@@ -119,7 +119,7 @@ impl Collector {
         })
     }
 
-    fn stop(mut self) -> (Vec<Rec>, Vec<CompensationStatusV2>) {
+    fn stop(mut self) -> (Vec<Rec>, Vec<CompensationStatusV3>) {
         self.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.thread.take() {
             t.join().unwrap();
@@ -155,28 +155,27 @@ struct Report {
 
 /// Joint ranges of the Classic PSM (reference: ±91°, ±53°, 0-0.24 m; wrist joints through the
 /// 400006 coupling) plus 5° / 5 mm.
-const LIMITS: [[f64; 2]; 7] = [
+const LIMITS: [[f64; 2]; 6] = [
     [-1.676, 1.676],
     [-1.013, 1.013],
     [-0.005, 0.245],
     [-4.84, 4.84],
     [-3.18, 3.18],
     [-3.23, 3.23],
-    [-3.23, 3.23],
 ];
 /// Largest change between two consecutive cycles of the simulated arm that is still a real
 /// motion: a fixed part, plus a speed no joint of the divot-push scenario reaches times the
 /// time between the two reads (a loaded machine can stall `serve` between two cycles while the
 /// emulator's arm moves on). A flipped encoder bit above the lowest few shows as a larger jump.
-const SMOOTH: [f64; 7] = [5e-3, 5e-3, 5e-4, 5e-3, 5e-3, 5e-3, 5e-3];
-const SMOOTH_SPEED: [f64; 7] = [1.0, 1.0, 0.1, 1.0, 1.0, 1.0, 1.0];
+const SMOOTH: [f64; 6] = [5e-3, 5e-3, 5e-4, 5e-3, 5e-3, 5e-3];
+const SMOOTH_SPEED: [f64; 6] = [1.0, 1.0, 0.1, 1.0, 1.0, 1.0];
 
 /// Without reply CRCs (a real FPGA), a flipped low bit is indistinguishable from motion; the
 /// plausibility checks bound what can pass to the arm's maximum velocity. This oracle, looser
 /// than those checks by 2x, catches any corruption beyond that bound (an insertion of 5 m, a wrist
 /// at -685 rad, the values seen before the checks existed).
-const VMAX_NO_CRC: [f64; 7] = [12.0, 12.0, 1.2, 120.0, 120.0, 120.0, 120.0];
-const MARGIN_NO_CRC: [f64; 7] = [5e-3, 5e-3, 5e-4, 1e-2, 1e-2, 1e-2, 1e-2];
+const VMAX_NO_CRC: [f64; 6] = [12.0, 12.0, 1.2, 120.0, 120.0, 120.0];
+const MARGIN_NO_CRC: [f64; 6] = [5e-3, 5e-3, 5e-4, 1e-2, 1e-2, 1e-2];
 
 fn analyse(recs: &[Rec]) -> Report {
     analyse_with(recs, true)

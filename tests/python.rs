@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use common::*;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{NOMINAL_PERIOD, PoseV1, ServiceNames, Subscription, Topic};
+use dvrk_ipc::{NOMINAL_PERIOD, PoseV2, ServiceNames, Subscription, Topic};
 
 fn python_has_iceoryx2() -> bool {
     Command::new("python3")
@@ -37,10 +37,10 @@ fn python_subscriber_decodes_what_serve_publishes() {
     // A Rust subscriber in this process records the same topic by seq.
     let node = dvrk_ipc::create_node::<Service>("e2e-python", None).unwrap();
     let names = ServiceNames::new(&prefix).unwrap();
-    let mut rust = Subscription::<PoseV1, Service>::new(
+    let mut rust = Subscription::<PoseV2, Service>::new(
         &node,
         &names,
-        Topic::CompensatedMeasuredCp,
+        Topic::CompensatedLocalMeasuredCp,
         NOMINAL_PERIOD,
     )
     .unwrap();

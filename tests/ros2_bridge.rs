@@ -203,8 +203,8 @@ fn cyclone_round(test: &str, reliable: bool) -> (Vec<u64>, u64, String) {
     let mut bridge = bridge_proc(&args);
 
     // echo runs first and long enough (4 s of cycles) to cover what the DDS readers receive.
-    let echo_cp = echo_in_background(format!("{prefix}/compensated/measured_cp"), 6000);
-    let echo_js = echo_in_background(format!("{prefix}/compensated/measured_js"), 6000);
+    let echo_cp = echo_in_background(format!("{prefix}/compensated/local/measured_cp"), 6000);
+    let echo_js = echo_in_background(format!("{prefix}/compensated/jaw/measured_js"), 6000);
     let (mut rp, rx_p) = cyclone_reader(
         &uri,
         domain,
@@ -232,26 +232,21 @@ fn cyclone_round(test: &str, reliable: bool) -> (Vec<u64>, u64, String) {
     assert_eq!(poses.len(), 300);
     assert_eq!(jaws.len(), 300);
 
-    // The ROS stamp is the sample time plus one offset, measured by the bridge at start.
+    // The ROS stamp is the header's realtime (ROS) time of the sample, which is the monotonic
+    // sample time plus this host's realtime - monotonic.
     let by_t: BTreeMap<u64, &Value> = echo_cp
         .iter()
-        .map(|e| (e["header"]["sample_t_ns"].as_u64().unwrap(), e))
+        .map(|e| (e["header"]["sample_realtime_ns"].as_u64().unwrap(), e))
         .collect();
-    let first = poses
-        .iter()
-        .find_map(|p| {
-            let pos = f64s(&p["position"]);
-            echo_cp
-                .iter()
-                .find(|e| f64s(&e["position_m"]) == pos)
-                .map(|e| stamp_ns(&p["header"]) - e["header"]["sample_t_ns"].as_i64().unwrap())
-        })
-        .expect("no DDS pose equals any pose echo showed");
     let host = clock_offset_ns();
-    assert!(
-        (first - host).abs() < 1_000_000_000,
-        "the stamp offset {first} ns is not realtime - monotonic ({host} ns)"
-    );
+    for e in &echo_cp {
+        let h = &e["header"];
+        let off = h["sample_realtime_ns"].as_i64().unwrap() - h["sample_t_ns"].as_i64().unwrap();
+        assert!(
+            (off - host).abs() < 1_000_000_000,
+            "sample_realtime_ns - sample_t_ns = {off} ns is not realtime - monotonic ({host} ns)"
+        );
+    }
     let (lo, hi) = (
         *by_t.keys().next().unwrap(),
         *by_t.keys().next_back().unwrap(),
@@ -260,7 +255,7 @@ fn cyclone_round(test: &str, reliable: bool) -> (Vec<u64>, u64, String) {
     let mut dds_t = std::collections::BTreeSet::new();
     for p in &poses {
         assert_eq!(p["header"]["frame_id"], "PSM1_base", "{p}");
-        let t = (stamp_ns(&p["header"]) - first) as u64;
+        let t = stamp_ns(&p["header"]) as u64;
         if t < lo || t > hi {
             continue;
         }
@@ -280,19 +275,19 @@ fn cyclone_round(test: &str, reliable: bool) -> (Vec<u64>, u64, String) {
         "only {compared} of 300 DDS poses fall in the cycles echo covered"
     );
 
-    // The jaw: the 7th joint of the shared-memory message, alone, named "jaw".
+    // The jaw: compensated/jaw/measured_js, one joint named "jaw".
     let js_by_t: BTreeMap<u64, &Value> = echo_js
         .iter()
-        .map(|e| (e["header"]["sample_t_ns"].as_u64().unwrap(), e))
+        .map(|e| (e["header"]["sample_realtime_ns"].as_u64().unwrap(), e))
         .collect();
     let mut compared = 0;
     for j in &jaws {
         assert_eq!(j["name"], serde_json::json!(["jaw"]));
         assert_eq!(j["header"]["frame_id"], "PSM1");
-        let t = (stamp_ns(&j["header"]) - first) as u64;
+        let t = stamp_ns(&j["header"]) as u64;
         let Some(e) = js_by_t.get(&t) else { continue };
         for k in ["position", "velocity", "effort"] {
-            assert_eq!(f64s(&j[k]), vec![f64s(&e[k])[6]], "{k}: {j} vs {e}");
+            assert_eq!(f64s(&j[k]), f64s(&e[k]), "{k}: {j} vs {e}");
         }
         compared += 1;
     }
@@ -382,9 +377,12 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     let cfg = write_config("record", "sim", "shared", &prefix, "divot-push.toml");
     let mut serve = serve(&cfg);
     let out = scratch("record").join("run.mcap");
-    let echo_cp = echo_in_background(format!("{prefix}/compensated/measured_cp"), 3000);
+    let echo_cp = echo_in_background(format!("{prefix}/compensated/local/measured_cp"), 3000);
+    let echo_base = echo_in_background(format!("{prefix}/compensated/measured_cp"), 3000);
     let echo_js = echo_in_background(format!("{prefix}/compensated/measured_js"), 3000);
+    let echo_jaw = echo_in_background(format!("{prefix}/compensated/jaw/measured_js"), 3000);
     let echo_st = echo_in_background(format!("{prefix}/compensated/status"), 3000);
+    let echo_raw = echo_in_background(format!("{prefix}/local/measured_cp"), 3000);
     let mut rec = Proc::spawn(
         "record",
         Command::new(sidecar_bin())
@@ -406,8 +404,11 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     );
     let lost = bridge_lost(&rec_log);
     let echo_cp = echo_cp.recv().unwrap();
+    let echo_base = echo_base.recv().unwrap();
     let echo_js = echo_js.recv().unwrap();
+    let echo_jaw = echo_jaw.recv().unwrap();
     let echo_st = echo_st.recv().unwrap();
+    let echo_raw = echo_raw.recv().unwrap();
     let (st, log) = serve.terminate();
     assert!(st.success(), "serve exited with {st}: {log}");
 
@@ -446,7 +447,43 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
             "/PSM1/compensated/measured_cp",
             "/PSM1/compensated/measured_js",
             "/PSM1/compensated/status",
+            "/PSM1/jaw/measured_js",
+            "/PSM1/local/measured_cp",
+            "/PSM1/measured_cp",
+            "/PSM1/measured_js",
         ]
+    );
+    // The uncompensated pose is what echo shows on the sidecar's local/measured_cp, and in a
+    // divot push the compensated one differs from it.
+    let raw_by_seq: BTreeMap<u64, &Value> = echo_raw
+        .iter()
+        .map(|e| (e["header"]["seq"].as_u64().unwrap(), e))
+        .collect();
+    let comp_by_seq: BTreeMap<u64, &Value> = per_topic["/PSM1/compensated/local/measured_cp"]
+        .iter()
+        .map(|m| (m["sequence"].as_u64().unwrap(), *m))
+        .collect();
+    let (mut raw_compared, mut differ) = (0, 0);
+    for m in &per_topic["/PSM1/local/measured_cp"] {
+        let seq = m["sequence"].as_u64().unwrap();
+        let p = &m["msg"]["pose"]["position"];
+        let pos = ["x", "y", "z"].map(|k| p[k].as_f64().unwrap()).to_vec();
+        if let Some(e) = raw_by_seq.get(&seq) {
+            assert_eq!(pos, f64s(&e["position_m"]), "raw seq {seq}");
+            raw_compared += 1;
+        }
+        if let Some(c) = comp_by_seq.get(&seq) {
+            let q = &c["msg"]["pose"]["position"];
+            differ += usize::from(["x", "y", "z"].map(|k| q[k].as_f64().unwrap()).to_vec() != pos);
+        }
+    }
+    assert!(
+        raw_compared >= 100,
+        "only {raw_compared} raw poses matched echo"
+    );
+    assert!(
+        differ > 0,
+        "the compensated pose never differs from the raw one"
     );
     let local = &per_topic["/PSM1/compensated/local/measured_cp"];
     assert!(
@@ -493,16 +530,15 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
             .collect()
     };
     let (cp, js, stt) = (by_seq(&echo_cp), by_seq(&echo_js), by_seq(&echo_st));
+    let (base_cp, jaws) = (by_seq(&echo_base), by_seq(&echo_jaw));
     let mut compared = 0;
-    let mut offset = None;
     for m in local.iter() {
         let seq = m["sequence"].as_u64().unwrap();
         let Some(e) = cp.get(&seq) else { continue };
         let msg = &m["msg"];
         let stamp = stamp_ns(&msg["header"]);
         assert_eq!(m["log_time"].as_i64().unwrap(), stamp);
-        let off = stamp - e["header"]["sample_t_ns"].as_i64().unwrap();
-        assert_eq!(*offset.get_or_insert(off), off, "stamp offset changed");
+        assert_eq!(stamp, e["header"]["sample_realtime_ns"].as_i64().unwrap());
         assert_eq!(msg["header"]["frame_id"], "PSM1_base");
         let p = &msg["pose"]["position"];
         let q = &msg["pose"]["orientation"];
@@ -510,7 +546,8 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         let quat = ["x", "y", "z", "w"].map(|k| q[k].as_f64().unwrap());
         assert_eq!(pos.to_vec(), f64s(&e["position_m"]), "seq {seq}");
         assert_eq!(quat.to_vec(), f64s(&e["orientation_xyzw"]), "seq {seq}");
-        // measured_cp = identity base frame x local.
+        // measured_cp is the sidecar's compensated/measured_cp (the base frame of the
+        // configuration: the identity here, so it equals local).
         let at = |topic: &str| -> &Value {
             let v = &per_topic[topic];
             let j = v
@@ -521,6 +558,11 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         };
         let base = at("/PSM1/compensated/measured_cp");
         assert_eq!(base["pose"], msg["pose"]);
+        if let Some(eb) = base_cp.get(&seq) {
+            let p = &base["pose"]["position"];
+            let pos = ["x", "y", "z"].map(|k| p[k].as_f64().unwrap());
+            assert_eq!(pos.to_vec(), f64s(&eb["position_m"]), "seq {seq}");
+        }
 
         let e = &js[&seq];
         let arm = at("/PSM1/compensated/measured_js");
@@ -538,9 +580,10 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         );
         assert_eq!(jaw["name"], serde_json::json!(["jaw"]));
         for k in ["position", "velocity", "effort"] {
-            let all = f64s(&e[k]);
-            assert_eq!(f64s(&arm[k]), all[..6].to_vec(), "seq {seq} {k}");
-            assert_eq!(f64s(&jaw[k]), all[6..].to_vec(), "seq {seq} {k}");
+            assert_eq!(f64s(&arm[k]), f64s(&e[k]), "seq {seq} {k}");
+            if let Some(ej) = jaws.get(&seq) {
+                assert_eq!(f64s(&jaw[k]), f64s(&ej[k]), "seq {seq} {k}");
+            }
         }
 
         let e = &stt[&seq];
@@ -565,11 +608,14 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         "only {compared} recorded cycles were also seen by echo"
     );
     let host = clock_offset_ns();
-    let off = offset.unwrap();
-    assert!(
-        (off - host).abs() < 1_000_000_000,
-        "stamp offset {off} ns is not realtime - monotonic ({host} ns)"
-    );
+    for e in &echo_cp {
+        let h = &e["header"];
+        let off = h["sample_realtime_ns"].as_i64().unwrap() - h["sample_t_ns"].as_i64().unwrap();
+        assert!(
+            (off - host).abs() < 1_000_000_000,
+            "stamp offset {off} ns is not realtime - monotonic ({host} ns)"
+        );
+    }
 }
 
 #[test]
@@ -686,7 +732,7 @@ fn record_follows_a_restarted_serve() {
             .or_default()
             .push(m["sequence"].as_u64().unwrap());
     }
-    assert_eq!(per_topic.len(), 5, "{rec_log}");
+    assert_eq!(per_topic.len(), 9, "{rec_log}");
     for (t, seqs) in &per_topic {
         // The second serve counts from 1 again: the recording goes on after the drop.
         let drop = seqs

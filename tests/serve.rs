@@ -4,12 +4,14 @@
 mod common;
 
 use std::collections::BTreeMap;
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use common::*;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
+use dvrk_ipc::iceoryx2::service::port_factory::PortFactory as _;
 use dvrk_ipc::{
-    JointStateV1, NOMINAL_PERIOD, PoseV1, ServiceNames, Subscription, Topic, Update, flags,
+    JointStateV2, NOMINAL_PERIOD, PoseV2, ServiceNames, Subscription, Topic, Update, flags,
 };
 use serde_json::Value;
 
@@ -68,17 +70,17 @@ fn udp_emulator_every_seq_in_order_exclusive() {
 }
 
 /// Collects `n` cycles of two topics by seq, in this process.
-fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV1, JointStateV1, PoseV1, PoseV1)> {
+fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV2, JointStateV2, PoseV2, PoseV2)> {
     let node = dvrk_ipc::create_node::<Service>("e2e-check", None).unwrap();
     let names = ServiceNames::new(prefix).unwrap();
-    let mut raw = Subscription::<JointStateV1, Service>::new(
+    let mut raw = Subscription::<JointStateV2, Service>::new(
         &node,
         &names,
         Topic::MeasuredJs,
         NOMINAL_PERIOD,
     )
     .unwrap();
-    let mut comp = Subscription::<JointStateV1, Service>::new(
+    let mut comp = Subscription::<JointStateV2, Service>::new(
         &node,
         &names,
         Topic::CompensatedMeasuredJs,
@@ -86,12 +88,12 @@ fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV1, JointStateV1, Pos
     )
     .unwrap();
     let mut raw_cp =
-        Subscription::<PoseV1, Service>::new(&node, &names, Topic::MeasuredCp, NOMINAL_PERIOD)
+        Subscription::<PoseV2, Service>::new(&node, &names, Topic::LocalMeasuredCp, NOMINAL_PERIOD)
             .unwrap();
-    let mut comp_cp = Subscription::<PoseV1, Service>::new(
+    let mut comp_cp = Subscription::<PoseV2, Service>::new(
         &node,
         &names,
-        Topic::CompensatedMeasuredCp,
+        Topic::CompensatedLocalMeasuredCp,
         NOMINAL_PERIOD,
     )
     .unwrap();
@@ -167,7 +169,7 @@ fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
             c.active[1]
         );
         active += usize::from(c.active[0] || c.active[1]);
-        let fk = |p: &[f64; 7]| {
+        let fk = |p: &[f64; 6]| {
             kin.forward(&[p[0], p[1], p[2], p[3], p[4], p[5]])
                 .translation
                 .vector
@@ -455,4 +457,49 @@ fn under_systemd_it_notifies_ready_watchdog_and_stopping() {
         .expect("serve exits after SIGTERM");
     assert!(st.success());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_killed_subscriber_is_reaped_and_summaries_go_on() {
+    let prefix = unique_prefix("reap");
+    let cfg = write_config("reap", "sim", "shared", &prefix, "idle.toml");
+    let mut serve = serve(&cfg);
+    assert_eq!(
+        echo_json(&format!("{prefix}/measured_js"), 5, LIVENESS).len(),
+        5,
+        "serve never published"
+    );
+    // This process's node and service exist before the kill, so this process is not the one
+    // that reaps (creating a node or opening a service can also clean up dead nodes).
+    let node = dvrk_ipc::create_node::<Service>("e2e-reap", None).unwrap();
+    let names = ServiceNames::new(&prefix).unwrap();
+    let service =
+        dvrk_ipc::open_topic::<JointStateV2, Service>(&node, &names, Topic::MeasuredJs).unwrap();
+    let subscribers = || service.dynamic_config().number_of_subscribers();
+    let mut echo = Proc::spawn(
+        "echo",
+        // A spinning subscriber has no listener: a dead listener's socket would make the
+        // publisher's notifier find the dead node by itself.
+        Command::new(sidecar_bin())
+            .args(["echo", "--wait", "spin", &format!("{prefix}/measured_js")])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    );
+    assert!(
+        eventually(LIVENESS, || (subscribers() == 1).then_some(())).is_some(),
+        "echo never subscribed"
+    );
+    echo.signal(libc::SIGKILL);
+    echo.wait_timeout(Duration::from_secs(10)).unwrap();
+    assert!(
+        eventually(Duration::from_secs(60), || (subscribers() == 0)
+            .then_some(()))
+        .is_some(),
+        "the killed subscriber was never reaped"
+    );
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{log}");
+    assert!(log.contains("removed dead subscriber nodes"), "{log}");
+    // The summaries come once a second from the housekeeping thread.
+    assert!(log.matches("summary").count() >= 2, "{log}");
 }

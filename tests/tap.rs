@@ -19,7 +19,7 @@ use std::time::Duration;
 
 use common::{Proc, eventually, free_udp_port, repo, scratch, sidecar_bin, unique_prefix};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic, flags};
+use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic, flags};
 
 fn is_root() -> bool {
     // SAFETY: geteuid has no preconditions.
@@ -161,7 +161,7 @@ prefix = "{prefix}"
 }
 
 /// Published measured_js samples, collected in a thread until `stop`.
-fn subscribe(prefix: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Vec<JointStateV1>> {
+fn subscribe(prefix: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Vec<JointStateV2>> {
     let prefix = prefix.to_owned();
     std::thread::spawn(move || {
         let node = dvrk_ipc::create_node::<Service>("e2e-tap", None).unwrap();
@@ -170,7 +170,7 @@ fn subscribe(prefix: &str, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Vec
         let mut sub = None;
         while !stop.load(Ordering::Relaxed) {
             if sub.is_none() {
-                sub = Subscription::<JointStateV1, Service>::new(
+                sub = Subscription::<JointStateV2, Service>::new(
                     &node,
                     &names,
                     Topic::MeasuredJs,
@@ -237,7 +237,7 @@ fn tap_follows_the_console(test: &str, ethernet: &str, protocol: &str) {
     // read), so samples are matched forward in sequence. A read the stand-in gave up on (its
     // reply came after its 20 ms timeout) was still a complete transaction on the wire: the tap
     // may publish it, at most once per such failure.
-    let valid: Vec<&JointStateV1> = published.iter().filter(|m| m.header.valid == 1).collect();
+    let valid: Vec<&JointStateV2> = published.iter().filter(|m| m.header.valid == 1).collect();
     let mut next = 0usize;
     let mut last: Option<usize> = None;
     let (mut consecutive, mut matched, mut unmatched) = (0usize, 0usize, 0usize);

@@ -31,7 +31,7 @@ use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    NOMINAL_PERIOD, PoseV1, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
+    NOMINAL_PERIOD, PoseV2, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
     WaitStrategy,
 };
 use dvrk_sidecar::config::SidecarConfig;
@@ -113,10 +113,10 @@ fn sub_shm(prefix: &str, seconds: f64, wait: WaitStrategy) -> Res<()> {
         wait,
         deadline: None,
     };
-    let mut sub = Subscription::<PoseV1, Service>::with_options(
+    let mut sub = Subscription::<PoseV2, Service>::with_options(
         &node,
         &names,
-        Topic::CompensatedMeasuredCp,
+        Topic::CompensatedLocalMeasuredCp,
         options,
     )?;
     let capacity = (seconds * 2000.0) as usize;

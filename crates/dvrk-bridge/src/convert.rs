@@ -1,17 +1,15 @@
 //! The pure core of the bridges: which ROS 2 topics exist, how a shared-memory message becomes
 //! their CDR payloads, ROS time from the monotonic stamps, and decimation. No I/O, no clock.
 
-use dvrk_ipc::{CompensationStatusV2, JOINT_NAMES, JointStateV1, PoseV1};
+use dvrk_ipc::{CompensationStatusV3, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, PoseV2};
 
 use crate::cdr::{self, CdrWriter, RosTime};
 use crate::msgdefs::{COMPENSATION_STATUS, JOINT_STATE, MsgType, POSE_STAMPED};
 
-/// Number of kinematic joints in `measured_js` (the 7th joint of the shared-memory message is
-/// the jaw, published on `jaw/measured_js`).
-pub const ARM_JOINTS: usize = 6;
-
-/// The ROS 2 topics a bridge writes, all under `<arm>/compensated/`. None of them is a name the
-/// dVRK console publishes itself, so the bridge can run beside the console's ROS bridge.
+/// The ROS 2 topics of the bridges. The ROS 2 bridge publishes only [`OutTopic::ALL`], all under
+/// `<arm>/compensated/`: none of them is a name the dVRK console publishes itself, so it can run
+/// beside the console's ROS bridge. The recorder also writes [`OutTopic::RAW`], the sidecar's
+/// uncompensated topics under the console's names (a file clashes with nobody).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum OutTopic {
     /// `compensated/local/measured_cp`: tip pose in the RCM frame (frame id `<arm>_base`).
@@ -24,10 +22,40 @@ pub enum OutTopic {
     JawMeasuredJs,
     /// `compensated/status`.
     Status,
+    /// `local/measured_cp`, from the joints as read.
+    RawLocalMeasuredCp,
+    /// `measured_cp`, from the joints as read.
+    RawMeasuredCp,
+    /// `measured_js`, as read.
+    RawMeasuredJs,
+    /// `jaw/measured_js`, as read.
+    RawJawMeasuredJs,
 }
 
 impl OutTopic {
+    /// The compensated topics (what the ROS 2 bridge publishes).
     pub const ALL: [OutTopic; 5] = [
+        OutTopic::LocalMeasuredCp,
+        OutTopic::MeasuredCp,
+        OutTopic::MeasuredJs,
+        OutTopic::JawMeasuredJs,
+        OutTopic::Status,
+    ];
+
+    /// The uncompensated topics, under the console's names.
+    pub const RAW: [OutTopic; 4] = [
+        OutTopic::RawLocalMeasuredCp,
+        OutTopic::RawMeasuredCp,
+        OutTopic::RawMeasuredJs,
+        OutTopic::RawJawMeasuredJs,
+    ];
+
+    /// Every topic the recorder can write: [`OutTopic::RAW`] then [`OutTopic::ALL`].
+    pub const RECORDED: [OutTopic; 9] = [
+        OutTopic::RawLocalMeasuredCp,
+        OutTopic::RawMeasuredCp,
+        OutTopic::RawMeasuredJs,
+        OutTopic::RawJawMeasuredJs,
         OutTopic::LocalMeasuredCp,
         OutTopic::MeasuredCp,
         OutTopic::MeasuredJs,
@@ -43,14 +71,35 @@ impl OutTopic {
             OutTopic::MeasuredJs => "compensated/measured_js",
             OutTopic::JawMeasuredJs => "compensated/jaw/measured_js",
             OutTopic::Status => "compensated/status",
+            OutTopic::RawLocalMeasuredCp => "local/measured_cp",
+            OutTopic::RawMeasuredCp => "measured_cp",
+            OutTopic::RawMeasuredJs => "measured_js",
+            OutTopic::RawJawMeasuredJs => "jaw/measured_js",
         }
+    }
+
+    /// Whether this is one of the uncompensated topics.
+    pub const fn is_raw(self) -> bool {
+        matches!(
+            self,
+            OutTopic::RawLocalMeasuredCp
+                | OutTopic::RawMeasuredCp
+                | OutTopic::RawMeasuredJs
+                | OutTopic::RawJawMeasuredJs
+        )
     }
 
     /// The message type.
     pub const fn msg_type(self) -> MsgType {
         match self {
-            OutTopic::LocalMeasuredCp | OutTopic::MeasuredCp => POSE_STAMPED,
-            OutTopic::MeasuredJs | OutTopic::JawMeasuredJs => JOINT_STATE,
+            OutTopic::LocalMeasuredCp
+            | OutTopic::MeasuredCp
+            | OutTopic::RawLocalMeasuredCp
+            | OutTopic::RawMeasuredCp => POSE_STAMPED,
+            OutTopic::MeasuredJs
+            | OutTopic::JawMeasuredJs
+            | OutTopic::RawMeasuredJs
+            | OutTopic::RawJawMeasuredJs => JOINT_STATE,
             OutTopic::Status => COMPENSATION_STATUS,
         }
     }
@@ -67,77 +116,10 @@ impl OutTopic {
     }
 }
 
-/// A rigid transform: translation (m) and unit quaternion (x, y, z, w).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Transform {
-    pub translation_m: [f64; 3],
-    pub rotation_xyzw: [f64; 4],
-}
-
-impl Transform {
-    pub const IDENTITY: Transform = Transform {
-        translation_m: [0.0; 3],
-        rotation_xyzw: [0.0, 0.0, 0.0, 1.0],
-    };
-
-    /// `self × (position, orientation)`: the pose `local` expressed in this transform's
-    /// reference frame.
-    pub fn apply(&self, position: &[f64; 3], orientation_xyzw: &[f64; 4]) -> ([f64; 3], [f64; 4]) {
-        let r = rotate(&self.rotation_xyzw, position);
-        let t = self.translation_m;
-        (
-            [r[0] + t[0], r[1] + t[1], r[2] + t[2]],
-            quat_mul(&self.rotation_xyzw, orientation_xyzw),
-        )
-    }
-}
-
-fn quat_mul(a: &[f64; 4], b: &[f64; 4]) -> [f64; 4] {
-    let [ax, ay, az, aw] = *a;
-    let [bx, by, bz, bw] = *b;
-    [
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ]
-}
-
-fn rotate(q: &[f64; 4], v: &[f64; 3]) -> [f64; 3] {
-    // v' = v + 2 w (u × v) + 2 u × (u × v), u = (x, y, z).
-    let u = [q[0], q[1], q[2]];
-    let w = q[3];
-    let c1 = cross(&u, v);
-    let c2 = cross(&u, &c1);
-    [
-        v[0] + 2.0 * (w * c1[0] + c2[0]),
-        v[1] + 2.0 * (w * c1[1] + c2[1]),
-        v[2] + 2.0 * (w * c1[2] + c2[2]),
-    ]
-}
-
-fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-/// `CLOCK_REALTIME - CLOCK_MONOTONIC` in nanoseconds, measured once at start: the messages carry
-/// monotonic stamps only, so ROS time is `sample_t_ns + offset`. A step of the wall clock
-/// (NTP) after start is not followed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ClockOffset {
-    pub realtime_minus_monotonic_ns: i64,
-}
-
-impl ClockOffset {
-    /// ROS time of the monotonic instant `monotonic_ns`.
-    pub fn ros_time(&self, monotonic_ns: u64) -> RosTime {
-        let mono = i64::try_from(monotonic_ns).unwrap_or(i64::MAX);
-        RosTime::from_unix_ns(mono.saturating_add(self.realtime_minus_monotonic_ns))
-    }
+/// ROS time of a message header: its `sample_realtime_ns`, the CLOCK_REALTIME time of the
+/// sample, which the sidecar reads together with the CLOCK_MONOTONIC one.
+pub fn ros_time(h: &dvrk_ipc::Header) -> RosTime {
+    RosTime::from_unix_ns(i64::try_from(h.sample_realtime_ns).unwrap_or(i64::MAX))
 }
 
 /// Names and frames of one arm's output.
@@ -147,24 +129,22 @@ pub struct ArmFrames {
     pub arm: String,
     /// Reference frame of `local/measured_cp` (`PSM1_base`, the RCM frame as the dVRK names it).
     pub local_frame_id: String,
-    /// Reference frame of `measured_cp` (`PSM1_base` while the base frame is the identity).
+    /// Reference frame of `measured_cp`: the reference frame of the arm's base frame (the
+    /// console's `reference-frame`, e.g. `ECM`); `PSM1_base` when no base frame is configured.
     pub base_frame_id: String,
     /// Frame id of the joint states (`PSM1`).
     pub joint_frame_id: String,
-    /// The base frame: `measured_cp = base × local/measured_cp`.
-    pub base: Transform,
 }
 
 impl ArmFrames {
-    /// The dVRK's frame names for `arm` with an identity base frame (no base frame is
-    /// configured yet, so `measured_cp` equals `local/measured_cp` and shares its frame id).
-    pub fn new(arm: &str) -> Self {
+    /// The dVRK's frame names for `arm`; `measured_cp` in `base_frame_id` (default
+    /// `<arm>_base`, right when the sidecar's base frame is the identity).
+    pub fn new(arm: &str, base_frame_id: Option<&str>) -> Self {
         ArmFrames {
             arm: arm.to_owned(),
             local_frame_id: format!("{arm}_base"),
-            base_frame_id: format!("{arm}_base"),
+            base_frame_id: base_frame_id.map_or_else(|| format!("{arm}_base"), str::to_owned),
             joint_frame_id: arm.to_owned(),
-            base: Transform::IDENTITY,
         }
     }
 }
@@ -173,15 +153,13 @@ impl ArmFrames {
 #[derive(Debug, Clone)]
 pub struct Encoder {
     pub frames: ArmFrames,
-    pub clock: ClockOffset,
     buf: CdrWriter,
 }
 
 impl Encoder {
-    pub fn new(frames: ArmFrames, clock: ClockOffset) -> Self {
+    pub fn new(frames: ArmFrames) -> Self {
         Encoder {
             frames,
-            clock,
             buf: CdrWriter::new(),
         }
     }
@@ -191,54 +169,60 @@ impl Encoder {
         self.buf.body()
     }
 
-    /// The ROS stamp of a message header: its sample time in ROS time.
-    pub fn stamp(&self, h: &dvrk_ipc::Header) -> RosTime {
-        self.clock.ros_time(h.sample_t_ns)
-    }
-
-    /// `local/measured_cp` or `measured_cp` from a compensated pose (RCM frame).
-    pub fn pose(&mut self, topic: OutTopic, p: &PoseV1) -> &CdrWriter {
-        let stamp = self.stamp(&p.header);
+    /// A `local/measured_cp` (RCM frame) or `measured_cp` (already in the base frame) pose,
+    /// compensated or raw as `topic` says.
+    pub fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> &CdrWriter {
+        let stamp = ros_time(&p.header);
+        let frame = match topic {
+            OutTopic::MeasuredCp | OutTopic::RawMeasuredCp => &self.frames.base_frame_id,
+            _ => &self.frames.local_frame_id,
+        };
         self.buf.clear();
-        match topic {
-            OutTopic::MeasuredCp => {
-                let (pos, q) = self.frames.base.apply(&p.position_m, &p.orientation_xyzw);
-                cdr::pose_stamped(&mut self.buf, stamp, &self.frames.base_frame_id, &pos, &q);
-            }
-            _ => cdr::pose_stamped(
-                &mut self.buf,
-                stamp,
-                &self.frames.local_frame_id,
-                &p.position_m,
-                &p.orientation_xyzw,
-            ),
-        }
+        cdr::pose_stamped(
+            &mut self.buf,
+            stamp,
+            frame,
+            &p.position_m,
+            &p.orientation_xyzw,
+        );
         &self.buf
     }
 
-    /// `measured_js` (6 joints) or `jaw/measured_js` (the 7th).
-    pub fn joints(&mut self, topic: OutTopic, js: &JointStateV1) -> &CdrWriter {
-        let stamp = self.stamp(&js.header);
-        let range = match topic {
-            OutTopic::JawMeasuredJs => ARM_JOINTS..ARM_JOINTS + 1,
-            _ => 0..ARM_JOINTS,
-        };
+    /// `measured_js`: the 6 joints.
+    pub fn joints(&mut self, js: &JointStateV2) -> &CdrWriter {
+        let stamp = ros_time(&js.header);
         self.buf.clear();
         cdr::joint_state(
             &mut self.buf,
             stamp,
             &self.frames.joint_frame_id,
-            &JOINT_NAMES[range.clone()],
-            &js.position[range.clone()],
-            &js.velocity[range.clone()],
-            &js.effort[range],
+            &JOINT_NAMES,
+            &js.position,
+            &js.velocity,
+            &js.effort,
+        );
+        &self.buf
+    }
+
+    /// `jaw/measured_js`: one joint, `jaw`.
+    pub fn jaw(&mut self, jaw: &JawStateV1) -> &CdrWriter {
+        let stamp = ros_time(&jaw.header);
+        self.buf.clear();
+        cdr::joint_state(
+            &mut self.buf,
+            stamp,
+            &self.frames.joint_frame_id,
+            &[JAW_NAME],
+            &[jaw.position],
+            &[jaw.velocity],
+            &[jaw.effort],
         );
         &self.buf
     }
 
     /// `compensated/status`, field for field ([`crate::msgdefs::COMPENSATION_STATUS`]).
-    pub fn status(&mut self, s: &CompensationStatusV2) -> &CdrWriter {
-        let stamp = self.stamp(&s.header);
+    pub fn status(&mut self, s: &CompensationStatusV3) -> &CdrWriter {
+        let stamp = ros_time(&s.header);
         let w = &mut self.buf;
         w.clear();
         w.header(stamp, &self.frames.local_frame_id);
@@ -321,16 +305,24 @@ impl Decimator {
 mod tests {
     use super::*;
 
-    fn close(a: f64, b: f64) -> bool {
-        (a - b).abs() < 1e-12
-    }
-
     #[test]
     fn topic_names_stay_under_compensated() {
         for t in OutTopic::ALL {
             assert!(t.ros_name("PSM1").starts_with("/PSM1/compensated/"));
             assert!(t.dds_name("PSM1").starts_with("rt/PSM1/compensated/"));
+            assert!(!t.is_raw());
         }
+        for t in OutTopic::RAW {
+            assert!(t.is_raw() && !t.suffix().starts_with("compensated/"));
+            assert_eq!(t.msg_type().ros_name, {
+                let comp = OutTopic::ALL
+                    .into_iter()
+                    .find(|c| c.suffix() == format!("compensated/{}", t.suffix()))
+                    .unwrap();
+                comp.msg_type().ros_name
+            });
+        }
+        assert_eq!(&OutTopic::RECORDED[4..], &OutTopic::ALL);
         assert_eq!(
             OutTopic::LocalMeasuredCp.dds_name("PSM1"),
             "rt/PSM1/compensated/local/measured_cp"
@@ -338,31 +330,26 @@ mod tests {
     }
 
     #[test]
-    fn base_frame_rotates_then_translates() {
-        // 90 degrees about z, then +1 m in x.
-        let h = std::f64::consts::FRAC_1_SQRT_2;
-        let base = Transform {
-            translation_m: [1.0, 0.0, 0.0],
-            rotation_xyzw: [0.0, 0.0, h, h],
+    fn stamps_are_the_headers_realtime() {
+        let h = dvrk_ipc::Header {
+            sample_t_ns: 5,
+            sample_realtime_ns: 1_700_000_001_500_000_001,
+            ..Default::default()
         };
-        let (p, q) = base.apply(&[1.0, 0.0, 0.5], &[0.0, 0.0, 0.0, 1.0]);
-        assert!(
-            close(p[0], 1.0) && close(p[1], 1.0) && close(p[2], 0.5),
-            "{p:?}"
-        );
-        assert!(close(q[2], h) && close(q[3], h), "{q:?}");
-        let (p, q) = Transform::IDENTITY.apply(&[0.1, 0.2, 0.3], &[0.5, 0.5, 0.5, 0.5]);
-        assert_eq!(p, [0.1, 0.2, 0.3]);
-        assert_eq!(q, [0.5, 0.5, 0.5, 0.5]);
+        let t = ros_time(&h);
+        assert_eq!((t.sec, t.nanosec), (1_700_000_001, 500_000_001));
     }
 
     #[test]
-    fn clock_offset_maps_monotonic_to_ros_time() {
-        let c = ClockOffset {
-            realtime_minus_monotonic_ns: 1_700_000_000_000_000_000,
-        };
-        let t = c.ros_time(1_500_000_001);
-        assert_eq!((t.sec, t.nanosec), (1_700_000_001, 500_000_001));
+    fn poses_keep_their_frames() {
+        let mut e = Encoder::new(ArmFrames::new("PSM1", Some("ECM")));
+        let p = PoseV2::default();
+        let local = e.pose(OutTopic::LocalMeasuredCp, &p).body().to_vec();
+        let base = e.pose(OutTopic::MeasuredCp, &p).body().to_vec();
+        let has = |b: &[u8], s: &str| b.windows(s.len()).any(|w| w == s.as_bytes());
+        assert!(has(&local, "PSM1_base\0") && !has(&local, "ECM"));
+        assert!(has(&base, "ECM\0") && !has(&base, "PSM1_base"));
+        assert_eq!(ArmFrames::new("PSM2", None).base_frame_id, "PSM2_base");
     }
 
     #[test]
@@ -381,26 +368,21 @@ mod tests {
     }
 
     #[test]
-    fn joints_split_into_arm_and_jaw() {
-        let mut js = JointStateV1::default();
-        for i in 0..7 {
+    fn joints_and_jaw_have_their_names() {
+        let mut js = JointStateV2::default();
+        for i in 0..6 {
             js.position[i] = i as f64;
         }
-        let mut e = Encoder::new(
-            ArmFrames::new("PSM1"),
-            ClockOffset {
-                realtime_minus_monotonic_ns: 0,
-            },
-        );
-        let arm = e.joints(OutTopic::MeasuredJs, &js).body().to_vec();
-        let jaw = e.joints(OutTopic::JawMeasuredJs, &js).body().to_vec();
-        let count_at = |b: &[u8], name: &str| {
-            let i = b.windows(name.len()).position(|w| w == name.as_bytes());
-            i.is_some()
+        let jaw = JawStateV1 {
+            position: 6.0,
+            ..Default::default()
         };
-        assert!(count_at(&arm, "wrist_yaw") && !count_at(&arm, "jaw"));
-        assert!(count_at(&jaw, "jaw") && !count_at(&jaw, "yaw\0"));
-        // The jaw's position is the 7th joint.
+        let mut e = Encoder::new(ArmFrames::new("PSM1", None));
+        let arm = e.joints(&js).body().to_vec();
+        let jaw = e.jaw(&jaw).body().to_vec();
+        let has = |b: &[u8], name: &str| b.windows(name.len()).any(|w| w == name.as_bytes());
+        assert!(has(&arm, "wrist_yaw") && !has(&arm, "jaw"));
+        assert!(has(&jaw, "jaw") && !has(&jaw, "yaw\0"));
         assert!(jaw.windows(8).any(|w| w == 6.0f64.to_le_bytes()));
     }
 }

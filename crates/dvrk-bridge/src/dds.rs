@@ -4,7 +4,7 @@
 use std::convert::Infallible;
 use std::net::IpAddr;
 
-use dvrk_ipc::{CompensationStatusV2, JointStateV1, PoseV1};
+use dvrk_ipc::{CompensationStatusV3, JawStateV1, JointStateV2, PoseV2};
 use rustdds::bytes::Bytes;
 use rustdds::no_key::{DataWriter, SerializerAdapter};
 use rustdds::policy::{Durability, History, Reliability};
@@ -179,23 +179,22 @@ impl DdsSink {
 }
 
 impl Sink for DdsSink {
-    fn pose(&mut self, p: &PoseV1) -> Result<(), BridgeError> {
-        for t in [OutTopic::LocalMeasuredCp, OutTopic::MeasuredCp] {
-            self.encoder.pose(t, p);
-            self.write(Self::index(t))?;
-        }
-        Ok(())
+    fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
+        self.encoder.pose(topic, p);
+        self.write(Self::index(topic))
     }
 
-    fn joints(&mut self, js: &JointStateV1) -> Result<(), BridgeError> {
-        for t in [OutTopic::MeasuredJs, OutTopic::JawMeasuredJs] {
-            self.encoder.joints(t, js);
-            self.write(Self::index(t))?;
-        }
-        Ok(())
+    fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
+        self.encoder.joints(js);
+        self.write(Self::index(topic))
     }
 
-    fn status(&mut self, s: &CompensationStatusV2) -> Result<(), BridgeError> {
+    fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError> {
+        self.encoder.jaw(jaw);
+        self.write(Self::index(topic))
+    }
+
+    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
         self.encoder.status(s);
         self.write(Self::index(OutTopic::Status))
     }

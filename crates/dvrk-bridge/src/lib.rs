@@ -7,17 +7,19 @@
 //!   `/PSM1/compensated/local/measured_cp` and `/PSM1/compensated/measured_cp`
 //!   (`geometry_msgs/PoseStamped`), `/PSM1/compensated/measured_js` (6 joints) and
 //!   `/PSM1/compensated/jaw/measured_js` (`sensor_msgs/JointState`), and
-//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]), with
+//!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]; the ROS 2
+//!   interface package is in `ros2/dvrk_sidecar_msgs` for a colcon workspace), with
 //!   RustDDS (RTPS in pure Rust) and hand-written CDR ([`cdr`]). QoS is ROS 2's sensor-data
 //!   profile by default. It never publishes under the console's own names.
-//! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads).
+//! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads),
+//!   and the uncompensated ones under the console's names (`/PSM1/measured_js`,
+//!   `/PSM1/local/measured_cp`, ...) unless told to keep to the compensated ones.
 //!
-//! Mapping from the shared memory of today (see [`convert`]): `local/measured_cp` is the
-//! sidecar's `compensated/measured_cp` (RCM frame); `measured_cp` is base frame × local, with an
-//! identity base frame until the configuration carries one; stamps are ROS time
-//! (CLOCK_REALTIME), converted from the CLOCK_MONOTONIC sample time with an offset measured at
-//! start, until the message header carries both clocks. Poses and joints of invalid cycles
-//! (`valid = 0`) are not published; the status of every cycle is.
+//! The shared memory already carries the dVRK's names and both clocks: each ROS 2 topic is the
+//! sidecar's topic of the same name (`compensated/measured_cp` is in the base frame the sidecar
+//! is configured with, `compensated/local/measured_cp` in the RCM frame), and the stamps are the
+//! headers' `sample_realtime_ns` (ROS time, read by the sidecar with the sample). Poses and
+//! joints of invalid cycles (`valid = 0`) are not published; the status of every cycle is.
 
 pub mod cdr;
 pub mod convert;
@@ -31,19 +33,22 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-pub use convert::{ArmFrames, ClockOffset, Decimator, Encoder, OutTopic, Transform};
+pub use convert::{ArmFrames, Decimator, Encoder, OutTopic, ros_time};
 pub use dds::{DdsOptions, DdsSink, QosProfile};
 pub use error::BridgeError;
 pub use record::McapSink;
-pub use source::{RunStats, ShmSource, Sink, measure_clock_offset};
+pub use source::{RunStats, ShmSource, Sink};
 
 /// What both bridges read.
 #[derive(Debug, Clone)]
 pub struct SourceOptions {
     /// Arm name: the ROS namespace and frame names (`PSM1`).
     pub arm: String,
-    /// Shared-memory prefix of the sidecar's services; `None`: `dvrk/<arm>`.
+    /// Shared-memory prefix of the sidecar's services; `None`: `<arm>`, as `serve` names them.
     pub shm_prefix: Option<String>,
+    /// Frame id of `measured_cp` (the console's reference frame of the arm's base frame, e.g.
+    /// `ECM`); `None`: `<arm>_base`.
+    pub base_frame_id: Option<String>,
     /// Publish at most this many cycles per second; `None`: every cycle.
     pub rate_hz: Option<f64>,
 }
@@ -51,9 +56,7 @@ pub struct SourceOptions {
 impl SourceOptions {
     /// The shared-memory prefix in use.
     pub fn shm_prefix(&self) -> String {
-        self.shm_prefix
-            .clone()
-            .unwrap_or_else(|| format!("dvrk/{}", self.arm))
+        self.shm_prefix.clone().unwrap_or_else(|| self.arm.clone())
     }
 
     fn validate(&self) -> Result<Option<u64>, BridgeError> {
@@ -70,13 +73,14 @@ impl SourceOptions {
     }
 
     fn encoder(&self) -> Result<Encoder, BridgeError> {
-        let clock = measure_clock_offset()?;
+        let frames = ArmFrames::new(&self.arm, self.base_frame_id.as_deref());
         tracing::info!(
-            "stamps are ROS time: the CLOCK_MONOTONIC sample time + {} ns (CLOCK_REALTIME - \
-             CLOCK_MONOTONIC, measured now); base frame: identity",
-            clock.realtime_minus_monotonic_ns
+            "stamps are the samples' ROS time (CLOCK_REALTIME, from the message headers); \
+             frames: local/measured_cp in {}, measured_cp in {}",
+            frames.local_frame_id,
+            frames.base_frame_id
         );
-        Ok(Encoder::new(ArmFrames::new(&self.arm), clock))
+        Ok(Encoder::new(frames))
     }
 }
 
@@ -110,7 +114,7 @@ pub fn run_ros2_bridge(
 ) -> Result<(RunStats, u64), BridgeError> {
     let period = src.validate()?;
     let mut sink = DdsSink::new(src.encoder()?, dds)?;
-    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-ros2-bridge")?;
+    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-ros2-bridge", false)?;
     tracing::info!(
         "ros2-bridge: {} -> DDS domain {} topics rt/{}/compensated/...",
         src.shm_prefix(),
@@ -127,6 +131,9 @@ pub struct RecordOptions {
     pub out: PathBuf,
     /// Stop after this long; `None`: until `stop`.
     pub seconds: Option<f64>,
+    /// Only the compensated topics; by default the uncompensated ones are recorded too, under
+    /// the console's names (`/PSM1/measured_js`, ...), so a recording holds both sides.
+    pub compensated_only: bool,
 }
 
 /// Records to an MCAP file until `stop` is raised or `--seconds` pass; returns the counters and
@@ -150,8 +157,9 @@ pub fn run_record(
             });
         }
     };
-    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record")?;
-    let mut sink = McapSink::create(src.encoder()?, &rec.out)?;
+    let raw = !rec.compensated_only;
+    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record", raw)?;
+    let mut sink = McapSink::create(src.encoder()?, &rec.out, raw)?;
     tracing::info!("record: {} -> {}", src.shm_prefix(), rec.out.display());
     match source.run(&mut sink, period, stop, until) {
         Ok(stats) => Ok((stats, sink.finish()?)),
@@ -184,12 +192,13 @@ mod tests {
         let mut s = SourceOptions {
             arm: "PSM1".into(),
             shm_prefix: None,
+            base_frame_id: None,
             rate_hz: Some(0.0),
         };
         let e = s.validate().unwrap_err().to_string();
         assert!(e.contains("--rate") && e.contains('0'), "{e}");
         s.rate_hz = Some(100.0);
         assert_eq!(s.validate().unwrap(), Some(10_000_000));
-        assert_eq!(s.shm_prefix(), "dvrk/PSM1");
+        assert_eq!(s.shm_prefix(), "PSM1");
     }
 }

@@ -124,4 +124,16 @@ mod tests {
             assert_eq!(t.dds_name, format!("{pkg}::{msg}::dds_::{ty}_"));
         }
     }
+
+    #[test]
+    fn the_ros2_interface_package_defines_the_same_status() {
+        // ros2/dvrk_sidecar_msgs, for labs that build it in their colcon workspace.
+        let file = include_str!("../../../ros2/dvrk_sidecar_msgs/msg/CompensationStatus.msg");
+        let own = COMPENSATION_STATUS
+            .schema
+            .split("\n====")
+            .next()
+            .unwrap_or_default();
+        assert_eq!(file.trim_end(), own.trim_end());
+    }
 }

@@ -6,15 +6,15 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use dvrk_ipc::{CompensationStatusV2, JointStateV1, PoseV1};
+use dvrk_ipc::{CompensationStatusV3, JawStateV1, JointStateV2, PoseV2};
 use mcap::records::MessageHeader;
 
 use crate::convert::{Encoder, OutTopic};
 use crate::error::BridgeError;
 use crate::source::Sink;
 
-/// An MCAP file being written: one channel per [`OutTopic`], named by its ROS 2 topic name
-/// (`/PSM1/compensated/local/measured_cp`).
+/// An MCAP file being written: one channel per recorded [`OutTopic`], named by its ROS 2 topic
+/// name (`/PSM1/compensated/local/measured_cp`, `/PSM1/measured_js`).
 ///
 /// The file is written as `.<name>.partial` beside the target and renamed to it by
 /// [`McapSink::finish`], so a reader never sees a file without its summary; [`McapSink::abandon`]
@@ -27,7 +27,8 @@ pub struct McapSink {
     path: PathBuf,
     tmp: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
-    channels: [u16; OutTopic::ALL.len()],
+    /// Channel of each topic of [`OutTopic::RECORDED`] that is recorded.
+    channels: [Option<u16>; OutTopic::RECORDED.len()],
     payload: Vec<u8>,
     written: u64,
 }
@@ -42,8 +43,9 @@ impl core::fmt::Debug for McapSink {
 }
 
 impl McapSink {
-    /// Starts the file that will become `path` and registers the schemas and channels.
-    pub fn create(encoder: Encoder, path: &Path) -> Result<Self, BridgeError> {
+    /// Starts the file that will become `path` and registers the schemas and the channels of
+    /// the compensated topics and, with `raw`, of the uncompensated ones.
+    pub fn create(encoder: Encoder, path: &Path, raw: bool) -> Result<Self, BridgeError> {
         let Some(name) = path.file_name() else {
             return Err(BridgeError::InvalidArgument {
                 what: "--out",
@@ -65,20 +67,33 @@ impl McapSink {
             .profile("ros2")
             .create(BufWriter::new(file))
             .map_err(&mcap_err)?;
-        let mut channels = [0u16; OutTopic::ALL.len()];
-        for (i, t) in OutTopic::ALL.into_iter().enumerate() {
+        let mut channels = [None; OutTopic::RECORDED.len()];
+        let mut schemas: BTreeMap<&str, u16> = BTreeMap::new();
+        for (i, t) in OutTopic::RECORDED.into_iter().enumerate() {
+            if t.is_raw() && !raw {
+                continue;
+            }
             let ty = t.msg_type();
-            let schema = writer
-                .add_schema(ty.ros_name, "ros2msg", ty.schema.as_bytes())
-                .map_err(mcap_err)?;
-            channels[i] = writer
-                .add_channel(
-                    schema,
-                    &t.ros_name(&encoder.frames.arm),
-                    "cdr",
-                    &BTreeMap::new(),
-                )
-                .map_err(mcap_err)?;
+            let schema = match schemas.get(ty.ros_name) {
+                Some(&id) => id,
+                None => {
+                    let id = writer
+                        .add_schema(ty.ros_name, "ros2msg", ty.schema.as_bytes())
+                        .map_err(mcap_err)?;
+                    schemas.insert(ty.ros_name, id);
+                    id
+                }
+            };
+            channels[i] = Some(
+                writer
+                    .add_channel(
+                        schema,
+                        &t.ros_name(&encoder.frames.arm),
+                        "cdr",
+                        &BTreeMap::new(),
+                    )
+                    .map_err(mcap_err)?,
+            );
         }
         Ok(McapSink {
             encoder,
@@ -145,8 +160,15 @@ impl McapSink {
     }
 
     fn write(&mut self, t: OutTopic, header: &dvrk_ipc::Header) -> Result<(), BridgeError> {
-        let i = OutTopic::ALL.iter().position(|&x| x == t).unwrap_or(0);
-        let stamp = self.encoder.stamp(header).as_unix_ns();
+        let Some(channel_id) = OutTopic::RECORDED
+            .iter()
+            .position(|&x| x == t)
+            .and_then(|i| self.channels[i])
+        else {
+            // A topic without a channel (raw while recording compensated only): not recorded.
+            return Ok(());
+        };
+        let stamp = crate::convert::ros_time(header).as_unix_ns();
         let time = u64::try_from(stamp).unwrap_or(0);
         self.payload.clear();
         self.payload
@@ -155,7 +177,7 @@ impl McapSink {
         self.writer
             .write_to_known_channel(
                 &MessageHeader {
-                    channel_id: self.channels[i],
+                    channel_id,
                     sequence: header.seq as u32,
                     log_time: time,
                     publish_time: time,
@@ -172,23 +194,22 @@ impl McapSink {
 }
 
 impl Sink for McapSink {
-    fn pose(&mut self, p: &PoseV1) -> Result<(), BridgeError> {
-        for t in [OutTopic::LocalMeasuredCp, OutTopic::MeasuredCp] {
-            self.encoder.pose(t, p);
-            self.write(t, &p.header)?;
-        }
-        Ok(())
+    fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
+        self.encoder.pose(topic, p);
+        self.write(topic, &p.header)
     }
 
-    fn joints(&mut self, js: &JointStateV1) -> Result<(), BridgeError> {
-        for t in [OutTopic::MeasuredJs, OutTopic::JawMeasuredJs] {
-            self.encoder.joints(t, js);
-            self.write(t, &js.header)?;
-        }
-        Ok(())
+    fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
+        self.encoder.joints(js);
+        self.write(topic, &js.header)
     }
 
-    fn status(&mut self, s: &CompensationStatusV2) -> Result<(), BridgeError> {
+    fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError> {
+        self.encoder.jaw(jaw);
+        self.write(topic, &jaw.header)
+    }
+
+    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
         self.encoder.status(s);
         self.write(OutTopic::Status, &s.header)
     }

@@ -9,21 +9,25 @@ use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::port::subscriber::Subscriber;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV2, JointStateV1, Message, NOMINAL_PERIOD, PoseV1, ServiceNames,
+    CompensationStatusV3, JawStateV1, JointStateV2, Message, NOMINAL_PERIOD, PoseV2, ServiceNames,
     Subscription, Topic, Update,
 };
 
-use crate::convert::{ClockOffset, Decimator};
+use crate::convert::{Decimator, OutTopic};
 use crate::error::BridgeError;
 
 /// Where the samples go.
 pub trait Sink {
-    /// A compensated pose (RCM frame) of a valid cycle.
-    fn pose(&mut self, p: &PoseV1) -> Result<(), BridgeError>;
-    /// Compensated joints of a valid cycle.
-    fn joints(&mut self, js: &JointStateV1) -> Result<(), BridgeError>;
+    /// A pose of a valid cycle: `topic` is [`OutTopic::LocalMeasuredCp`] (RCM frame),
+    /// [`OutTopic::MeasuredCp`] (base frame) or their raw counterparts.
+    fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError>;
+    /// Joints of a valid cycle: `topic` is [`OutTopic::MeasuredJs`] (compensated) or
+    /// [`OutTopic::RawMeasuredJs`].
+    fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError>;
+    /// The jaw of a valid cycle: [`OutTopic::JawMeasuredJs`] or [`OutTopic::RawJawMeasuredJs`].
+    fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError>;
     /// The status of every cycle, valid or not.
-    fn status(&mut self, s: &CompensationStatusV2) -> Result<(), BridgeError>;
+    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError>;
 }
 
 /// Silence after which the run logs that no samples arrive (once per silence).
@@ -45,21 +49,122 @@ pub struct RunStats {
     pub shm_seq_gaps: u64,
 }
 
-/// Subscriptions to `compensated/measured_cp` (woken by the cycle event),
-/// `compensated/measured_js` and `compensated/status` of one arm.
+/// One topic taken without waking: its subscriber and the samples waiting for their cycle's
+/// `local/measured_cp`.
+struct Pending<T: Message> {
+    topic: Topic,
+    sub: Subscriber<Service, T, ()>,
+    items: Vec<T>,
+    /// Last seq seen and seqs skipped.
+    gaps: (Option<u64>, u64),
+}
+
+impl<T: Message> Pending<T> {
+    fn new(node: &Node<Service>, names: &ServiceNames, topic: Topic) -> Result<Self, BridgeError> {
+        Ok(Pending {
+            topic,
+            sub: subscriber::<T>(node, names, topic)?,
+            items: Vec::with_capacity(PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            gaps: (None, 0),
+        })
+    }
+
+    fn take(&mut self, names: &ServiceNames) -> Result<(), BridgeError> {
+        take_into(
+            &self.sub,
+            &mut self.items,
+            names,
+            self.topic,
+            &mut self.gaps,
+        )
+    }
+
+    fn first_seq(&self) -> Option<u64> {
+        self.items.first().map(|m| m.header().seq)
+    }
+
+    fn keep_from(&mut self, start: u64) {
+        self.items.retain(|m| m.header().seq >= start);
+    }
+}
+
+/// The four uncompensated topics, when they are passed on too.
+struct RawSubs {
+    local: Pending<PoseV2>,
+    base: Pending<PoseV2>,
+    joints: Pending<JointStateV2>,
+    jaw: Pending<JawStateV1>,
+}
+
+impl RawSubs {
+    fn new(node: &Node<Service>, names: &ServiceNames) -> Result<Self, BridgeError> {
+        Ok(RawSubs {
+            local: Pending::new(node, names, Topic::LocalMeasuredCp)?,
+            base: Pending::new(node, names, Topic::MeasuredCp)?,
+            joints: Pending::new(node, names, Topic::MeasuredJs)?,
+            jaw: Pending::new(node, names, Topic::JawMeasuredJs)?,
+        })
+    }
+
+    fn take(&mut self, names: &ServiceNames) -> Result<(), BridgeError> {
+        self.local.take(names)?;
+        self.base.take(names)?;
+        self.joints.take(names)?;
+        self.jaw.take(names)
+    }
+
+    fn first_seqs(&self) -> [Option<u64>; 4] {
+        [
+            self.local.first_seq(),
+            self.base.first_seq(),
+            self.joints.first_seq(),
+            self.jaw.first_seq(),
+        ]
+    }
+
+    fn keep_from(&mut self, start: u64) {
+        self.local.keep_from(start);
+        self.base.keep_from(start);
+        self.joints.keep_from(start);
+        self.jaw.keep_from(start);
+    }
+
+    fn clear(&mut self) {
+        self.local.items.clear();
+        self.base.items.clear();
+        self.joints.items.clear();
+        self.jaw.items.clear();
+    }
+
+    fn gaps(&self) -> u64 {
+        [
+            self.local.gaps.1,
+            self.base.gaps.1,
+            self.joints.gaps.1,
+            self.jaw.gaps.1,
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(0)
+    }
+}
+
+/// Subscriptions to the sidecar's topics of one arm: `compensated/local/measured_cp` (woken by
+/// the cycle event) and, taken at the same wake, `compensated/measured_cp`,
+/// `compensated/measured_js`, `compensated/jaw/measured_js`, `compensated/status` and, when
+/// asked for, the four uncompensated topics.
 pub struct ShmSource {
     names: ServiceNames,
-    pose: Subscription<PoseV1, Service>,
-    joints: Subscriber<Service, JointStateV1, ()>,
-    status: Subscriber<Service, CompensationStatusV2, ()>,
-    poses: Vec<PoseV1>,
-    pending_joints: Vec<JointStateV1>,
-    pending_status: Vec<CompensationStatusV2>,
+    pose: Subscription<PoseV2, Service>,
+    base_pose: Pending<PoseV2>,
+    joints: Pending<JointStateV2>,
+    jaw: Pending<JawStateV1>,
+    status: Pending<CompensationStatusV3>,
+    raw: Option<RawSubs>,
+    poses: Vec<PoseV2>,
     upto_seq: Option<u64>,
     /// First cycle passed on (see [`ShmSource::run`]).
     start_seq: Option<u64>,
-    /// Last seq and seqs skipped, of joints and status.
-    gaps: [(Option<u64>, u64); 2],
     // Kept last: the ports above borrow nothing from it, but are dropped before it.
     _node: Node<Service>,
 }
@@ -87,36 +192,45 @@ fn subscriber<T: Message>(
 }
 
 impl ShmSource {
-    /// Subscribes under the shared-memory prefix `shm_prefix` (e.g. `dvrk/PSM1`) with an
-    /// iceoryx2 node named `node_name`.
-    pub fn new(shm_prefix: &str, node_name: &str) -> Result<Self, BridgeError> {
+    /// Subscribes under the shared-memory prefix `shm_prefix` (e.g. `PSM1`) with an iceoryx2
+    /// node named `node_name`; `raw`: also the uncompensated topics ([`OutTopic::RAW`]).
+    pub fn new(shm_prefix: &str, node_name: &str, raw: bool) -> Result<Self, BridgeError> {
         let names = ServiceNames::new(shm_prefix)?;
         let node = dvrk_ipc::create_node::<Service>(node_name, None)?;
-        let pose = Subscription::<PoseV1, Service>::new(
+        let pose = Subscription::<PoseV2, Service>::new(
             &node,
             &names,
-            Topic::CompensatedMeasuredCp,
+            Topic::CompensatedLocalMeasuredCp,
             NOMINAL_PERIOD,
         )?;
-        let joints = subscriber::<JointStateV1>(&node, &names, Topic::CompensatedMeasuredJs)?;
-        let status = subscriber::<CompensationStatusV2>(&node, &names, Topic::CompensatedStatus)?;
         Ok(ShmSource {
+            base_pose: Pending::new(&node, &names, Topic::CompensatedMeasuredCp)?,
+            joints: Pending::new(&node, &names, Topic::CompensatedMeasuredJs)?,
+            jaw: Pending::new(&node, &names, Topic::CompensatedJawMeasuredJs)?,
+            status: Pending::new(&node, &names, Topic::CompensatedStatus)?,
+            raw: if raw {
+                Some(RawSubs::new(&node, &names)?)
+            } else {
+                None
+            },
             names,
             pose,
-            joints,
-            status,
             poses: Vec::with_capacity(dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
-            pending_joints: Vec::with_capacity(
-                PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE,
-            ),
-            pending_status: Vec::with_capacity(
-                PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE,
-            ),
             upto_seq: None,
             start_seq: None,
-            gaps: [(None, 0); 2],
             _node: node,
         })
+    }
+
+    fn clear_pending(&mut self) {
+        self.poses.clear();
+        self.base_pose.items.clear();
+        self.joints.items.clear();
+        self.jaw.items.clear();
+        self.status.items.clear();
+        if let Some(r) = &mut self.raw {
+            r.clear();
+        }
     }
 
     /// Passes every cycle to `sink` until `stop` is raised or `until` passes. `rate_period_ns`
@@ -129,7 +243,7 @@ impl ShmSource {
         until: Option<Instant>,
     ) -> Result<RunStats, BridgeError> {
         let mut stats = RunStats::default();
-        let mut dec = [Decimator::new(rate_period_ns); 3];
+        let mut dec = [Decimator::new(rate_period_ns); 9];
         let mut silent_since: Option<Instant> = None;
         while !stop.load(Ordering::Relaxed) && until.is_none_or(|u| Instant::now() < u) {
             self.poses.clear();
@@ -140,7 +254,7 @@ impl ShmSource {
                     .map_err(|source| BridgeError::Wait {
                         service: self
                             .names
-                            .topic(Topic::CompensatedMeasuredCp)
+                            .topic(Topic::CompensatedLocalMeasuredCp)
                             .as_str()
                             .to_owned(),
                         source,
@@ -172,22 +286,15 @@ impl ShmSource {
                 }
                 Update::Interrupted => {}
             }
-            // Take the three topics together, before any (slow) sink call, so that a bridge that
-            // falls behind loses the same cycles on all of them.
-            take_into(
-                &self.joints,
-                &mut self.pending_joints,
-                &self.names,
-                Topic::CompensatedMeasuredJs,
-                &mut self.gaps[0],
-            )?;
-            take_into(
-                &self.status,
-                &mut self.pending_status,
-                &self.names,
-                Topic::CompensatedStatus,
-                &mut self.gaps[1],
-            )?;
+            // Take all topics together, before any (slow) sink call, so that a bridge that falls
+            // behind loses the same cycles on all of them.
+            self.base_pose.take(&self.names)?;
+            self.joints.take(&self.names)?;
+            self.jaw.take(&self.names)?;
+            self.status.take(&self.names)?;
+            if let Some(r) = &mut self.raw {
+                r.take(&self.names)?;
+            }
             // A serve that restarted before the subscription noticed starts its seq at 1 again:
             // drop this wake's samples (they may mix both runs) and align anew.
             if let (Some(p), Some(u)) = (self.poses.first(), self.upto_seq)
@@ -195,63 +302,125 @@ impl ShmSource {
             {
                 self.start_seq = None;
                 self.upto_seq = None;
-                self.poses.clear();
-                self.pending_joints.clear();
-                self.pending_status.clear();
+                self.clear_pending();
             }
-            // The three subscribers connect one after the other, so the first samples of the pose
-            // may be older than those of the others: start at the first cycle all three have.
+            // The subscribers connect one after the other, so the first samples of the pose may
+            // be older than those of the others: start at the first cycle all of them have.
             if self.start_seq.is_none() {
-                match (
-                    self.poses.first(),
-                    self.pending_joints.first(),
-                    self.pending_status.first(),
-                ) {
-                    (Some(p), Some(j), Some(s)) => {
-                        self.start_seq = Some(p.header.seq.max(j.header.seq).max(s.header.seq));
-                    }
-                    _ => {
-                        self.poses.clear();
-                        self.pending_joints.clear();
-                        self.pending_status.clear();
-                    }
+                let firsts = [
+                    self.poses.first().map(|p| p.header.seq),
+                    self.base_pose.first_seq(),
+                    self.joints.first_seq(),
+                    self.jaw.first_seq(),
+                    self.status.first_seq(),
+                ];
+                let raw_firsts = self.raw.as_ref().map(RawSubs::first_seqs);
+                let raw_ok = raw_firsts.is_none_or(|f| f.iter().all(Option::is_some));
+                if firsts.iter().all(Option::is_some) && raw_ok {
+                    self.start_seq = firsts
+                        .iter()
+                        .chain(raw_firsts.iter().flatten())
+                        .flatten()
+                        .max()
+                        .copied();
+                } else {
+                    self.clear_pending();
                 }
             }
             let start = self.start_seq.unwrap_or(u64::MAX);
-            self.pending_joints.retain(|m| m.header.seq >= start);
-            self.pending_status.retain(|m| m.header.seq >= start);
+            self.base_pose.keep_from(start);
+            self.joints.keep_from(start);
+            self.jaw.keep_from(start);
+            self.status.keep_from(start);
+            if let Some(r) = &mut self.raw {
+                r.keep_from(start);
+            }
             for p in self.poses.iter().filter(|p| p.header.seq >= start) {
                 if !dec[0].accept(p.header.sample_t_ns) {
                     continue;
                 }
                 if p.header.valid != 0 {
-                    sink.pose(p)?;
+                    sink.pose(OutTopic::LocalMeasuredCp, p)?;
                 } else {
                     stats.invalid_skipped += 1;
                 }
             }
-            // Joints and status of a cycle are passed on once its pose was taken, so that a run
-            // that stops between two drains writes whole cycles only.
+            // The other topics of a cycle are passed on once its local pose was taken, so that a
+            // run that stops between two drains writes whole cycles only.
             if let Some(p) = self.poses.last().filter(|p| p.header.seq >= start) {
                 self.upto_seq = Some(p.header.seq);
             }
             let upto = self.upto_seq;
             let mut err = None;
-            release(&mut self.pending_joints, upto, |js| {
-                if err.is_some() || !dec[1].accept(js.header.sample_t_ns) {
+            release(&mut self.base_pose.items, upto, |p| {
+                if err.is_some() || !dec[1].accept(p.header.sample_t_ns) {
                     return;
                 }
-                if js.header.valid != 0 {
-                    err = sink.joints(js).err();
+                if p.header.valid != 0 {
+                    err = sink.pose(OutTopic::MeasuredCp, p).err();
                 } else {
                     stats.invalid_skipped += 1;
                 }
             });
-            release(&mut self.pending_status, upto, |st| {
+            release(&mut self.joints.items, upto, |js| {
+                if err.is_some() || !dec[2].accept(js.header.sample_t_ns) {
+                    return;
+                }
+                if js.header.valid != 0 {
+                    err = sink.joints(OutTopic::MeasuredJs, js).err();
+                } else {
+                    stats.invalid_skipped += 1;
+                }
+            });
+            release(&mut self.jaw.items, upto, |jaw| {
+                if err.is_some() || !dec[3].accept(jaw.header.sample_t_ns) {
+                    return;
+                }
+                if jaw.header.valid != 0 {
+                    err = sink.jaw(OutTopic::JawMeasuredJs, jaw).err();
+                } else {
+                    stats.invalid_skipped += 1;
+                }
+            });
+            if let Some(r) = &mut self.raw {
+                let mut valid = |h: &dvrk_ipc::Header, d: &mut Decimator| {
+                    if !d.accept(h.sample_t_ns) {
+                        return false;
+                    }
+                    if h.valid == 0 {
+                        stats.invalid_skipped += 1;
+                    }
+                    h.valid != 0
+                };
+                let [d5, d6, d7, d8] = &mut dec[5..9] else {
+                    unreachable!("nine decimators")
+                };
+                release(&mut r.local.items, upto, |p| {
+                    if err.is_none() && valid(&p.header, d5) {
+                        err = sink.pose(OutTopic::RawLocalMeasuredCp, p).err();
+                    }
+                });
+                release(&mut r.base.items, upto, |p| {
+                    if err.is_none() && valid(&p.header, d6) {
+                        err = sink.pose(OutTopic::RawMeasuredCp, p).err();
+                    }
+                });
+                release(&mut r.joints.items, upto, |js| {
+                    if err.is_none() && valid(&js.header, d7) {
+                        err = sink.joints(OutTopic::RawMeasuredJs, js).err();
+                    }
+                });
+                release(&mut r.jaw.items, upto, |jaw| {
+                    if err.is_none() && valid(&jaw.header, d8) {
+                        err = sink.jaw(OutTopic::RawJawMeasuredJs, jaw).err();
+                    }
+                });
+            }
+            release(&mut self.status.items, upto, |st| {
                 if err.is_some() {
                     return;
                 }
-                if !dec[2].accept(st.header.sample_t_ns) {
+                if !dec[4].accept(st.header.sample_t_ns) {
                     stats.decimated += 1;
                     return;
                 }
@@ -261,12 +430,17 @@ impl ShmSource {
             if let Some(e) = err {
                 return Err(e);
             }
-            stats.shm_seq_gaps = self
-                .pose
-                .stats()
-                .seq_gaps_total
-                .max(self.gaps[0].1)
-                .max(self.gaps[1].1);
+            stats.shm_seq_gaps = [
+                self.pose.stats().seq_gaps_total,
+                self.base_pose.gaps.1,
+                self.joints.gaps.1,
+                self.jaw.gaps.1,
+                self.status.gaps.1,
+                self.raw.as_ref().map_or(0, RawSubs::gaps),
+            ]
+            .into_iter()
+            .max()
+            .unwrap_or(0);
         }
         Ok(stats)
     }
@@ -323,40 +497,4 @@ fn release<T: Message>(pending: &mut Vec<T>, upto: Option<u64>, mut f: impl FnMu
             true
         }
     });
-}
-
-/// Measures `CLOCK_REALTIME - CLOCK_MONOTONIC`: the tightest of a few back-to-back readings
-/// (monotonic, realtime, monotonic), taking the midpoint of the monotonic pair.
-pub fn measure_clock_offset() -> Result<ClockOffset, BridgeError> {
-    let mut best: Option<(i64, i64)> = None; // (window ns, offset ns)
-    for _ in 0..16 {
-        let m0 = read_clock(libc::CLOCK_MONOTONIC, "CLOCK_MONOTONIC")?;
-        let r = read_clock(libc::CLOCK_REALTIME, "CLOCK_REALTIME")?;
-        let m1 = read_clock(libc::CLOCK_MONOTONIC, "CLOCK_MONOTONIC")?;
-        let window = m1 - m0;
-        let offset = r - (m0 + window / 2);
-        if best.is_none_or(|(w, _)| window < w) {
-            best = Some((window, offset));
-        }
-    }
-    let (_, offset) = best.unwrap_or((0, 0));
-    Ok(ClockOffset {
-        realtime_minus_monotonic_ns: offset,
-    })
-}
-
-fn read_clock(id: libc::clockid_t, name: &'static str) -> Result<i64, BridgeError> {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec.
-    let rc = unsafe { libc::clock_gettime(id, &mut ts) };
-    if rc != 0 {
-        return Err(BridgeError::Clock {
-            clock: name,
-            source: std::io::Error::last_os_error(),
-        });
-    }
-    Ok(ts.tv_sec * 1_000_000_000 + ts.tv_nsec)
 }

@@ -1,4 +1,4 @@
-//! Per-cycle cost of `ArmPublisher::publish_cycle` (five loans + writes + sends, one notify),
+//! Per-cycle cost of `ArmPublisher::publish_cycle` (nine loans + writes + sends, one notify),
 //! with 0, 1, 4 and 16 in-process subscriptions of each kind: `spin` (no listener on the cycle
 //! event) and `event` (a listener, drained every cycle as an event or predictive subscriber
 //! drains it before it sleeps: to the publisher both kinds are one listener).
@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, ServiceNames, SubscribeOptions,
-    Subscription, Topic, WaitStrategy, create_node, domain_config,
+    ArmPublisher, CycleMessages, Header, PoseV2, ServiceNames, SubscribeOptions, Subscription,
+    Topic, WaitStrategy, create_node, domain_config,
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -50,7 +50,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         };
         let mut subs = (0..n_subs)
             .map(|_| {
-                Subscription::<PoseV1>::with_options(
+                Subscription::<PoseV2>::with_options(
                     &node,
                     &names,
                     Topic::CompensatedMeasuredCp,
@@ -59,17 +59,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect::<Result<Vec<_>, _>>()?;
         let publisher = ArmPublisher::create(&node, &names)?;
-        let mut js = JointStateV1::default();
-        let mut cp = PoseV1::default();
-        let mut st = CompensationStatusV2::default();
+        let mut cycle = CycleMessages::default();
         let mut samples = Vec::with_capacity(cycles);
         for i in 0..(cycles + 1000) {
             let seq = i as u64 + 1;
-            js.header.seq = seq;
-            cp.header.seq = seq;
-            st.header.seq = seq;
+            cycle.set_header(Header {
+                seq,
+                ..Header::default()
+            });
             let t0 = Instant::now();
-            publisher.publish_cycle(&js, &cp, &js, &cp, &st)?;
+            publisher.publish_cycle(&cycle)?;
             let dt = t0.elapsed();
             if i >= 1000 {
                 samples.push(dt.as_nanos() as u64);

@@ -1,21 +1,21 @@
 //! A synthetic arm publisher for trying consumers (the Python subscriber, `echo`, C/C++ code)
-//! without the sidecar: it publishes all five topics and the cycle event like `serve` does, with
+//! without the sidecar: it publishes all nine topics and the cycle event like `serve` does, with
 //! made-up joint motion.
 //!
 //! ```text
-//! cargo run -p dvrk-ipc --example publisher -- [--prefix dvrk/PSM1] [--rate-hz 200]
+//! cargo run -p dvrk-ipc --example publisher -- [--prefix PSM1] [--rate-hz 200]
 //!     [--count 0 (forever)] [--domain PREFIX --root /tmp/iox2t/] [--wait-subscribers N]
 //! ```
 //! `--domain`/`--root` select an isolated iceoryx2 domain (see `dvrk_ipc::domain_config`);
 //! `--wait-subscribers N` waits until N subscribers are connected to
-//! `compensated/measured_cp` before the first cycle.
+//! `compensated/local/measured_cp` before the first cycle.
 
 use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, Header, JointStateV1, PoseV1, ServiceNames, Topic,
-    create_node, domain_config, flags,
+    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2,
+    PoseV2, ServiceNames, Topic, create_node, domain_config, flags,
 };
 
 fn monotonic_ns() -> u64 {
@@ -85,7 +85,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let node = create_node::<ipc::Service>("example_publisher", config.as_ref())?;
     let names = ServiceNames::new(&args.prefix)?;
     let publisher = ArmPublisher::create(&node, &names)?;
-    while publisher.number_of_subscribers(Topic::CompensatedMeasuredCp) < args.wait_subscribers {
+    while publisher.number_of_subscribers(Topic::CompensatedLocalMeasuredCp) < args.wait_subscribers
+    {
         std::thread::sleep(Duration::from_millis(1));
     }
     eprintln!("publishing under {} at {} Hz", names.prefix(), args.rate_hz);
@@ -101,6 +102,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut header = Header {
             seq,
             sample_t_ns,
+            sample_realtime_ns: dvrk_ipc::clock::realtime_at(sample_t_ns),
             board_timestamp: Header::pack_board_timestamps([seq as u32, seq as u32]),
             publish_t_ns: 0,
             valid: 1,
@@ -113,8 +115,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             0.1 * t.sin(),
             0.0,
             0.0,
-            0.2,
         ];
+        let jaw = JawStateV1 {
+            header,
+            position: 0.2,
+            velocity: 0.0,
+            effort: 0.0,
+        };
         let delta = [0.004 * (0.5 * t).cos(), -0.003];
         let mut qc = q;
         qc[0] -= delta[0];
@@ -124,17 +131,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         header.flags |= flags::CORRECTION_ACTIVE_J2;
         header.publish_t_ns = monotonic_ns();
-        let js = JointStateV1 {
+        let js = JointStateV2 {
             header,
             position: q,
-            velocity: [0.0; 7],
-            effort: [0.05, -0.08, 0.5, 0.0, 0.0, 0.0, 0.0],
+            velocity: [0.0; 6],
+            effort: [0.05, -0.08, 0.5, 0.0, 0.0, 0.0],
         };
-        let cjs = JointStateV1 { position: qc, ..js };
+        let cjs = JointStateV2 { position: qc, ..js };
         // A crude "tip": insertion along a direction set by yaw and pitch (not PSM kinematics).
-        let tip = |q: &[f64; 7]| -> PoseV1 {
+        let tip = |q: &[f64; 6]| -> PoseV2 {
             let (rotation, orientation_xyzw) = rot_z(q[3]);
-            PoseV1 {
+            PoseV2 {
                 header,
                 position_m: [
                     q[2] * q[0].sin(),
@@ -145,7 +152,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 rotation,
             }
         };
-        let status = CompensationStatusV2 {
+        let status = CompensationStatusV3 {
             header,
             tau_ext_nm: [0.05, -0.08],
             delta_rad: delta,
@@ -163,7 +170,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ..Default::default()
         };
         last_sample_t_ns = sample_t_ns;
-        publisher.publish_cycle(&js, &tip(&q), &cjs, &tip(&qc), &status)?;
+        // The example's base frame is the identity: measured_cp equals local/measured_cp.
+        let cycle = CycleMessages {
+            measured: ArmState {
+                measured_js: js,
+                jaw_measured_js: jaw,
+                local_measured_cp: tip(&q),
+                measured_cp: tip(&q),
+            },
+            compensated: ArmState {
+                measured_js: cjs,
+                jaw_measured_js: jaw,
+                local_measured_cp: tip(&qc),
+                measured_cp: tip(&qc),
+            },
+            status,
+        };
+        publisher.publish_cycle(&cycle)?;
         next += period;
         let now = std::time::Instant::now();
         if next > now {

@@ -6,18 +6,24 @@
  * Rust types. Change both together, and bump the V<n> of the type name on any layout change:
  * iceoryx2 compares only the type name, size and alignment.
  *
- * Services (prefix default "dvrk/PSM1", user header: none, i.e. Rust "()" of size 0, align 1):
- *   <prefix>/measured_js              dvrk_JointStateV1   "dvrk::JointStateV1"
- *   <prefix>/measured_cp              dvrk_PoseV1         "dvrk::PoseV1"
- *   <prefix>/compensated/measured_js  dvrk_JointStateV1
- *   <prefix>/compensated/measured_cp  dvrk_PoseV1
- *   <prefix>/compensated/status       dvrk_CompensationStatusV2 "dvrk::CompensationStatusV2"
- *   <prefix>/cycle                    event, notified once per cycle after the five messages
+ * Services, named as the dVRK 2.x console names its topics (prefix = the arm's name, default
+ * "PSM1"; user header: none, i.e. Rust "()" of size 0, align 1):
+ *   <prefix>/measured_js                    dvrk_JointStateV2  "dvrk::JointStateV2" (6 joints)
+ *   <prefix>/jaw/measured_js                dvrk_JawStateV1    "dvrk::JawStateV1"
+ *   <prefix>/local/measured_cp              dvrk_PoseV2        "dvrk::PoseV2" (RCM frame)
+ *   <prefix>/measured_cp                    dvrk_PoseV2        (base frame)
+ *   <prefix>/compensated/measured_js        dvrk_JointStateV2
+ *   <prefix>/compensated/jaw/measured_js    dvrk_JawStateV1
+ *   <prefix>/compensated/local/measured_cp  dvrk_PoseV2
+ *   <prefix>/compensated/measured_cp        dvrk_PoseV2
+ *   <prefix>/compensated/status             dvrk_CompensationStatusV3 "dvrk::CompensationStatusV3"
+ *   <prefix>/cycle                          event, notified once per cycle after the nine messages
  *
  * Open or create every service with the DVRK_IPC_QOS_* values below: whichever process creates
  * a service first fixes its QoS, and an opener that asks for more fails.
  *
- * Units are SI (m, rad, N.m, N); *_t_ns are host CLOCK_MONOTONIC nanoseconds.
+ * Units are SI (m, rad, N.m, N); *_t_ns are host CLOCK_MONOTONIC nanoseconds;
+ * sample_realtime_ns is host CLOCK_REALTIME (ROS time) nanoseconds since the Unix epoch.
  */
 #ifndef DVRK_IPC_H
 #define DVRK_IPC_H
@@ -34,10 +40,14 @@ extern "C" {
 
 /* ---- services and QoS --------------------------------------------------------------------- */
 
-#define DVRK_IPC_DEFAULT_PREFIX "dvrk/PSM1"
+#define DVRK_IPC_DEFAULT_PREFIX "PSM1"
 #define DVRK_IPC_SUFFIX_MEASURED_JS "measured_js"
+#define DVRK_IPC_SUFFIX_JAW_MEASURED_JS "jaw/measured_js"
+#define DVRK_IPC_SUFFIX_LOCAL_MEASURED_CP "local/measured_cp"
 #define DVRK_IPC_SUFFIX_MEASURED_CP "measured_cp"
 #define DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_JS "compensated/measured_js"
+#define DVRK_IPC_SUFFIX_COMPENSATED_JAW_MEASURED_JS "compensated/jaw/measured_js"
+#define DVRK_IPC_SUFFIX_COMPENSATED_LOCAL_MEASURED_CP "compensated/local/measured_cp"
 #define DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_CP "compensated/measured_cp"
 #define DVRK_IPC_SUFFIX_COMPENSATED_STATUS "compensated/status"
 #define DVRK_IPC_SUFFIX_CYCLE "cycle"
@@ -59,15 +69,18 @@ extern "C" {
 
 /* ---- type names (iceoryx2 payload type details) -------------------------------------------- */
 
-#define DVRK_IPC_TYPE_NAME_JOINT_STATE_V1 "dvrk::JointStateV1"
-#define DVRK_IPC_TYPE_NAME_POSE_V1 "dvrk::PoseV1"
-#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V2 "dvrk::CompensationStatusV2"
+#define DVRK_IPC_TYPE_NAME_JOINT_STATE_V2 "dvrk::JointStateV2"
+#define DVRK_IPC_TYPE_NAME_JAW_STATE_V1 "dvrk::JawStateV1"
+#define DVRK_IPC_TYPE_NAME_POSE_V2 "dvrk::PoseV2"
+#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V3 "dvrk::CompensationStatusV3"
 
 /* ---- joints ---------------------------------------------------------------------------------- */
 
-#define DVRK_IPC_NUM_JOINTS 7
-/* Joint order: 0 yaw, 1 pitch, 2 insertion (m), 3 roll, 4 wrist_pitch, 5 wrist_yaw, 6 jaw. */
-#define DVRK_IPC_JOINT_NAMES {"yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw", "jaw"}
+#define DVRK_IPC_NUM_JOINTS 6
+/* Joint order: 0 yaw, 1 pitch, 2 insertion (m), 3 roll, 4 wrist_pitch, 5 wrist_yaw. */
+#define DVRK_IPC_JOINT_NAMES {"yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw"}
+/* The single joint of jaw/measured_js. */
+#define DVRK_IPC_JAW_NAME "jaw"
 
 /* ---- flags (dvrk_Header.flags) -------------------------------------------------------------- */
 
@@ -89,11 +102,13 @@ extern "C" {
 
 /* ---- messages -------------------------------------------------------------------------------- */
 
-/* Common header. seq is equal in all five messages of a cycle. board_timestamp: first board's
+/* Common header. seq is equal in all nine messages of a cycle. sample_realtime_ns is the
+ * CLOCK_REALTIME (ROS) time of the same instant as sample_t_ns. board_timestamp: first board's
  * counter in the low 32 bits, second board's in the high 32 bits. valid: 1 or 0. */
 typedef struct dvrk_Header {
     uint64_t seq;
     uint64_t sample_t_ns;
+    uint64_t sample_realtime_ns;
     uint64_t board_timestamp;
     uint64_t publish_t_ns;
     uint32_t valid;
@@ -101,33 +116,45 @@ typedef struct dvrk_Header {
 } dvrk_Header;
 
 /* Joint state: position (rad; m for insertion), velocity, effort (N.m; N for insertion). */
-typedef struct dvrk_JointStateV1 {
+typedef struct dvrk_JointStateV2 {
 #ifdef __cplusplus
-    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_JOINT_STATE_V1;
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_JOINT_STATE_V2;
 #endif
     dvrk_Header header;
     double position[DVRK_IPC_NUM_JOINTS];
     double velocity[DVRK_IPC_NUM_JOINTS];
     double effort[DVRK_IPC_NUM_JOINTS];
-} dvrk_JointStateV1;
+} dvrk_JointStateV2;
 
-/* Tool-tip pose in the RCM frame (CRTK local/measured_cp). rotation is row-major 3x3:
- * rotation[3 * row + col]; orientation_xyzw is the same rotation as a unit quaternion. */
-typedef struct dvrk_PoseV1 {
+/* Jaw state (jaw/measured_js): opening (rad), its rate (rad/s), effort (N.m). */
+typedef struct dvrk_JawStateV1 {
 #ifdef __cplusplus
-    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_POSE_V1;
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_JAW_STATE_V1;
+#endif
+    dvrk_Header header;
+    double position;
+    double velocity;
+    double effort;
+} dvrk_JawStateV1;
+
+/* Tool-tip pose: in the RCM frame on local/measured_cp, in the base frame on measured_cp.
+ * rotation is row-major 3x3: rotation[3 * row + col]; orientation_xyzw is the same rotation as
+ * a unit quaternion. */
+typedef struct dvrk_PoseV2 {
+#ifdef __cplusplus
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_POSE_V2;
 #endif
     dvrk_Header header;
     double position_m[3];
     double orientation_xyzw[4];
     double rotation[9];
-} dvrk_PoseV1;
+} dvrk_PoseV2;
 
 /* Compensation and loop status. delta_rad = q - q_hat of joints 1, 2; *_total are counters since
  * the publisher started; cycle_duration_ns is the most recent completed cycle's work time. */
-typedef struct dvrk_CompensationStatusV2 {
+typedef struct dvrk_CompensationStatusV3 {
 #ifdef __cplusplus
-    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V2;
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V3;
 #endif
     dvrk_Header header;
     double tau_ext_nm[2];
@@ -144,31 +171,36 @@ typedef struct dvrk_CompensationStatusV2 {
     uint64_t held_sample_age_ns;  /* 0 when fresh; age of the held valid sample otherwise */
     uint64_t publish_late_ns;     /* how late the cycle started after its deadline */
     uint64_t implausible_total;   /* samples rejected by the plausibility checks */
-} dvrk_CompensationStatusV2;
+} dvrk_CompensationStatusV3;
 
 /* ---- layout checks (the same numbers as the Rust const assertions) --------------------------- */
 
 DVRK_IPC_STATIC_ASSERT(sizeof(double) == 8, "double must be IEEE 754 binary64");
-DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_Header) == 40, "dvrk_Header size");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, valid) == 32, "dvrk_Header.valid offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, flags) == 36, "dvrk_Header.flags offset");
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_Header) == 48, "dvrk_Header size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, sample_realtime_ns) == 16, "dvrk_Header.sample_realtime_ns offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, valid) == 40, "dvrk_Header.valid offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, flags) == 44, "dvrk_Header.flags offset");
 
-DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_JointStateV1) == 208, "dvrk_JointStateV1 size");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV1, position) == 40, "position offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV1, velocity) == 96, "velocity offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV1, effort) == 152, "effort offset");
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_JointStateV2) == 192, "dvrk_JointStateV2 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV2, position) == 48, "position offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV2, velocity) == 96, "velocity offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JointStateV2, effort) == 144, "effort offset");
 
-DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_PoseV1) == 168, "dvrk_PoseV1 size");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, position_m) == 40, "position_m offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, orientation_xyzw) == 64, "orientation offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV1, rotation) == 96, "rotation offset");
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_JawStateV1) == 72, "dvrk_JawStateV1 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JawStateV1, position) == 48, "jaw position offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_JawStateV1, effort) == 64, "jaw effort offset");
 
-DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV2) == 168, "dvrk_CompensationStatusV2 size");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, insertion_m) == 72, "insertion_m offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, consecutive_read_failures) == 120,
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_PoseV2) == 176, "dvrk_PoseV2 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV2, position_m) == 48, "position_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV2, orientation_xyzw) == 72, "orientation offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV2, rotation) == 104, "rotation offset");
+
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV3) == 176, "dvrk_CompensationStatusV3 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, insertion_m) == 80, "insertion_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, consecutive_read_failures) == 128,
                        "consecutive_read_failures offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, tau_margin_nm) == 128, "tau_margin_nm offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV2, implausible_total) == 160,
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, tau_margin_nm) == 136, "tau_margin_nm offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, implausible_total) == 168,
                        "implausible_total offset");
 
 #ifdef __cplusplus

@@ -4,19 +4,25 @@
 //! compensated for instrument compliance, through iceoryx2 shared memory. This crate holds
 //! everything both sides must agree on:
 //!
-//! - the `#[repr(C)]` message types ([`JointStateV1`], [`PoseV1`], [`CompensationStatusV2`], all
-//!   starting with the common [`Header`]) and the [`flags`] bits, mirrored for C and C++ in
-//!   `include/dvrk_ipc.h`;
-//! - the service names under a prefix (default `dvrk/PSM1`, see [`ServiceNames`]):
+//! - the `#[repr(C)]` message types ([`JointStateV2`], [`JawStateV1`], [`PoseV2`],
+//!   [`CompensationStatusV3`], all starting with the common [`Header`], which carries both the
+//!   `CLOCK_MONOTONIC` and the `CLOCK_REALTIME` (ROS) time of the sample) and the [`flags`] bits,
+//!   mirrored for C and C++ in `include/dvrk_ipc.h`;
+//! - the service names under a prefix, the arm's name (default `PSM1`, see [`ServiceNames`]),
+//!   as the dVRK 2.x console names its topics:
 //!
 //!   | service | payload |
 //!   |---|---|
-//!   | `<prefix>/measured_js` | [`JointStateV1`] |
-//!   | `<prefix>/measured_cp` | [`PoseV1`] |
-//!   | `<prefix>/compensated/measured_js` | [`JointStateV1`] |
-//!   | `<prefix>/compensated/measured_cp` | [`PoseV1`] |
-//!   | `<prefix>/compensated/status` | [`CompensationStatusV2`] |
-//!   | `<prefix>/cycle` | event, notified once per cycle after the five messages |
+//!   | `<prefix>/measured_js` | [`JointStateV2`]: six joints |
+//!   | `<prefix>/jaw/measured_js` | [`JawStateV1`] |
+//!   | `<prefix>/local/measured_cp` | [`PoseV2`]: tip in the RCM frame |
+//!   | `<prefix>/measured_cp` | [`PoseV2`]: tip in the base frame |
+//!   | `<prefix>/compensated/measured_js` | [`JointStateV2`] |
+//!   | `<prefix>/compensated/jaw/measured_js` | [`JawStateV1`] |
+//!   | `<prefix>/compensated/local/measured_cp` | [`PoseV2`] |
+//!   | `<prefix>/compensated/measured_cp` | [`PoseV2`] |
+//!   | `<prefix>/compensated/status` | [`CompensationStatusV3`] |
+//!   | `<prefix>/cycle` | event, notified once per cycle after the nine messages |
 //!
 //! - the QoS ([`qos`]) applied by the one function that opens or creates services
 //!   ([`open_topic`], [`open_cycle_event`], [`ArmServices::open_or_create`]);
@@ -26,11 +32,11 @@
 //!   listener) or `Predictive` (sleep until just before the next sample is due, then poll).
 //!
 //! ```no_run
-//! use dvrk_ipc::{create_node, PoseV1, ServiceNames, Subscription, Topic, Update, NOMINAL_PERIOD};
+//! use dvrk_ipc::{create_node, PoseV2, ServiceNames, Subscription, Topic, Update, NOMINAL_PERIOD};
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let node = create_node::<iceoryx2::service::ipc::Service>("fixture", None)?;
-//! let names = ServiceNames::new("dvrk/PSM1")?;
-//! let mut sub = Subscription::<PoseV1>::new(&node, &names, Topic::CompensatedMeasuredCp, NOMINAL_PERIOD)?;
+//! let names = ServiceNames::new("PSM1")?;
+//! let mut sub = Subscription::<PoseV2>::new(&node, &names, Topic::CompensatedLocalMeasuredCp, NOMINAL_PERIOD)?;
 //! loop {
 //!     match sub.wait()? {
 //!         Update::Fresh(p) if p.header.valid == 1 => println!("{:?}", p.position_m),
@@ -46,6 +52,7 @@
 //! Everything is generic over the iceoryx2 service variant `S` (default `ipc::Service`, across
 //! processes; `local::Service` works inside one process, e.g. for benchmarks).
 
+pub mod clock;
 mod error;
 pub mod flags;
 mod msg;
@@ -58,14 +65,15 @@ mod sys;
 
 pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
-    COMPENSATION_STATUS_V2_SIZE, CompensationStatusV2, HEADER_SIZE, Header, JOINT_NAMES,
-    JOINT_STATE_V1_SIZE, JointStateV1, Message, NUM_JOINTS, POSE_V1_SIZE, PoseV1,
+    ArmState, COMPENSATION_STATUS_V3_SIZE, CompensationStatusV3, CycleMessages, HEADER_SIZE,
+    Header, JAW_NAME, JAW_STATE_V1_SIZE, JOINT_NAMES, JOINT_STATE_V2_SIZE, JawStateV1,
+    JointStateV2, Message, NUM_JOINTS, POSE_V2_SIZE, PoseV2,
 };
-pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, ServiceNames, Topic};
+pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames, Topic};
 pub use publisher::{ArmPublisher, ReapReport, SubscriberCounts};
 pub use services::{
-    ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, create_node,
-    domain_config, open_cycle_event, open_topic, qos,
+    ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, StateServices,
+    create_node, domain_config, open_cycle_event, open_topic, qos,
 };
 pub use subscription::{
     DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, MIN_DEFAULT_DEADLINE, NOMINAL_PERIOD,

@@ -14,10 +14,11 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
-/// Number of joints in a joint-state message (6 kinematic joints plus the jaw).
-pub const NUM_JOINTS: usize = 7;
+/// Number of joints in a joint-state message: the six kinematic joints of a PSM, as the dVRK 2.x
+/// console publishes them on `measured_js` (the jaw has its own topic, `jaw/measured_js`).
+pub const NUM_JOINTS: usize = 6;
 
-/// Joint names in message order (dVRK names, without the pre-2024 `outer_` prefix).
+/// Joint names in message order (dVRK 2.x names, without the pre-2024 `outer_` prefix).
 ///
 /// Index 0 and 1 are joints "1" and "2" of the compliance paper; index 2 is the insertion
 /// (prismatic, metres; its effort is in newtons).
@@ -28,26 +29,35 @@ pub const JOINT_NAMES: [&str; NUM_JOINTS] = [
     "roll",
     "wrist_pitch",
     "wrist_yaw",
-    "jaw",
 ];
 
-/// Common header of every message. All five messages of one publisher cycle carry the same
+/// Name of the single joint of `jaw/measured_js`.
+pub const JAW_NAME: &str = "jaw";
+
+/// Common header of every message. All nine messages of one publisher cycle carry the same
 /// header except for anything the publisher chooses to vary per message (normally nothing).
 ///
 /// | offset | field | meaning |
 /// |---|---|---|
 /// | 0 | `seq` | cycle counter, starts at 1, +1 per cycle, equal in all messages of a cycle |
 /// | 8 | `sample_t_ns` | host `CLOCK_MONOTONIC` ns when the board read completed |
-/// | 16 | `board_timestamp` | raw board timestamp counters: first board low 32 bits, second board high 32 bits |
-/// | 24 | `publish_t_ns` | host `CLOCK_MONOTONIC` ns when the publisher wrote the cycle |
-/// | 32 | `valid` | 1 = the values come from a successful read; 0 = do not use them |
-/// | 36 | `flags` | reason and state bits, see [`crate::flags`] |
+/// | 16 | `sample_realtime_ns` | host `CLOCK_REALTIME` ns since the Unix epoch at the same instant: the ROS time of the sample |
+/// | 24 | `board_timestamp` | raw board timestamp counters: first board low 32 bits, second board high 32 bits |
+/// | 32 | `publish_t_ns` | host `CLOCK_MONOTONIC` ns when the publisher wrote the cycle |
+/// | 40 | `valid` | 1 = the values come from a successful read; 0 = do not use them |
+/// | 44 | `flags` | reason and state bits, see [`crate::flags`] |
+///
+/// `sample_realtime_ns` is read right after `sample_t_ns` (two vDSO clock reads, tens of ns
+/// apart), so a consumer can put a sample on ROS time without its own clock offset. The realtime
+/// clock can jump (NTP, an operator); the monotonic one cannot: order and time intervals by
+/// `sample_t_ns`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("dvrk::HeaderV1")]
+#[type_name("dvrk::HeaderV2")]
 pub struct Header {
     pub seq: u64,
     pub sample_t_ns: u64,
+    pub sample_realtime_ns: u64,
     pub board_timestamp: u64,
     pub publish_t_ns: u64,
     pub valid: u32,
@@ -81,40 +91,61 @@ impl Header {
 }
 
 /// Joint state (CRTK `measured_js`): position (rad, m for insertion), velocity (rad/s, m/s) and
-/// effort (N·m, N for insertion) of the seven joints in [`JOINT_NAMES`] order.
+/// effort (N·m, N for insertion) of the six joints in [`JOINT_NAMES`] order.
 ///
 /// Published on `<prefix>/measured_js` (as read from the boards) and on
 /// `<prefix>/compensated/measured_js` (joints 1 and 2 corrected by the compliance model; the
 /// other joints, velocity and effort are passed through).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("dvrk::JointStateV1")]
-pub struct JointStateV1 {
+#[type_name("dvrk::JointStateV2")]
+pub struct JointStateV2 {
     pub header: Header,
     pub position: [f64; NUM_JOINTS],
     pub velocity: [f64; NUM_JOINTS],
     pub effort: [f64; NUM_JOINTS],
 }
 
-/// Tool-tip pose (CRTK `local/measured_cp`): the instrument tip in the RCM frame of the PSM, as
-/// the dVRK console computes it from the joints.
+/// Jaw state (CRTK `jaw/measured_js`): opening angle (rad), its rate (rad/s) and effort (N·m) of
+/// the instrument's jaw ([`JAW_NAME`]), as the dVRK 2.x console publishes it beside
+/// `measured_js`.
+///
+/// Published on `<prefix>/jaw/measured_js` and, unchanged (the compliance model does not touch
+/// the jaw), on `<prefix>/compensated/jaw/measured_js`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("dvrk::JawStateV1")]
+pub struct JawStateV1 {
+    pub header: Header,
+    pub position: f64,
+    pub velocity: f64,
+    pub effort: f64,
+}
+
+/// Tool-tip pose (CRTK `measured_cp` / `local/measured_cp`): the instrument tip as the dVRK
+/// console computes it from the joints.
 ///
 /// The orientation is given twice, as a unit quaternion (x, y, z, w) and as a row-major 3×3
 /// rotation matrix (`rotation[3 * row + col]`), so consumers need no conversion code.
 ///
-/// Published on `<prefix>/measured_cp` (from the raw joints) and on
-/// `<prefix>/compensated/measured_cp` (from the compensated joints).
+/// Published, as the dVRK 2.x console does, on
+/// - `<prefix>/local/measured_cp`: in the RCM frame of the PSM (frame id `<arm>`);
+/// - `<prefix>/measured_cp`: in the arm's base frame (frame id `<arm>_base`), i.e. the configured
+///   base frame × the local pose;
+///
+/// from the raw joints, and the same two under `<prefix>/compensated/` from the compensated
+/// joints.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("dvrk::PoseV1")]
-pub struct PoseV1 {
+#[type_name("dvrk::PoseV2")]
+pub struct PoseV2 {
     pub header: Header,
     pub position_m: [f64; 3],
     pub orientation_xyzw: [f64; 4],
     pub rotation: [f64; 9],
 }
 
-impl Default for PoseV1 {
+impl Default for PoseV2 {
     /// The identity pose with a zero header.
     fn default() -> Self {
         Self {
@@ -146,8 +177,8 @@ impl Default for PoseV1 {
 /// | `implausible_total` | samples rejected by the plausibility checks since start (published with `valid = 0` and `IMPLAUSIBLE`) |
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("dvrk::CompensationStatusV2")]
-pub struct CompensationStatusV2 {
+#[type_name("dvrk::CompensationStatusV3")]
+pub struct CompensationStatusV3 {
     pub header: Header,
     pub tau_ext_nm: [f64; 2],
     pub delta_rad: [f64; 2],
@@ -165,16 +196,64 @@ pub struct CompensationStatusV2 {
     pub implausible_total: u64,
 }
 
+/// The four states of one arm in one cycle, as the dVRK 2.x console names them: what
+/// [`CycleMessages`] carries twice, raw (`<prefix>/...`) and compensated
+/// (`<prefix>/compensated/...`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ArmState {
+    /// `measured_js`.
+    pub measured_js: JointStateV2,
+    /// `jaw/measured_js`.
+    pub jaw_measured_js: JawStateV1,
+    /// `local/measured_cp`: the tip in the RCM frame.
+    pub local_measured_cp: PoseV2,
+    /// `measured_cp`: the tip in the base frame.
+    pub measured_cp: PoseV2,
+}
+
+impl ArmState {
+    /// Sets the header of all four messages.
+    pub fn set_header(&mut self, header: Header) {
+        self.measured_js.header = header;
+        self.jaw_measured_js.header = header;
+        self.local_measured_cp.header = header;
+        self.measured_cp.header = header;
+    }
+}
+
+/// Everything published in one cycle ([`crate::ArmPublisher::publish_cycle`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct CycleMessages {
+    /// As read from the boards.
+    pub measured: ArmState,
+    /// Joints 1 and 2 corrected by the compliance model, and the poses computed from them.
+    pub compensated: ArmState,
+    /// `compensated/status`.
+    pub status: CompensationStatusV3,
+}
+
+impl CycleMessages {
+    /// Sets the header of all nine messages.
+    pub fn set_header(&mut self, header: Header) {
+        self.measured.set_header(header);
+        self.compensated.set_header(header);
+        self.status.header = header;
+    }
+}
+
 mod sealed {
     pub trait Sealed {}
-    impl Sealed for super::JointStateV1 {}
-    impl Sealed for super::PoseV1 {}
-    impl Sealed for super::CompensationStatusV2 {}
+    impl Sealed for super::JointStateV2 {}
+    impl Sealed for super::JawStateV1 {}
+    impl Sealed for super::PoseV2 {}
+    impl Sealed for super::CompensationStatusV3 {}
 }
 
 /// The message types of this crate (sealed): what [`crate::Subscription`] and
 /// [`crate::open_topic`] accept.
-pub trait Message: sealed::Sealed + Copy + core::fmt::Debug + ZeroCopySend + 'static {
+pub trait Message:
+    sealed::Sealed + Copy + core::fmt::Debug + Default + ZeroCopySend + 'static
+{
     /// The iceoryx2 type name (same string as the `#[type_name]` attribute).
     const TYPE_NAME: &'static str;
     /// Size in bytes (also in `dvrk_ipc.h`).
@@ -185,41 +264,31 @@ pub trait Message: sealed::Sealed + Copy + core::fmt::Debug + ZeroCopySend + 'st
     fn header_mut(&mut self) -> &mut Header;
 }
 
-impl Message for JointStateV1 {
-    const TYPE_NAME: &'static str = "dvrk::JointStateV1";
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
+macro_rules! impl_message {
+    ($ty:ty, $name:literal) => {
+        impl Message for $ty {
+            const TYPE_NAME: &'static str = $name;
+            fn header(&self) -> &Header {
+                &self.header
+            }
+            fn header_mut(&mut self) -> &mut Header {
+                &mut self.header
+            }
+        }
+    };
 }
 
-impl Message for PoseV1 {
-    const TYPE_NAME: &'static str = "dvrk::PoseV1";
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
-
-impl Message for CompensationStatusV2 {
-    const TYPE_NAME: &'static str = "dvrk::CompensationStatusV2";
-    fn header(&self) -> &Header {
-        &self.header
-    }
-    fn header_mut(&mut self) -> &mut Header {
-        &mut self.header
-    }
-}
+impl_message!(JointStateV2, "dvrk::JointStateV2");
+impl_message!(JawStateV1, "dvrk::JawStateV1");
+impl_message!(PoseV2, "dvrk::PoseV2");
+impl_message!(CompensationStatusV3, "dvrk::CompensationStatusV3");
 
 /// Sizes in bytes, identical in `dvrk_ipc.h`.
-pub const HEADER_SIZE: usize = 40;
-pub const JOINT_STATE_V1_SIZE: usize = 208;
-pub const POSE_V1_SIZE: usize = 168;
-pub const COMPENSATION_STATUS_V2_SIZE: usize = 168;
+pub const HEADER_SIZE: usize = 48;
+pub const JOINT_STATE_V2_SIZE: usize = 192;
+pub const JAW_STATE_V1_SIZE: usize = 72;
+pub const POSE_V2_SIZE: usize = 176;
+pub const COMPENSATION_STATUS_V3_SIZE: usize = 176;
 
 // Compile-time layout checks: size, alignment and every field offset. Each offset equals the end of
 // the previous field, so there is no implicit padding anywhere (the checks fail to compile if a
@@ -241,13 +310,16 @@ macro_rules! assert_layout {
 }
 
 assert_layout!(Header, size = HEADER_SIZE,
-    seq: u64, sample_t_ns: u64, board_timestamp: u64, publish_t_ns: u64, valid: u32, flags: u32);
-assert_layout!(JointStateV1, size = JOINT_STATE_V1_SIZE,
+    seq: u64, sample_t_ns: u64, sample_realtime_ns: u64, board_timestamp: u64, publish_t_ns: u64,
+    valid: u32, flags: u32);
+assert_layout!(JointStateV2, size = JOINT_STATE_V2_SIZE,
     header: Header, position: [f64; NUM_JOINTS], velocity: [f64; NUM_JOINTS],
     effort: [f64; NUM_JOINTS]);
-assert_layout!(PoseV1, size = POSE_V1_SIZE,
+assert_layout!(JawStateV1, size = JAW_STATE_V1_SIZE,
+    header: Header, position: f64, velocity: f64, effort: f64);
+assert_layout!(PoseV2, size = POSE_V2_SIZE,
     header: Header, position_m: [f64; 3], orientation_xyzw: [f64; 4], rotation: [f64; 9]);
-assert_layout!(CompensationStatusV2, size = COMPENSATION_STATUS_V2_SIZE,
+assert_layout!(CompensationStatusV3, size = COMPENSATION_STATUS_V3_SIZE,
     header: Header, tau_ext_nm: [f64; 2], delta_rad: [f64; 2], insertion_m: f64,
     cycle_period_ns: u64, cycle_duration_ns: u64, cycles_total: u64, read_failures_total: u64,
     overruns_total: u64, consecutive_read_failures: u32, _reserved: u32, tau_margin_nm: [f64; 2],
@@ -262,15 +334,19 @@ mod tests {
         // SAFETY: `type_name` is only `unsafe` because implementors promise uniqueness.
         unsafe {
             assert_eq!(
-                <JointStateV1 as ZeroCopySend>::type_name(),
-                JointStateV1::TYPE_NAME
+                <JointStateV2 as ZeroCopySend>::type_name(),
+                JointStateV2::TYPE_NAME
             );
-            assert_eq!(<PoseV1 as ZeroCopySend>::type_name(), PoseV1::TYPE_NAME);
             assert_eq!(
-                <CompensationStatusV2 as ZeroCopySend>::type_name(),
-                CompensationStatusV2::TYPE_NAME
+                <JawStateV1 as ZeroCopySend>::type_name(),
+                JawStateV1::TYPE_NAME
             );
-            assert_eq!(<Header as ZeroCopySend>::type_name(), "dvrk::HeaderV1");
+            assert_eq!(<PoseV2 as ZeroCopySend>::type_name(), PoseV2::TYPE_NAME);
+            assert_eq!(
+                <CompensationStatusV3 as ZeroCopySend>::type_name(),
+                CompensationStatusV3::TYPE_NAME
+            );
+            assert_eq!(<Header as ZeroCopySend>::type_name(), "dvrk::HeaderV2");
         }
     }
 
@@ -286,15 +362,48 @@ mod tests {
 
     #[test]
     fn default_pose_is_identity() {
-        let p = PoseV1::default();
+        let p = PoseV2::default();
         assert_eq!(p.orientation_xyzw, [0.0, 0.0, 0.0, 1.0]);
         assert_eq!(p.rotation[0] + p.rotation[4] + p.rotation[8], 3.0);
     }
 
     #[test]
-    fn joint_names_follow_the_project_order() {
-        assert_eq!(JOINT_NAMES[0], "yaw");
-        assert_eq!(JOINT_NAMES[2], "insertion");
-        assert_eq!(JOINT_NAMES[NUM_JOINTS - 1], "jaw");
+    fn joint_names_are_the_dvrk_2_names() {
+        assert_eq!(
+            JOINT_NAMES,
+            [
+                "yaw",
+                "pitch",
+                "insertion",
+                "roll",
+                "wrist_pitch",
+                "wrist_yaw"
+            ]
+        );
+        assert_eq!(JAW_NAME, "jaw");
+    }
+
+    #[test]
+    fn set_header_reaches_all_nine_messages() {
+        let mut c = CycleMessages::default();
+        let h = Header {
+            seq: 7,
+            sample_realtime_ns: 11,
+            ..Header::default()
+        };
+        c.set_header(h);
+        for got in [
+            c.measured.measured_js.header,
+            c.measured.jaw_measured_js.header,
+            c.measured.local_measured_cp.header,
+            c.measured.measured_cp.header,
+            c.compensated.measured_js.header,
+            c.compensated.jaw_measured_js.header,
+            c.compensated.local_measured_cp.header,
+            c.compensated.measured_cp.header,
+            c.status.header,
+        ] {
+            assert_eq!(got, h);
+        }
     }
 }

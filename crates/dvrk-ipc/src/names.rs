@@ -1,44 +1,63 @@
-//! Service names: `<prefix>/<topic>` for the five pub-sub services and `<prefix>/cycle` for the
-//! event service notified once per cycle.
+//! Service names: `<prefix>/<topic>` for the nine pub-sub services and `<prefix>/cycle` for the
+//! event service notified once per cycle. The topics carry the names the dVRK 2.x console uses
+//! under its arm's namespace (`/PSM1/measured_js`, `/PSM1/local/measured_cp`, ...); the prefix is
+//! the arm's name.
 
 use core::fmt;
 
 use iceoryx2::prelude::ServiceName;
 
 use crate::IpcError;
-use crate::msg::{CompensationStatusV2, JointStateV1, Message, PoseV1};
+use crate::msg::{CompensationStatusV3, JawStateV1, JointStateV2, Message, PoseV2};
 
-/// Default service prefix.
-pub const DEFAULT_PREFIX: &str = "dvrk/PSM1";
+/// Default service prefix: the arm's name, as the dVRK console names its ROS namespace.
+pub const DEFAULT_PREFIX: &str = "PSM1";
 
-/// Suffix of the event service, notified once per cycle after all five messages are sent.
+/// Suffix of the event service, notified once per cycle after all nine messages are sent.
 pub const CYCLE_SUFFIX: &str = "cycle";
 
 /// Longest accepted prefix in bytes. iceoryx2 service names are limited to 255 bytes; the longest
-/// suffix is `/compensated/measured_js` (24 bytes).
+/// suffix is `/compensated/local/measured_cp` (30 bytes).
 pub const MAX_PREFIX_LEN: usize = 200;
 
-/// One of the five pub-sub services of an arm.
+/// Number of pub-sub topics of an arm.
+pub const NUM_TOPICS: usize = 9;
+
+/// One of the nine pub-sub services of an arm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Topic {
-    /// `measured_js`, [`JointStateV1`]: joints as read.
+    /// `measured_js`, [`JointStateV2`]: the six joints as read.
     MeasuredJs,
-    /// `measured_cp`, [`PoseV1`]: tip pose from the raw joints.
+    /// `jaw/measured_js`, [`JawStateV1`]: the jaw as read.
+    JawMeasuredJs,
+    /// `local/measured_cp`, [`PoseV2`]: tip pose in the RCM frame, from the raw joints.
+    LocalMeasuredCp,
+    /// `measured_cp`, [`PoseV2`]: tip pose in the base frame, from the raw joints.
     MeasuredCp,
-    /// `compensated/measured_js`, [`JointStateV1`]: joints 1, 2 corrected.
+    /// `compensated/measured_js`, [`JointStateV2`]: joints 1, 2 corrected.
     CompensatedMeasuredJs,
-    /// `compensated/measured_cp`, [`PoseV1`]: tip pose from the corrected joints.
+    /// `compensated/jaw/measured_js`, [`JawStateV1`]: the jaw (not corrected; same values).
+    CompensatedJawMeasuredJs,
+    /// `compensated/local/measured_cp`, [`PoseV2`]: tip pose in the RCM frame, from the
+    /// corrected joints.
+    CompensatedLocalMeasuredCp,
+    /// `compensated/measured_cp`, [`PoseV2`]: tip pose in the base frame, from the corrected
+    /// joints.
     CompensatedMeasuredCp,
-    /// `compensated/status`, [`CompensationStatusV2`].
+    /// `compensated/status`, [`CompensationStatusV3`].
     CompensatedStatus,
 }
 
 impl Topic {
     /// All topics, in publishing order.
-    pub const ALL: [Topic; 5] = [
+    pub const ALL: [Topic; NUM_TOPICS] = [
         Topic::MeasuredJs,
+        Topic::JawMeasuredJs,
+        Topic::LocalMeasuredCp,
         Topic::MeasuredCp,
         Topic::CompensatedMeasuredJs,
+        Topic::CompensatedJawMeasuredJs,
+        Topic::CompensatedLocalMeasuredCp,
         Topic::CompensatedMeasuredCp,
         Topic::CompensatedStatus,
     ];
@@ -47,8 +66,12 @@ impl Topic {
     pub const fn suffix(self) -> &'static str {
         match self {
             Topic::MeasuredJs => "measured_js",
+            Topic::JawMeasuredJs => "jaw/measured_js",
+            Topic::LocalMeasuredCp => "local/measured_cp",
             Topic::MeasuredCp => "measured_cp",
             Topic::CompensatedMeasuredJs => "compensated/measured_js",
+            Topic::CompensatedJawMeasuredJs => "compensated/jaw/measured_js",
+            Topic::CompensatedLocalMeasuredCp => "compensated/local/measured_cp",
             Topic::CompensatedMeasuredCp => "compensated/measured_cp",
             Topic::CompensatedStatus => "compensated/status",
         }
@@ -57,10 +80,26 @@ impl Topic {
     /// The iceoryx2 type name of the payload published on this topic.
     pub const fn type_name(self) -> &'static str {
         match self {
-            Topic::MeasuredJs | Topic::CompensatedMeasuredJs => JointStateV1::TYPE_NAME,
-            Topic::MeasuredCp | Topic::CompensatedMeasuredCp => PoseV1::TYPE_NAME,
-            Topic::CompensatedStatus => CompensationStatusV2::TYPE_NAME,
+            Topic::MeasuredJs | Topic::CompensatedMeasuredJs => JointStateV2::TYPE_NAME,
+            Topic::JawMeasuredJs | Topic::CompensatedJawMeasuredJs => JawStateV1::TYPE_NAME,
+            Topic::LocalMeasuredCp
+            | Topic::MeasuredCp
+            | Topic::CompensatedLocalMeasuredCp
+            | Topic::CompensatedMeasuredCp => PoseV2::TYPE_NAME,
+            Topic::CompensatedStatus => CompensationStatusV3::TYPE_NAME,
         }
+    }
+
+    /// Whether the topic is under `compensated/`.
+    pub const fn is_compensated(self) -> bool {
+        matches!(
+            self,
+            Topic::CompensatedMeasuredJs
+                | Topic::CompensatedJawMeasuredJs
+                | Topic::CompensatedLocalMeasuredCp
+                | Topic::CompensatedMeasuredCp
+                | Topic::CompensatedStatus
+        )
     }
 
     /// Whether `T` is the payload type of this topic.
@@ -68,12 +107,13 @@ impl Topic {
         self.type_name() == T::TYPE_NAME
     }
 
-    /// The topic whose suffix is `suffix` (e.g. `"compensated/measured_cp"`).
+    /// The topic whose suffix is `suffix` (e.g. `"compensated/local/measured_cp"`).
     pub fn from_suffix(suffix: &str) -> Option<Topic> {
         Topic::ALL.into_iter().find(|t| t.suffix() == suffix)
     }
 
-    fn index(self) -> usize {
+    /// Position in [`Topic::ALL`].
+    pub const fn index(self) -> usize {
         self as usize
     }
 }
@@ -88,12 +128,12 @@ impl fmt::Display for Topic {
 #[derive(Debug, Clone)]
 pub struct ServiceNames {
     prefix: String,
-    topics: [ServiceName; 5],
+    topics: [ServiceName; NUM_TOPICS],
     cycle: ServiceName,
 }
 
 impl ServiceNames {
-    /// Builds the names under `prefix` (e.g. `dvrk/PSM1`).
+    /// Builds the names under `prefix` (e.g. `PSM1`).
     ///
     /// The prefix must be 1..=[`MAX_PREFIX_LEN`] bytes of printable ASCII without spaces, must
     /// not start or end with `/`, must not contain `//`, and must not start with `iox2://`.
@@ -111,13 +151,14 @@ impl ServiceNames {
                 },
             })
         };
-        let topics = [
-            make(Topic::MeasuredJs.suffix())?,
-            make(Topic::MeasuredCp.suffix())?,
-            make(Topic::CompensatedMeasuredJs.suffix())?,
-            make(Topic::CompensatedMeasuredCp.suffix())?,
-            make(Topic::CompensatedStatus.suffix())?,
-        ];
+        let mut topics = Vec::with_capacity(NUM_TOPICS);
+        for t in Topic::ALL {
+            topics.push(make(t.suffix())?);
+        }
+        let topics: [ServiceName; NUM_TOPICS] = match topics.try_into() {
+            Ok(t) => t,
+            Err(_) => unreachable!("one name per topic"),
+        };
         Ok(Self {
             prefix: prefix.to_owned(),
             topics,
@@ -140,11 +181,13 @@ impl ServiceNames {
         &self.cycle
     }
 
-    /// Splits a full service name such as `dvrk/PSM1/compensated/measured_cp` into its prefix
-    /// and topic (for tools like `dvrk-sidecar echo`). The prefix is not validated here: pass it
-    /// to [`ServiceNames::new`].
+    /// Splits a full service name such as `PSM1/compensated/local/measured_cp` into its prefix
+    /// and topic (for tools like `dvrk-sidecar echo`). A leading `/`, as in the ROS topic
+    /// `/PSM1/measured_js`, is ignored. The prefix is not validated here: pass it to
+    /// [`ServiceNames::new`].
     pub fn split(full: &str) -> Option<(&str, Topic)> {
-        // Longest suffixes first: `compensated/measured_js` also ends with `/measured_js`.
+        let full = full.strip_prefix('/').unwrap_or(full);
+        // Longest suffixes first: `local/measured_cp` also ends with `/measured_cp`.
         let mut order = Topic::ALL;
         order.sort_by_key(|t| core::cmp::Reverse(t.suffix().len()));
         order.into_iter().find_map(|t| {
@@ -197,24 +240,26 @@ mod tests {
     use super::*;
 
     #[test]
-    fn default_names() {
+    fn default_names_are_the_consoles() {
         let n = ServiceNames::default();
-        assert_eq!(n.prefix(), "dvrk/PSM1");
-        assert_eq!(n.topic(Topic::MeasuredJs).as_str(), "dvrk/PSM1/measured_js");
-        assert_eq!(n.topic(Topic::MeasuredCp).as_str(), "dvrk/PSM1/measured_cp");
+        assert_eq!(n.prefix(), "PSM1");
+        let all: Vec<&str> = Topic::ALL.iter().map(|t| n.topic(*t).as_str()).collect();
         assert_eq!(
-            n.topic(Topic::CompensatedMeasuredJs).as_str(),
-            "dvrk/PSM1/compensated/measured_js"
+            all,
+            [
+                "PSM1/measured_js",
+                "PSM1/jaw/measured_js",
+                "PSM1/local/measured_cp",
+                "PSM1/measured_cp",
+                "PSM1/compensated/measured_js",
+                "PSM1/compensated/jaw/measured_js",
+                "PSM1/compensated/local/measured_cp",
+                "PSM1/compensated/measured_cp",
+                "PSM1/compensated/status",
+            ]
         );
-        assert_eq!(
-            n.topic(Topic::CompensatedMeasuredCp).as_str(),
-            "dvrk/PSM1/compensated/measured_cp"
-        );
-        assert_eq!(
-            n.topic(Topic::CompensatedStatus).as_str(),
-            "dvrk/PSM1/compensated/status"
-        );
-        assert_eq!(n.cycle().as_str(), "dvrk/PSM1/cycle");
+        assert_eq!(n.cycle().as_str(), "PSM1/cycle");
+        assert_eq!(Topic::ALL.iter().filter(|t| t.is_compensated()).count(), 5);
     }
 
     #[test]
@@ -266,37 +311,39 @@ mod tests {
 
     #[test]
     fn split_full_names() {
-        assert_eq!(
-            ServiceNames::split("dvrk/PSM1/compensated/measured_cp"),
-            Some(("dvrk/PSM1", Topic::CompensatedMeasuredCp))
-        );
-        assert_eq!(
-            ServiceNames::split("dvrk/PSM1/compensated/measured_js"),
-            Some(("dvrk/PSM1", Topic::CompensatedMeasuredJs))
-        );
-        assert_eq!(
-            ServiceNames::split("dvrk/PSM2/measured_js"),
-            Some(("dvrk/PSM2", Topic::MeasuredJs))
-        );
-        assert_eq!(
-            ServiceNames::split("x/compensated/status"),
-            Some(("x", Topic::CompensatedStatus))
-        );
+        for t in Topic::ALL {
+            for prefix in ["PSM1", "dvrk/PSM2", "a/b/c"] {
+                let full = format!("{prefix}/{}", t.suffix());
+                assert_eq!(ServiceNames::split(&full), Some((prefix, t)), "{full}");
+                let ros = format!("/{full}");
+                assert_eq!(ServiceNames::split(&ros), Some((prefix, t)), "{ros}");
+            }
+        }
         assert_eq!(ServiceNames::split("measured_js"), None);
         assert_eq!(ServiceNames::split("/measured_js"), None);
-        assert_eq!(ServiceNames::split("dvrk/PSM1/cycle"), None);
-        assert_eq!(ServiceNames::split("dvrk/PSM1measured_js"), None);
+        assert_eq!(ServiceNames::split("PSM1/cycle"), None);
+        assert_eq!(ServiceNames::split("PSM1measured_js"), None);
+        // A bare suffix with a slash reads as prefix + topic: `echo` handles bare topics first.
+        assert_eq!(
+            ServiceNames::split("local/measured_cp"),
+            Some(("local", Topic::MeasuredCp))
+        );
     }
 
     #[test]
     fn topic_payload_types() {
-        assert_eq!(Topic::MeasuredJs.type_name(), "dvrk::JointStateV1");
-        assert_eq!(Topic::CompensatedMeasuredCp.type_name(), "dvrk::PoseV1");
+        assert_eq!(Topic::MeasuredJs.type_name(), "dvrk::JointStateV2");
+        assert_eq!(
+            Topic::CompensatedJawMeasuredJs.type_name(),
+            "dvrk::JawStateV1"
+        );
+        assert_eq!(Topic::CompensatedMeasuredCp.type_name(), "dvrk::PoseV2");
+        assert_eq!(Topic::LocalMeasuredCp.type_name(), "dvrk::PoseV2");
         assert_eq!(
             Topic::CompensatedStatus.type_name(),
-            "dvrk::CompensationStatusV2"
+            "dvrk::CompensationStatusV3"
         );
-        assert!(Topic::MeasuredCp.carries::<PoseV1>());
-        assert!(!Topic::MeasuredJs.carries::<PoseV1>());
+        assert!(Topic::MeasuredCp.carries::<PoseV2>());
+        assert!(!Topic::MeasuredJs.carries::<PoseV2>());
     }
 }

@@ -8,11 +8,58 @@ use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 use crate::error::{IpcError, PublishError};
-use crate::msg::{CompensationStatusV2, JointStateV1, Message, PoseV1};
-use crate::names::{ServiceNames, Topic};
-use crate::services::ArmServices;
+use crate::msg::{
+    ArmState, CompensationStatusV3, CycleMessages, JawStateV1, JointStateV2, Message, PoseV2,
+};
+use crate::names::{NUM_TOPICS, ServiceNames, Topic};
+use crate::services::{ArmServices, StateServices};
 
-/// Publishes the five messages of a cycle and notifies the cycle event.
+/// The four publishers of one arm state (raw or compensated).
+#[derive(Debug)]
+struct StatePublishers<S: Service> {
+    measured_js: Publisher<S, JointStateV2, ()>,
+    jaw_measured_js: Publisher<S, JawStateV1, ()>,
+    local_measured_cp: Publisher<S, PoseV2, ()>,
+    measured_cp: Publisher<S, PoseV2, ()>,
+}
+
+impl<S: Service> StatePublishers<S> {
+    fn create(services: &StateServices<S>, names: &ServiceNames) -> Result<Self, IpcError> {
+        Ok(Self {
+            measured_js: create_publisher(&services.measured_js, names)?,
+            jaw_measured_js: create_publisher(&services.jaw_measured_js, names)?,
+            local_measured_cp: create_publisher(&services.local_measured_cp, names)?,
+            measured_cp: create_publisher(&services.measured_cp, names)?,
+        })
+    }
+
+    #[inline]
+    fn send(&self, state: &ArmState, compensated: bool) -> Result<(), PublishError> {
+        let pick = |raw: Topic, comp: Topic| if compensated { comp } else { raw };
+        send(
+            &self.measured_js,
+            pick(Topic::MeasuredJs, Topic::CompensatedMeasuredJs),
+            &state.measured_js,
+        )?;
+        send(
+            &self.jaw_measured_js,
+            pick(Topic::JawMeasuredJs, Topic::CompensatedJawMeasuredJs),
+            &state.jaw_measured_js,
+        )?;
+        send(
+            &self.local_measured_cp,
+            pick(Topic::LocalMeasuredCp, Topic::CompensatedLocalMeasuredCp),
+            &state.local_measured_cp,
+        )?;
+        send(
+            &self.measured_cp,
+            pick(Topic::MeasuredCp, Topic::CompensatedMeasuredCp),
+            &state.measured_cp,
+        )
+    }
+}
+
+/// Publishes the nine messages of a cycle and notifies the cycle event.
 ///
 /// Only one `ArmPublisher` can exist per prefix and iceoryx2 domain (all processes together):
 /// [`ArmPublisher::create`] fails with [`IpcError::AlreadyPublishing`] while another is alive.
@@ -23,11 +70,9 @@ use crate::services::ArmServices;
 #[derive(Debug)]
 pub struct ArmPublisher<S: Service = iceoryx2::service::ipc::Service> {
     services: ArmServices<S>,
-    measured_js: Publisher<S, JointStateV1, ()>,
-    measured_cp: Publisher<S, PoseV1, ()>,
-    compensated_measured_js: Publisher<S, JointStateV1, ()>,
-    compensated_measured_cp: Publisher<S, PoseV1, ()>,
-    compensated_status: Publisher<S, CompensationStatusV2, ()>,
+    measured: StatePublishers<S>,
+    compensated: StatePublishers<S>,
+    compensated_status: Publisher<S, CompensationStatusV3, ()>,
     cycle: Notifier<S>,
 }
 
@@ -60,10 +105,8 @@ impl<S: Service> ArmPublisher<S> {
     /// notifier. All allocation happens here.
     pub fn create(node: &Node<S>, names: &ServiceNames) -> Result<Self, IpcError> {
         let services = ArmServices::open_or_create(node, names)?;
-        let measured_js = create_publisher(&services.measured_js, names)?;
-        let measured_cp = create_publisher(&services.measured_cp, names)?;
-        let compensated_measured_js = create_publisher(&services.compensated_measured_js, names)?;
-        let compensated_measured_cp = create_publisher(&services.compensated_measured_cp, names)?;
+        let measured = StatePublishers::create(&services.measured, names)?;
+        let compensated = StatePublishers::create(&services.compensated, names)?;
         let compensated_status = create_publisher(&services.compensated_status, names)?;
         let attempt = || services.cycle.notifier_builder().create();
         let cycle = match attempt() {
@@ -84,60 +127,46 @@ impl<S: Service> ArmPublisher<S> {
         })?;
         Ok(Self {
             services,
-            measured_js,
-            measured_cp,
-            compensated_measured_js,
-            compensated_measured_cp,
+            measured,
+            compensated,
             compensated_status,
             cycle,
         })
     }
 
-    /// Sends the five messages of one cycle, in [`Topic::ALL`] order, then notifies the cycle
-    /// event once. The caller fills the headers (same `seq` in all five).
+    /// Sends the nine messages of one cycle, in [`Topic::ALL`] order, then notifies the cycle
+    /// event once. The caller fills the headers (same `seq` in all nine, e.g. with
+    /// [`CycleMessages::set_header`]).
     ///
     /// No lock, no logging, no allocation of its own; each message is copied once into its
     /// shared-memory slot. iceoryx2 0.10 allocates one small reference-counted handle per loaned
     /// sample (freed again by `send`) on every publishing path of its public API, so a cycle makes
-    /// five short-lived heap allocations inside iceoryx2 (pinned by `tests/no_alloc.rs`).
+    /// nine short-lived heap allocations inside iceoryx2 (pinned by `tests/no_alloc.rs`).
     ///
     /// On error, the messages sent before the failing one are delivered and the event is not
     /// notified.
-    pub fn publish_cycle(
-        &self,
-        measured_js: &JointStateV1,
-        measured_cp: &PoseV1,
-        compensated_measured_js: &JointStateV1,
-        compensated_measured_cp: &PoseV1,
-        compensated_status: &CompensationStatusV2,
-    ) -> Result<(), PublishError> {
+    pub fn publish_cycle(&self, cycle: &CycleMessages) -> Result<(), PublishError> {
         debug_assert!(
             [
-                measured_cp.header.seq,
-                compensated_measured_js.header.seq,
-                compensated_measured_cp.header.seq,
-                compensated_status.header.seq,
+                cycle.measured.jaw_measured_js.header.seq,
+                cycle.measured.local_measured_cp.header.seq,
+                cycle.measured.measured_cp.header.seq,
+                cycle.compensated.measured_js.header.seq,
+                cycle.compensated.jaw_measured_js.header.seq,
+                cycle.compensated.local_measured_cp.header.seq,
+                cycle.compensated.measured_cp.header.seq,
+                cycle.status.header.seq,
             ]
             .iter()
-            .all(|s| *s == measured_js.header.seq),
+            .all(|s| *s == cycle.measured.measured_js.header.seq),
             "all messages of a cycle carry the same seq"
         );
-        send(&self.measured_js, Topic::MeasuredJs, measured_js)?;
-        send(&self.measured_cp, Topic::MeasuredCp, measured_cp)?;
-        send(
-            &self.compensated_measured_js,
-            Topic::CompensatedMeasuredJs,
-            compensated_measured_js,
-        )?;
-        send(
-            &self.compensated_measured_cp,
-            Topic::CompensatedMeasuredCp,
-            compensated_measured_cp,
-        )?;
+        self.measured.send(&cycle.measured, false)?;
+        self.compensated.send(&cycle.compensated, true)?;
         send(
             &self.compensated_status,
             Topic::CompensatedStatus,
-            compensated_status,
+            &cycle.status,
         )?;
         self.cycle
             .notify()
@@ -159,7 +188,7 @@ impl<S: Service> ArmPublisher<S> {
     /// allocation). A subscriber process that died still counts until
     /// [`ArmPublisher::reap_dead_nodes`] (or any other process's node creation) removes it.
     pub fn subscriber_counts(&self) -> SubscriberCounts {
-        let mut per_topic = [0; 5];
+        let mut per_topic = [0; NUM_TOPICS];
         for (n, topic) in per_topic.iter_mut().zip(Topic::ALL) {
             *n = self.number_of_subscribers(topic);
         }
@@ -170,16 +199,20 @@ impl<S: Service> ArmPublisher<S> {
     }
 
     /// Removes the resources of dead nodes (processes that died without cleaning up, e.g. by
-    /// SIGKILL) from all six services, so they no longer count as subscribers nor cost the
+    /// SIGKILL) from all ten services, so they no longer count as subscribers nor cost the
     /// publisher a notification per cycle. Lists the nodes on the file system: call it every few
     /// seconds from outside the cycle, never on the per-cycle path.
     pub fn reap_dead_nodes(&self) -> ReapReport {
         let s = &self.services;
         let states = [
-            s.measured_js.try_cleanup_dead_nodes(),
-            s.measured_cp.try_cleanup_dead_nodes(),
-            s.compensated_measured_js.try_cleanup_dead_nodes(),
-            s.compensated_measured_cp.try_cleanup_dead_nodes(),
+            s.measured.measured_js.try_cleanup_dead_nodes(),
+            s.measured.jaw_measured_js.try_cleanup_dead_nodes(),
+            s.measured.local_measured_cp.try_cleanup_dead_nodes(),
+            s.measured.measured_cp.try_cleanup_dead_nodes(),
+            s.compensated.measured_js.try_cleanup_dead_nodes(),
+            s.compensated.jaw_measured_js.try_cleanup_dead_nodes(),
+            s.compensated.local_measured_cp.try_cleanup_dead_nodes(),
+            s.compensated.measured_cp.try_cleanup_dead_nodes(),
             s.compensated_status.try_cleanup_dead_nodes(),
             s.cycle.try_cleanup_dead_nodes(),
         ];
@@ -192,17 +225,26 @@ impl<S: Service> ArmPublisher<S> {
     /// Subscribers currently connected to `topic` (reads shared memory; no allocation).
     pub fn number_of_subscribers(&self, topic: Topic) -> usize {
         let s = &self.services;
+        let state = if topic.is_compensated() {
+            &s.compensated
+        } else {
+            &s.measured
+        };
         match topic {
-            Topic::MeasuredJs => s.measured_js.dynamic_config().number_of_subscribers(),
-            Topic::MeasuredCp => s.measured_cp.dynamic_config().number_of_subscribers(),
-            Topic::CompensatedMeasuredJs => s
-                .compensated_measured_js
+            Topic::MeasuredJs | Topic::CompensatedMeasuredJs => {
+                state.measured_js.dynamic_config().number_of_subscribers()
+            }
+            Topic::JawMeasuredJs | Topic::CompensatedJawMeasuredJs => state
+                .jaw_measured_js
                 .dynamic_config()
                 .number_of_subscribers(),
-            Topic::CompensatedMeasuredCp => s
-                .compensated_measured_cp
+            Topic::LocalMeasuredCp | Topic::CompensatedLocalMeasuredCp => state
+                .local_measured_cp
                 .dynamic_config()
                 .number_of_subscribers(),
+            Topic::MeasuredCp | Topic::CompensatedMeasuredCp => {
+                state.measured_cp.dynamic_config().number_of_subscribers()
+            }
             Topic::CompensatedStatus => s
                 .compensated_status
                 .dynamic_config()
@@ -215,7 +257,7 @@ impl<S: Service> ArmPublisher<S> {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct SubscriberCounts {
     /// Subscribers per topic, in [`Topic::ALL`] order.
-    pub per_topic: [usize; 5],
+    pub per_topic: [usize; NUM_TOPICS],
     /// Listeners of the cycle event (event and predictive subscriptions; spinning ones have
     /// none). Each costs the publisher one notification per cycle.
     pub cycle_listeners: usize,
@@ -259,7 +301,7 @@ impl SubscriberCounts {
 /// What [`ArmPublisher::reap_dead_nodes`] did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ReapReport {
-    /// Dead nodes whose resources were removed (summed over the six services).
+    /// Dead nodes whose resources were removed (summed over the ten services).
     pub reaped: u64,
     /// Dead nodes whose removal failed (e.g. resources owned by another user).
     pub failed: u64,
@@ -288,12 +330,12 @@ mod tests {
     #[test]
     fn counts_name_the_topics_with_most_and_fewest_subscribers() {
         let c = SubscriberCounts {
-            per_topic: [2, 0, 5, 5, 1],
+            per_topic: [2, 1, 1, 0, 5, 1, 5, 1, 1],
             cycle_listeners: 3,
         };
         assert_eq!(c.max(), (Topic::CompensatedMeasuredJs, 5));
         assert_eq!(c.min(), (Topic::MeasuredCp, 0));
         assert_eq!(c.get(Topic::CompensatedStatus), 1);
-        assert_eq!(c.total(), 13);
+        assert_eq!(c.total(), 17);
     }
 }

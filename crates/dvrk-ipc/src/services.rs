@@ -12,7 +12,7 @@ use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
 use crate::IpcError;
-use crate::msg::{CompensationStatusV2, JointStateV1, Message, PoseV1};
+use crate::msg::{CompensationStatusV3, JawStateV1, JointStateV2, Message, PoseV2};
 use crate::names::{ServiceNames, Topic};
 
 /// The project's quality of service. The same numbers are `DVRK_IPC_QOS_*` in `dvrk_ipc.h`.
@@ -181,17 +181,59 @@ pub fn open_cycle_event<S: Service>(
         })
 }
 
-/// All six services of one arm, opened or created with the project's QoS.
+/// The four pub-sub services of one arm state (raw or compensated).
+#[derive(Debug)]
+pub struct StateServices<S: Service = iceoryx2::service::ipc::Service> {
+    pub measured_js: PubSubFactory<S, JointStateV2, ()>,
+    pub jaw_measured_js: PubSubFactory<S, JawStateV1, ()>,
+    pub local_measured_cp: PubSubFactory<S, PoseV2, ()>,
+    pub measured_cp: PubSubFactory<S, PoseV2, ()>,
+}
+
+impl<S: Service> StateServices<S> {
+    fn open_or_create(
+        node: &Node<S>,
+        names: &ServiceNames,
+        compensated: bool,
+    ) -> Result<Self, IpcError> {
+        let pick = |raw: Topic, comp: Topic| if compensated { comp } else { raw };
+        Ok(Self {
+            measured_js: open_topic(
+                node,
+                names,
+                pick(Topic::MeasuredJs, Topic::CompensatedMeasuredJs),
+            )?,
+            jaw_measured_js: open_topic(
+                node,
+                names,
+                pick(Topic::JawMeasuredJs, Topic::CompensatedJawMeasuredJs),
+            )?,
+            local_measured_cp: open_topic(
+                node,
+                names,
+                pick(Topic::LocalMeasuredCp, Topic::CompensatedLocalMeasuredCp),
+            )?,
+            measured_cp: open_topic(
+                node,
+                names,
+                pick(Topic::MeasuredCp, Topic::CompensatedMeasuredCp),
+            )?,
+        })
+    }
+}
+
+/// All ten services of one arm (nine pub-sub and the cycle event), opened or created with the
+/// project's QoS.
 ///
 /// Ports keep their service alive, so dropping this after creating ports is fine.
 #[derive(Debug)]
 pub struct ArmServices<S: Service = iceoryx2::service::ipc::Service> {
     names: ServiceNames,
-    pub measured_js: PubSubFactory<S, JointStateV1, ()>,
-    pub measured_cp: PubSubFactory<S, PoseV1, ()>,
-    pub compensated_measured_js: PubSubFactory<S, JointStateV1, ()>,
-    pub compensated_measured_cp: PubSubFactory<S, PoseV1, ()>,
-    pub compensated_status: PubSubFactory<S, CompensationStatusV2, ()>,
+    /// `<prefix>/...`.
+    pub measured: StateServices<S>,
+    /// `<prefix>/compensated/...`.
+    pub compensated: StateServices<S>,
+    pub compensated_status: PubSubFactory<S, CompensationStatusV3, ()>,
     pub cycle: EventFactory<S>,
 }
 
@@ -200,10 +242,8 @@ impl<S: Service> ArmServices<S> {
     pub fn open_or_create(node: &Node<S>, names: &ServiceNames) -> Result<Self, IpcError> {
         Ok(Self {
             names: names.clone(),
-            measured_js: open_topic(node, names, Topic::MeasuredJs)?,
-            measured_cp: open_topic(node, names, Topic::MeasuredCp)?,
-            compensated_measured_js: open_topic(node, names, Topic::CompensatedMeasuredJs)?,
-            compensated_measured_cp: open_topic(node, names, Topic::CompensatedMeasuredCp)?,
+            measured: StateServices::open_or_create(node, names, false)?,
+            compensated: StateServices::open_or_create(node, names, true)?,
             compensated_status: open_topic(node, names, Topic::CompensatedStatus)?,
             cycle: open_cycle_event(node, names)?,
         })

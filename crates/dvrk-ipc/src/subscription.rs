@@ -351,7 +351,7 @@ where
         self.topic
     }
 
-    /// The full name of the subscribed service, e.g. `dvrk/PSM1/compensated/measured_cp`.
+    /// The full name of the subscribed service, e.g. `PSM1/compensated/local/measured_cp`.
     pub fn service_name(&self) -> &str {
         &self.service_name
     }

@@ -7,48 +7,54 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use dvrk_ipc::{
-    CompensationStatusV2, Header, JOINT_NAMES, JointStateV1, Message, NUM_JOINTS, PoseV1, Topic,
-    flags, qos,
+    CompensationStatusV3, Header, JOINT_NAMES, JawStateV1, JointStateV2, Message, NUM_JOINTS,
+    PoseV2, Topic, flags, qos,
 };
 
-/// `(type, field, c_type)` of every field, in declaration order.
+/// `(type, field)` of every field, in declaration order.
 const FIELDS: &[(&str, &str)] = &[
     ("dvrk_Header", "seq"),
     ("dvrk_Header", "sample_t_ns"),
+    ("dvrk_Header", "sample_realtime_ns"),
     ("dvrk_Header", "board_timestamp"),
     ("dvrk_Header", "publish_t_ns"),
     ("dvrk_Header", "valid"),
     ("dvrk_Header", "flags"),
-    ("dvrk_JointStateV1", "header"),
-    ("dvrk_JointStateV1", "position"),
-    ("dvrk_JointStateV1", "velocity"),
-    ("dvrk_JointStateV1", "effort"),
-    ("dvrk_PoseV1", "header"),
-    ("dvrk_PoseV1", "position_m"),
-    ("dvrk_PoseV1", "orientation_xyzw"),
-    ("dvrk_PoseV1", "rotation"),
-    ("dvrk_CompensationStatusV2", "header"),
-    ("dvrk_CompensationStatusV2", "tau_ext_nm"),
-    ("dvrk_CompensationStatusV2", "delta_rad"),
-    ("dvrk_CompensationStatusV2", "insertion_m"),
-    ("dvrk_CompensationStatusV2", "cycle_period_ns"),
-    ("dvrk_CompensationStatusV2", "cycle_duration_ns"),
-    ("dvrk_CompensationStatusV2", "cycles_total"),
-    ("dvrk_CompensationStatusV2", "read_failures_total"),
-    ("dvrk_CompensationStatusV2", "overruns_total"),
-    ("dvrk_CompensationStatusV2", "consecutive_read_failures"),
-    ("dvrk_CompensationStatusV2", "_reserved"),
-    ("dvrk_CompensationStatusV2", "tau_margin_nm"),
-    ("dvrk_CompensationStatusV2", "held_sample_age_ns"),
-    ("dvrk_CompensationStatusV2", "publish_late_ns"),
-    ("dvrk_CompensationStatusV2", "implausible_total"),
+    ("dvrk_JointStateV2", "header"),
+    ("dvrk_JointStateV2", "position"),
+    ("dvrk_JointStateV2", "velocity"),
+    ("dvrk_JointStateV2", "effort"),
+    ("dvrk_JawStateV1", "header"),
+    ("dvrk_JawStateV1", "position"),
+    ("dvrk_JawStateV1", "velocity"),
+    ("dvrk_JawStateV1", "effort"),
+    ("dvrk_PoseV2", "header"),
+    ("dvrk_PoseV2", "position_m"),
+    ("dvrk_PoseV2", "orientation_xyzw"),
+    ("dvrk_PoseV2", "rotation"),
+    ("dvrk_CompensationStatusV3", "header"),
+    ("dvrk_CompensationStatusV3", "tau_ext_nm"),
+    ("dvrk_CompensationStatusV3", "delta_rad"),
+    ("dvrk_CompensationStatusV3", "insertion_m"),
+    ("dvrk_CompensationStatusV3", "cycle_period_ns"),
+    ("dvrk_CompensationStatusV3", "cycle_duration_ns"),
+    ("dvrk_CompensationStatusV3", "cycles_total"),
+    ("dvrk_CompensationStatusV3", "read_failures_total"),
+    ("dvrk_CompensationStatusV3", "overruns_total"),
+    ("dvrk_CompensationStatusV3", "consecutive_read_failures"),
+    ("dvrk_CompensationStatusV3", "_reserved"),
+    ("dvrk_CompensationStatusV3", "tau_margin_nm"),
+    ("dvrk_CompensationStatusV3", "held_sample_age_ns"),
+    ("dvrk_CompensationStatusV3", "publish_late_ns"),
+    ("dvrk_CompensationStatusV3", "implausible_total"),
 ];
 
 const TYPES: &[&str] = &[
     "dvrk_Header",
-    "dvrk_JointStateV1",
-    "dvrk_PoseV1",
-    "dvrk_CompensationStatusV2",
+    "dvrk_JointStateV2",
+    "dvrk_JawStateV1",
+    "dvrk_PoseV2",
+    "dvrk_CompensationStatusV3",
 ];
 
 /// Integer constants of the header and their Rust values.
@@ -122,12 +128,28 @@ fn string_constants() -> Vec<(&'static str, String)> {
             Topic::MeasuredJs.suffix().into(),
         ),
         (
+            "DVRK_IPC_SUFFIX_JAW_MEASURED_JS",
+            Topic::JawMeasuredJs.suffix().into(),
+        ),
+        (
+            "DVRK_IPC_SUFFIX_LOCAL_MEASURED_CP",
+            Topic::LocalMeasuredCp.suffix().into(),
+        ),
+        (
             "DVRK_IPC_SUFFIX_MEASURED_CP",
             Topic::MeasuredCp.suffix().into(),
         ),
         (
             "DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_JS",
             Topic::CompensatedMeasuredJs.suffix().into(),
+        ),
+        (
+            "DVRK_IPC_SUFFIX_COMPENSATED_JAW_MEASURED_JS",
+            Topic::CompensatedJawMeasuredJs.suffix().into(),
+        ),
+        (
+            "DVRK_IPC_SUFFIX_COMPENSATED_LOCAL_MEASURED_CP",
+            Topic::CompensatedLocalMeasuredCp.suffix().into(),
         ),
         (
             "DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_CP",
@@ -139,14 +161,19 @@ fn string_constants() -> Vec<(&'static str, String)> {
         ),
         ("DVRK_IPC_SUFFIX_CYCLE", dvrk_ipc::CYCLE_SUFFIX.into()),
         (
-            "DVRK_IPC_TYPE_NAME_JOINT_STATE_V1",
-            JointStateV1::TYPE_NAME.into(),
+            "DVRK_IPC_TYPE_NAME_JOINT_STATE_V2",
+            JointStateV2::TYPE_NAME.into(),
         ),
-        ("DVRK_IPC_TYPE_NAME_POSE_V1", PoseV1::TYPE_NAME.into()),
         (
-            "DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V2",
-            CompensationStatusV2::TYPE_NAME.into(),
+            "DVRK_IPC_TYPE_NAME_JAW_STATE_V1",
+            JawStateV1::TYPE_NAME.into(),
         ),
+        ("DVRK_IPC_TYPE_NAME_POSE_V2", PoseV2::TYPE_NAME.into()),
+        (
+            "DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V3",
+            CompensationStatusV3::TYPE_NAME.into(),
+        ),
+        ("DVRK_IPC_JAW_NAME", dvrk_ipc::JAW_NAME.into()),
     ]
 }
 
@@ -174,6 +201,7 @@ fn rust_layout() -> BTreeMap<String, String> {
         [
             seq,
             sample_t_ns,
+            sample_realtime_ns,
             board_timestamp,
             publish_t_ns,
             valid,
@@ -181,18 +209,23 @@ fn rust_layout() -> BTreeMap<String, String> {
         ]
     );
     ty!(
-        "dvrk_JointStateV1",
-        JointStateV1,
+        "dvrk_JointStateV2",
+        JointStateV2,
         [header, position, velocity, effort]
     );
     ty!(
-        "dvrk_PoseV1",
-        PoseV1,
+        "dvrk_JawStateV1",
+        JawStateV1,
+        [header, position, velocity, effort]
+    );
+    ty!(
+        "dvrk_PoseV2",
+        PoseV2,
         [header, position_m, orientation_xyzw, rotation]
     );
     ty!(
-        "dvrk_CompensationStatusV2",
-        CompensationStatusV2,
+        "dvrk_CompensationStatusV3",
+        CompensationStatusV3,
         [
             header,
             tau_ext_nm,
@@ -384,11 +417,11 @@ fn the_comparison_detects_a_wrong_header() {
             "    uint32_t flags;\n    uint32_t valid;",
         )
         .replace(
-            "DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, valid) == 32, \"dvrk_Header.valid offset\");",
+            "DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, valid) == 40, \"dvrk_Header.valid offset\");",
             "",
         )
         .replace(
-            "DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, flags) == 36, \"dvrk_Header.flags offset\");",
+            "DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_Header, flags) == 44, \"dvrk_Header.flags offset\");",
             "",
         );
     assert_ne!(good, bad, "the swap applied");
@@ -410,10 +443,10 @@ fn the_comparison_detects_a_wrong_header() {
         .lines()
         .find(|l| l.starts_with("offsetof dvrk_Header.valid "))
         .unwrap();
-    assert_eq!(valid_line, "offsetof dvrk_Header.valid 36");
+    assert_eq!(valid_line, "offsetof dvrk_Header.valid 44");
     assert_eq!(
         rust_layout()["offsetof dvrk_Header.valid"],
-        "32",
+        "40",
         "so assert_same would report the difference"
     );
 }

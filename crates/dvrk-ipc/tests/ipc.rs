@@ -13,8 +13,8 @@ use common::Domain;
 use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, Header, IpcError, JointStateV1, Message, PoseV1,
-    Subscription, Topic, Update, create_node, flags,
+    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, IpcError, JawStateV1,
+    JointStateV2, Message, PoseV2, Subscription, Topic, Update, create_node, flags,
 };
 
 /// Generous period for tests: the deadline is 3 periods. Nothing asserts on elapsed time.
@@ -24,46 +24,46 @@ fn node(d: &Domain, name: &str) -> Node<ipc::Service> {
     create_node::<ipc::Service>(name, Some(&d.config)).expect("node")
 }
 
-/// One cycle's messages with values derived from `seq`, so every field is checked.
-fn cycle(
-    seq: u64,
-) -> (
-    JointStateV1,
-    PoseV1,
-    JointStateV1,
-    PoseV1,
-    CompensationStatusV2,
-) {
+/// One cycle's messages with values derived from `seq`, different in every topic, so every
+/// field is checked and a mixed-up topic is caught.
+fn cycle(seq: u64) -> CycleMessages {
     let s = seq as f64;
     let header = Header {
         seq,
         sample_t_ns: 1_000_000 * seq,
+        sample_realtime_ns: 1_763_900_000_000_000_000 + 1_000_000 * seq + 17,
         board_timestamp: Header::pack_board_timestamps([seq as u32, 7]),
         publish_t_ns: 1_000_000 * seq + 500,
         valid: 1,
         flags: flags::SIMULATED | flags::CORRECTION_ACTIVE_J1,
     };
-    let js = JointStateV1 {
+    let js = JointStateV2 {
         header,
         position: core::array::from_fn(|i| s + i as f64 * 0.1),
         velocity: core::array::from_fn(|i| -s - i as f64),
         effort: core::array::from_fn(|i| 100.0 * s + i as f64),
     };
-    let cjs = JointStateV1 {
+    let cjs = JointStateV2 {
         position: core::array::from_fn(|i| s + i as f64 * 0.1 - 0.01),
         ..js
     };
-    let cp = PoseV1 {
+    let jaw = JawStateV1 {
         header,
-        position_m: [s, 2.0 * s, 3.0 * s],
+        position: 0.3 + s,
+        velocity: -s,
+        effort: 0.01 * s,
+    };
+    let cjaw = JawStateV1 {
+        effort: 0.02 * s,
+        ..jaw
+    };
+    let pose = |dx: f64| PoseV2 {
+        header,
+        position_m: [s + dx, 2.0 * s, 3.0 * s],
         orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
         rotation: core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 }),
     };
-    let ccp = PoseV1 {
-        position_m: [s + 0.5, 2.0 * s, 3.0 * s],
-        ..cp
-    };
-    let status = CompensationStatusV2 {
+    let status = CompensationStatusV3 {
         header,
         tau_ext_nm: [0.1 * s, -0.2 * s],
         delta_rad: [0.01, -0.02],
@@ -77,12 +77,25 @@ fn cycle(
         _reserved: 0,
         ..Default::default()
     };
-    (js, cp, cjs, ccp, status)
+    CycleMessages {
+        measured: ArmState {
+            measured_js: js,
+            jaw_measured_js: jaw,
+            local_measured_cp: pose(0.0),
+            measured_cp: pose(1.0),
+        },
+        compensated: ArmState {
+            measured_js: cjs,
+            jaw_measured_js: cjaw,
+            local_measured_cp: pose(0.5),
+            measured_cp: pose(1.5),
+        },
+        status,
+    }
 }
 
 fn publish(p: &ArmPublisher, seq: u64) {
-    let (js, cp, cjs, ccp, st) = cycle(seq);
-    p.publish_cycle(&js, &cp, &cjs, &ccp, &st).expect("publish");
+    p.publish_cycle(&cycle(seq)).expect("publish");
 }
 
 fn expect_fresh<T: Message>(u: Update<T>) -> T {
@@ -93,20 +106,24 @@ fn expect_fresh<T: Message>(u: Update<T>) -> T {
 }
 
 #[test]
-fn round_trip_of_all_five_topics() {
+fn round_trip_of_all_nine_topics() {
     let d = Domain::new("round_trip");
     let node = node(&d, "rt");
-    let mut js = Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
-        .expect("sub js");
-    let mut cp =
-        Subscription::<PoseV1>::new(&node, &d.names, Topic::MeasuredCp, PERIOD).expect("sub cp");
-    let mut cjs =
-        Subscription::<JointStateV1>::new(&node, &d.names, Topic::CompensatedMeasuredJs, PERIOD)
-            .expect("sub cjs");
-    let mut ccp =
-        Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD)
-            .expect("sub ccp");
-    let mut st = Subscription::<CompensationStatusV2>::new(
+    let js = |t| Subscription::<JointStateV2>::new(&node, &d.names, t, PERIOD).expect("sub js");
+    let jaw = |t| Subscription::<JawStateV1>::new(&node, &d.names, t, PERIOD).expect("sub jaw");
+    let cp = |t| Subscription::<PoseV2>::new(&node, &d.names, t, PERIOD).expect("sub cp");
+    let mut subs_js = [js(Topic::MeasuredJs), js(Topic::CompensatedMeasuredJs)];
+    let mut subs_jaw = [
+        jaw(Topic::JawMeasuredJs),
+        jaw(Topic::CompensatedJawMeasuredJs),
+    ];
+    let mut subs_cp = [
+        cp(Topic::LocalMeasuredCp),
+        cp(Topic::MeasuredCp),
+        cp(Topic::CompensatedLocalMeasuredCp),
+        cp(Topic::CompensatedMeasuredCp),
+    ];
+    let mut st = Subscription::<CompensationStatusV3>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,
@@ -114,20 +131,50 @@ fn round_trip_of_all_five_topics() {
     )
     .expect("sub status");
     let publisher = ArmPublisher::create(&node, &d.names).expect("publisher");
-    assert_eq!(publisher.number_of_subscribers(Topic::MeasuredJs), 1);
+    for t in Topic::ALL {
+        assert_eq!(publisher.number_of_subscribers(t), 1, "{t}");
+    }
 
     for seq in 1..=3 {
         publish(&publisher, seq);
         let want = cycle(seq);
-        assert_eq!(expect_fresh(js.wait().unwrap()), want.0);
-        assert_eq!(expect_fresh(cp.wait().unwrap()), want.1);
-        assert_eq!(expect_fresh(cjs.wait().unwrap()), want.2);
-        assert_eq!(expect_fresh(ccp.wait().unwrap()), want.3);
-        assert_eq!(expect_fresh(st.wait().unwrap()), want.4);
+        assert_eq!(
+            expect_fresh(subs_js[0].wait().unwrap()),
+            want.measured.measured_js
+        );
+        assert_eq!(
+            expect_fresh(subs_js[1].wait().unwrap()),
+            want.compensated.measured_js
+        );
+        assert_eq!(
+            expect_fresh(subs_jaw[0].wait().unwrap()),
+            want.measured.jaw_measured_js
+        );
+        assert_eq!(
+            expect_fresh(subs_jaw[1].wait().unwrap()),
+            want.compensated.jaw_measured_js
+        );
+        assert_eq!(
+            expect_fresh(subs_cp[0].wait().unwrap()),
+            want.measured.local_measured_cp
+        );
+        assert_eq!(
+            expect_fresh(subs_cp[1].wait().unwrap()),
+            want.measured.measured_cp
+        );
+        assert_eq!(
+            expect_fresh(subs_cp[2].wait().unwrap()),
+            want.compensated.local_measured_cp
+        );
+        assert_eq!(
+            expect_fresh(subs_cp[3].wait().unwrap()),
+            want.compensated.measured_cp
+        );
+        assert_eq!(expect_fresh(st.wait().unwrap()), want.status);
     }
-    assert_eq!(js.stats().received_total, 3);
-    assert_eq!(js.stats().seq_gaps_total, 0);
-    assert_eq!(js.latest().map(|v| v.header.seq), Some(3));
+    assert_eq!(subs_js[0].stats().received_total, 3);
+    assert_eq!(subs_js[0].stats().seq_gaps_total, 0);
+    assert_eq!(subs_js[0].latest().map(|v| v.header.seq), Some(3));
 }
 
 #[test]
@@ -135,7 +182,7 @@ fn subscriber_that_fell_behind_gets_the_newest_and_counts_the_rest() {
     let d = Domain::new("behind");
     let node = node(&d, "behind");
     let mut sub =
-        Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD).unwrap();
+        Subscription::<PoseV2>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD).unwrap();
     let publisher = ArmPublisher::create(&node, &d.names).unwrap();
     for seq in 1..=5 {
         publish(&publisher, seq);
@@ -155,7 +202,7 @@ fn buffer_overflow_shows_up_as_seq_gaps() {
     let d = Domain::new("overflow");
     let node = node(&d, "overflow");
     let mut sub =
-        Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
+        Subscription::<JointStateV2>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
     let publisher = ArmPublisher::create(&node, &d.names).unwrap();
     let n = dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE as u64 + 10;
     publish(&publisher, 1);
@@ -176,7 +223,7 @@ fn buffer_overflow_shows_up_as_seq_gaps() {
 fn invalid_cycles_carry_valid_zero_and_the_reason() {
     let d = Domain::new("invalid");
     let node = node(&d, "invalid");
-    let mut sub = Subscription::<CompensationStatusV2>::new(
+    let mut sub = Subscription::<CompensationStatusV3>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,
@@ -184,19 +231,13 @@ fn invalid_cycles_carry_valid_zero_and_the_reason() {
     )
     .unwrap();
     let publisher = ArmPublisher::create(&node, &d.names).unwrap();
-    let (mut js, mut cp, mut cjs, mut ccp, mut st) = cycle(9);
-    for h in [
-        js.header_mut(),
-        cp.header_mut(),
-        cjs.header_mut(),
-        ccp.header_mut(),
-        st.header_mut(),
-    ] {
-        h.valid = 0;
-        h.flags = flags::BOARD_TIMEOUT;
-    }
-    st.consecutive_read_failures = 4;
-    publisher.publish_cycle(&js, &cp, &cjs, &ccp, &st).unwrap();
+    let mut c = cycle(9);
+    let mut h = c.status.header;
+    h.valid = 0;
+    h.flags = flags::BOARD_TIMEOUT;
+    c.set_header(h);
+    c.status.consecutive_read_failures = 4;
+    publisher.publish_cycle(&c).unwrap();
     let got = expect_fresh(sub.wait().unwrap());
     assert!(!got.header.is_valid());
     assert!(got.header.has(flags::BOARD_TIMEOUT));
@@ -211,7 +252,7 @@ fn late_subscriber_gets_the_latest_sample_at_the_next_send() {
     for seq in 1..=5 {
         publish(&publisher, seq);
     }
-    let mut sub = Subscription::<PoseV1>::new(&node, &d.names, Topic::MeasuredCp, PERIOD).unwrap();
+    let mut sub = Subscription::<PoseV2>::new(&node, &d.names, Topic::MeasuredCp, PERIOD).unwrap();
     // iceoryx2 0.10 connects a new subscriber, and delivers its history, inside the publisher's
     // next send: nothing is there before it.
     assert_eq!(sub.try_latest().unwrap(), None);
@@ -247,7 +288,7 @@ fn after_a_clean_stop_a_new_publisher_can_take_over() {
     let d = Domain::new("takeover");
     let node = node(&d, "takeover");
     let mut sub =
-        Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
+        Subscription::<JointStateV2>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
     let first = ArmPublisher::create(&node, &d.names).unwrap();
     publish(&first, 1);
     assert_eq!(expect_fresh(sub.wait().unwrap()).header.seq, 1);
@@ -263,7 +304,7 @@ fn silent_publisher_is_stale_and_a_dropped_one_is_terminated() {
     let d = Domain::new("stale");
     let node = node(&d, "stale");
     let mut sub =
-        Subscription::<PoseV1>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD).unwrap();
+        Subscription::<PoseV2>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD).unwrap();
     // No publisher yet: waiting for one is staleness, not termination.
     assert!(matches!(sub.wait().unwrap(), Update::Stale { .. }));
     let publisher = ArmPublisher::create(&node, &d.names).unwrap();
@@ -294,11 +335,11 @@ fn silent_publisher_is_stale_and_a_dropped_one_is_terminated() {
 fn topic_and_type_must_match() {
     let d = Domain::new("mismatch");
     let node = node(&d, "mismatch");
-    let err = Subscription::<PoseV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
-        .expect_err("PoseV1 on measured_js");
+    let err = Subscription::<PoseV2>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
+        .expect_err("PoseV2 on measured_js");
     assert_eq!(
         err.to_string(),
-        "topic measured_js carries dvrk::JointStateV1, not dvrk::PoseV1"
+        "topic measured_js carries dvrk::JointStateV2, not dvrk::PoseV2"
     );
 }
 
@@ -384,7 +425,7 @@ fn child_process_role() {
     match role.as_str() {
         "subscriber" => {
             let mut sub =
-                Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
+                Subscription::<JointStateV2>::new(&node, &d.names, Topic::MeasuredJs, PERIOD)
                     .unwrap();
             println!("READY 1");
             let mut seqs = Vec::new();
@@ -465,7 +506,7 @@ fn killed_publisher_process_is_reported_terminated_and_can_be_replaced() {
     let d = Domain::new("xproc_kill");
     let node = node(&d, "xproc_kill_sub");
     let mut sub =
-        Subscription::<JointStateV1>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
+        Subscription::<JointStateV2>::new(&node, &d.names, Topic::MeasuredJs, PERIOD).unwrap();
     let mut child = spawn_child(&d, "publisher", 0);
     let mut lines = child_lines(&mut child);
     assert!(
@@ -514,14 +555,14 @@ fn in_process_local_service_variant_works() {
     // local::Service keeps everything in this process (benchmarks of the whole cycle use it).
     let d = Domain::new("local");
     let node = create_node::<local::Service>("local", Some(&d.config)).unwrap();
-    let service = dvrk_ipc::open_topic::<PoseV1, local::Service>(
+    let service = dvrk_ipc::open_topic::<PoseV2, local::Service>(
         &node,
         &d.names,
         Topic::CompensatedMeasuredCp,
     )
     .unwrap();
     let subscriber = service.subscriber_builder().create().unwrap();
-    let mut sub = Subscription::<PoseV1, local::Service>::new(
+    let mut sub = Subscription::<PoseV2, local::Service>::new(
         &node,
         &d.names,
         Topic::CompensatedMeasuredCp,
@@ -529,8 +570,9 @@ fn in_process_local_service_variant_works() {
     )
     .unwrap();
     let publisher = ArmPublisher::<local::Service>::create(&node, &d.names).unwrap();
-    let (js, cp, cjs, ccp, st) = cycle(4);
-    publisher.publish_cycle(&js, &cp, &cjs, &ccp, &st).unwrap();
+    let c = cycle(4);
+    publisher.publish_cycle(&c).unwrap();
+    let ccp = c.compensated.measured_cp;
     assert_eq!(*subscriber.receive().unwrap().expect("a sample"), ccp);
     assert_eq!(expect_fresh(sub.wait().unwrap()), ccp);
 }

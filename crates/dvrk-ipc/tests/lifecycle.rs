@@ -12,8 +12,8 @@ use common::Domain;
 use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, SubscribeOptions, Subscription,
-    Topic, Update, WaitStrategy, create_node, monotonic_ns,
+    ArmPublisher, CycleMessages, Header, JointStateV2, SubscribeOptions, Subscription, Topic,
+    Update, WaitStrategy, create_node, monotonic_ns,
 };
 
 const PERIOD: Duration = Duration::from_millis(1);
@@ -24,21 +24,17 @@ fn node(d: &Domain, name: &str) -> Node<ipc::Service> {
 
 fn publish(p: &ArmPublisher, seq: u64) {
     let t = monotonic_ns();
-    let mut js = JointStateV1::default();
-    js.header.seq = seq;
-    js.header.sample_t_ns = t;
-    js.header.publish_t_ns = t;
-    js.header.valid = 1;
-    let mut cp = PoseV1 {
-        header: js.header,
-        ..PoseV1::default()
-    };
-    cp.position_m[2] = -0.1;
-    let st = CompensationStatusV2 {
-        header: js.header,
-        ..CompensationStatusV2::default()
-    };
-    p.publish_cycle(&js, &cp, &js, &cp, &st).expect("publish");
+    let mut c = CycleMessages::default();
+    c.set_header(Header {
+        seq,
+        sample_t_ns: t,
+        publish_t_ns: t,
+        valid: 1,
+        ..Header::default()
+    });
+    c.compensated.local_measured_cp.position_m[2] = -0.1;
+    c.compensated.measured_cp.position_m[2] = -0.1;
+    p.publish_cycle(&c).expect("publish");
 }
 
 /// Publishes on an absolute 1 ms grid, like the sidecar's loop.
@@ -114,7 +110,7 @@ fn child_role() {
                 wait,
                 deadline: Some(Duration::from_millis(50)),
             };
-            let mut sub = Subscription::<JointStateV1>::with_options(
+            let mut sub = Subscription::<JointStateV2>::with_options(
                 &node,
                 &d.names,
                 Topic::MeasuredJs,

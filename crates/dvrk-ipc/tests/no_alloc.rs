@@ -17,8 +17,7 @@ use std::time::Duration;
 use common::Domain;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, Subscription, Topic, Update,
-    create_node,
+    ArmPublisher, CycleMessages, Header, PoseV2, Subscription, Topic, Update, create_node,
 };
 
 struct Counting;
@@ -68,20 +67,18 @@ fn watched<R>(f: impl FnOnce() -> R) -> R {
 fn publish_cycle_allocates_only_iceoryx2s_per_sample_handle() {
     let d = Domain::new("no_alloc");
     let node = create_node::<ipc::Service>("no_alloc", Some(&d.config)).unwrap();
-    let mut sub = Subscription::<PoseV1>::new(
+    let mut sub = Subscription::<PoseV2>::new(
         &node,
         &d.names,
-        Topic::CompensatedMeasuredCp,
+        Topic::CompensatedLocalMeasuredCp,
         Duration::from_millis(20),
     )
     .unwrap();
     let publisher = ArmPublisher::create(&node, &d.names).unwrap();
-    let mut js = JointStateV1::default();
-    let mut cp = PoseV1::default();
-    let mut st = CompensationStatusV2::default();
+    let mut cycle = CycleMessages::default();
 
     // The first send connects the subscriber (setup work, may allocate).
-    publisher.publish_cycle(&js, &cp, &js, &cp, &st).unwrap();
+    publisher.publish_cycle(&cycle).unwrap();
     assert!(matches!(sub.wait().unwrap(), Update::Fresh(_)));
 
     // The check must be able to fail: the counter sees allocations on this thread.
@@ -91,10 +88,11 @@ fn publish_cycle_allocates_only_iceoryx2s_per_sample_handle() {
     const FIRST: u64 = 2;
     const LAST: u64 = 2000;
     for seq in FIRST..=LAST {
-        js.header.seq = seq;
-        cp.header.seq = seq;
-        st.header.seq = seq;
-        watched(|| publisher.publish_cycle(&js, &cp, &js, &cp, &st)).unwrap();
+        cycle.set_header(Header {
+            seq,
+            ..Header::default()
+        });
+        watched(|| publisher.publish_cycle(&cycle)).unwrap();
         if seq % 100 == 0 {
             // Drain now and then, so both the normal and the overflowing buffer are exercised.
             assert!(matches!(sub.wait().unwrap(), Update::Fresh(_)));

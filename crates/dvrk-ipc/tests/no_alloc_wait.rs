@@ -12,8 +12,8 @@ use std::time::Duration;
 use common::Domain;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, JointStateV1, PoseV1, SubscribeOptions, Subscription,
-    Topic, Update, WaitStrategy, create_node, monotonic_ns,
+    ArmPublisher, CycleMessages, Header, PoseV2, SubscribeOptions, Subscription, Topic, Update,
+    WaitStrategy, create_node, monotonic_ns,
 };
 
 struct Counting;
@@ -66,7 +66,7 @@ fn waiting_allocates_nothing_with_any_strategy() {
             wait,
             deadline: Some(Duration::from_millis(200)),
         };
-        let mut sub = Subscription::<PoseV1>::with_options(
+        let mut sub = Subscription::<PoseV2>::with_options(
             &node,
             &d.names,
             Topic::CompensatedMeasuredCp,
@@ -84,18 +84,13 @@ fn waiting_allocates_nothing_with_any_strategy() {
                 while monotonic_ns() < t0 + seq * 1_000_000 {
                     std::thread::sleep(Duration::from_micros(100));
                 }
-                let mut js = JointStateV1::default();
-                js.header.seq = seq;
-                js.header.publish_t_ns = monotonic_ns();
-                let cp = PoseV1 {
-                    header: js.header,
-                    ..PoseV1::default()
-                };
-                let st = CompensationStatusV2 {
-                    header: js.header,
-                    ..CompensationStatusV2::default()
-                };
-                p.publish_cycle(&js, &cp, &js, &cp, &st).unwrap();
+                let mut c = CycleMessages::default();
+                c.set_header(Header {
+                    seq,
+                    publish_t_ns: monotonic_ns(),
+                    ..Header::default()
+                });
+                p.publish_cycle(&c).unwrap();
             }
             // Keep the publisher alive until the subscriber is done.
             std::thread::sleep(Duration::from_millis(300));

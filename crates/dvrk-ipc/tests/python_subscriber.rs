@@ -11,9 +11,7 @@ use std::time::Duration;
 
 use common::Domain;
 use dvrk_ipc::iceoryx2::service::ipc;
-use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV2, Header, JointStateV1, PoseV1, Topic, create_node, flags,
-};
+use dvrk_ipc::{ArmPublisher, CycleMessages, Header, PoseV2, Topic, create_node, flags};
 
 fn script() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/python/subscriber.py")
@@ -37,12 +35,13 @@ fn python_with_iceoryx2() -> Result<(), String> {
     Ok(())
 }
 
-fn pose(seq: u64) -> PoseV1 {
+fn pose(seq: u64) -> PoseV2 {
     let s = seq as f64;
-    PoseV1 {
+    PoseV2 {
         header: Header {
             seq,
             sample_t_ns: 10 * seq,
+            sample_realtime_ns: 1_700_000_000_000_000_000 + 7 * seq,
             board_timestamp: Header::pack_board_timestamps([seq as u32, 99]),
             publish_t_ns: 10 * seq + 3,
             valid: (seq % 2) as u32,
@@ -85,7 +84,6 @@ fn python_subscriber_decodes_the_compensated_pose() {
     }
     assert!(subscribed, "the Python subscriber never connected");
     // Publish until the script has printed COUNT samples and exited.
-    let js = JointStateV1::default();
     let mut seq = 0;
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {
@@ -94,18 +92,18 @@ fn python_subscriber_decodes_the_compensated_pose() {
         assert!(seq < 10_000, "the Python subscriber did not finish");
         seq += 1;
         let cp = pose(seq);
-        let mut js = js;
-        js.header = cp.header;
-        let st = CompensationStatusV2 {
-            header: cp.header,
-            ..Default::default()
-        };
-        // The raw pose differs, so a script reading the wrong topic would fail the checks.
-        let raw = PoseV1 {
+        let mut cycle = CycleMessages::default();
+        cycle.set_header(cp.header);
+        // The raw poses differ, so a script reading the wrong topic would fail the checks.
+        let raw = PoseV2 {
             position_m: [9.0; 3],
             ..cp
         };
-        publisher.publish_cycle(&js, &raw, &js, &cp, &st).unwrap();
+        cycle.measured.local_measured_cp = raw;
+        cycle.measured.measured_cp = raw;
+        cycle.compensated.local_measured_cp = cp;
+        cycle.compensated.measured_cp = cp;
+        publisher.publish_cycle(&cycle).unwrap();
         std::thread::sleep(Duration::from_millis(5));
     };
     assert!(status.success(), "subscriber.py exited with {status}");
@@ -203,15 +201,11 @@ fn python_subscriber_waits_every_way() {
             }
             let mut cp = pose(seq);
             cp.header.publish_t_ns = dvrk_ipc::monotonic_ns();
-            let js = JointStateV1 {
-                header: cp.header,
-                ..JointStateV1::default()
-            };
-            let st = CompensationStatusV2 {
-                header: cp.header,
-                ..Default::default()
-            };
-            publisher.publish_cycle(&js, &cp, &js, &cp, &st).unwrap();
+            let mut cycle = CycleMessages::default();
+            cycle.set_header(cp.header);
+            cycle.compensated.local_measured_cp = cp;
+            cycle.compensated.measured_cp = cp;
+            publisher.publish_cycle(&cycle).unwrap();
         };
         assert!(
             status.success(),

@@ -14,9 +14,13 @@ pub struct SourceArgs {
     /// Arm name: the ROS namespace and frame names (topics /<ARM>/compensated/...).
     #[arg(long, default_value = "PSM1")]
     prefix: String,
-    /// Shared-memory prefix of the running `serve` (default: dvrk/<ARM>).
+    /// Shared-memory prefix of the running `serve` (default: <ARM>, as `serve` names it).
     #[arg(long)]
     shm_prefix: Option<String>,
+    /// Frame id of measured_cp: the reference frame of the arm's base frame in the console's
+    /// configuration (e.g. ECM). Default: <ARM>_base.
+    #[arg(long)]
+    base_frame_id: Option<String>,
     /// Publish at most this many cycles per second (default: every cycle).
     #[arg(long)]
     rate: Option<f64>,
@@ -27,6 +31,7 @@ impl SourceArgs {
         SourceOptions {
             arm: self.prefix.clone(),
             shm_prefix: self.shm_prefix.clone(),
+            base_frame_id: self.base_frame_id.clone(),
             rate_hz: self.rate,
         }
     }
@@ -58,6 +63,10 @@ pub struct RecordArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
+    /// Record only the compensated topics (by default the uncompensated ones are recorded too,
+    /// as /<ARM>/measured_js, /<ARM>/local/measured_cp, ...).
+    #[arg(long)]
+    compensated_only: bool,
 }
 
 pub fn run_ros2_bridge(args: &Ros2BridgeArgs) -> Result<()> {
@@ -90,6 +99,7 @@ pub fn run_record(args: &RecordArgs) -> Result<()> {
     let rec = RecordOptions {
         out: args.out.clone(),
         seconds: args.seconds,
+        compensated_only: args.compensated_only,
     };
     let (stats, written) = dvrk_bridge::run_record(&args.source.options(), &rec, stop.as_atomic())
         .with_context(|| format!("recording to {}", args.out.display()))?;

@@ -12,6 +12,7 @@ use anyhow::{Context, Result, bail};
 use dvrk_compliance::{ArmKind, ComplianceConfig, Instrument, PsmKinematics};
 use dvrk_io::IoConfig;
 use dvrk_io::reader::AccessMode;
+use nalgebra::{Isometry3, UnitQuaternion};
 use serde::Deserialize;
 
 /// The FPGA's UDP port (reference dvrk-board-protocol.md section 3.1).
@@ -21,8 +22,12 @@ pub const BOARD_UDP_PORT: u16 = 1394;
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SidecarParams {
-    /// `sim` (built-in simulated PSM, in-process), `udp:IP[:PORT]` or `fw:N`, as the dVRK spells it.
-    pub source: String,
+    /// `sim` (built-in simulated PSM, in-process), `udp:IP[:PORT]`, `fw:N` or `tap:IFACE`, as the
+    /// dVRK spells it. Required: a missing or empty `source` refuses to start (the installed
+    /// default configuration leaves it empty, so a lab PC never publishes a simulated arm by
+    /// accident).
+    #[serde(default)]
+    pub source: Option<String>,
     /// `shared` (read-only quadlet reads; the default) or `exclusive` (block reads).
     #[serde(default = "default_access")]
     pub access: AccessMode,
@@ -37,9 +42,13 @@ pub struct SidecarParams {
     /// Cycle rate: a number of Hz, or `"follow"` to run as fast as reads complete.
     #[serde(default = "default_rate")]
     pub rate: Rate,
-    /// iceoryx2 service prefix, e.g. `dvrk/PSM1`.
+    /// iceoryx2 service prefix: the arm's name as the dVRK console names it (`PSM1`), so topics
+    /// are `PSM1/measured_js`, `PSM1/local/measured_cp`, ...
     #[serde(default = "default_prefix")]
     pub prefix: String,
+    /// The arm's base frame, for `measured_cp` (`local/measured_cp` is in the RCM frame). Absent:
+    /// the identity, so `measured_cp` equals `local/measured_cp`.
+    pub base_frame: Option<BaseFrameParams>,
     /// How long one board request waits for its reply (ms) before the cycle is published as
     /// invalid with BOARD_TIMEOUT. The dVRK host waits 20 ms; the sidecar, whose period is
     /// 0.67 ms, waits 5 ms by default so that a lost datagram costs few cycles.
@@ -62,7 +71,95 @@ fn default_reply_timeout_ms() -> f64 {
     5.0
 }
 fn default_prefix() -> String {
-    "dvrk/PSM1".to_owned()
+    dvrk_ipc::DEFAULT_PREFIX.to_owned()
+}
+
+/// `[base_frame]`: either `transform` (a 4×4 homogeneous matrix, rows, metres, as the dVRK
+/// writes `base-frame.transform`) or `dvrk_json` (the lab's dVRK console or system JSON, whose
+/// entry for the arm carries `base-frame`/`base_frame`), with `arm` naming the entry (default:
+/// the last segment of the prefix).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaseFrameParams {
+    pub transform: Option<[[f64; 4]; 4]>,
+    pub dvrk_json: Option<PathBuf>,
+    pub arm: Option<String>,
+}
+
+/// A 4×4 homogeneous transform (rows) as an isometry; `what` names it in errors. The rotation
+/// must be orthonormal to 1e-6 and the last row `[0, 0, 0, 1]`.
+pub fn isometry_from_rows(m: &[[f64; 4]; 4], what: &str) -> Result<Isometry3<f64>> {
+    if let Some((r, c)) = (0..4)
+        .flat_map(|r| (0..4).map(move |c| (r, c)))
+        .find(|&(r, c)| !m[r][c].is_finite())
+    {
+        bail!(
+            "{what}: element [{r}][{c}] = {} is not a finite number",
+            m[r][c]
+        );
+    }
+    if m[3] != [0.0, 0.0, 0.0, 1.0] {
+        bail!("{what}: the last row must be [0, 0, 0, 1], got {:?}", m[3]);
+    }
+    let rot = nalgebra::Matrix3::from_fn(|r, c| m[r][c]);
+    let err = (rot.transpose() * rot - nalgebra::Matrix3::identity())
+        .abs()
+        .max();
+    if err > 1e-6 || rot.determinant() < 0.0 {
+        bail!(
+            "{what}: the upper-left 3x3 is not a rotation (|R^T R - I| = {err:.2e}, det = {:.6})",
+            rot.determinant()
+        );
+    }
+    let rotation = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix(&rot));
+    Ok(Isometry3::from_parts(
+        nalgebra::Translation3::new(m[0][3], m[1][3], m[2][3]),
+        rotation,
+    ))
+}
+
+/// The base frame of `arm` in a dVRK console (2.1-2.2: `base-frame`, `reference-frame`) or
+/// system (2.3: `base_frame`, `reference_frame`) JSON, comments allowed as the dVRK allows them.
+/// `Ok(None)`: the arm is there without a base frame (the console then uses the identity).
+pub fn base_frame_from_dvrk_json(
+    text: &str,
+    arm: &str,
+    file: &str,
+) -> Result<Option<Isometry3<f64>>> {
+    let v: serde_json::Value = serde_json::from_str(&dvrk_io::convert::strip_json_comments(text))
+        .with_context(|| format!("{file}: not valid JSON"))?;
+    let arms = v
+        .get("arms")
+        .and_then(|a| a.as_array())
+        .ok_or_else(|| anyhow::anyhow!("{file}: no `arms` list (is this a dVRK console JSON?)"))?;
+    let entry = arms
+        .iter()
+        .find(|a| a.get("name").and_then(|n| n.as_str()) == Some(arm))
+        .ok_or_else(|| {
+            let names: Vec<&str> = arms
+                .iter()
+                .filter_map(|a| a.get("name").and_then(|n| n.as_str()))
+                .collect();
+            anyhow::anyhow!(
+                "{file}: no arm named \"{arm}\" in `arms` (found: {})",
+                names.join(", ")
+            )
+        })?;
+    let Some(frame) = entry.get("base-frame").or_else(|| entry.get("base_frame")) else {
+        return Ok(None);
+    };
+    let key = if entry.get("base-frame").is_some() {
+        "base-frame"
+    } else {
+        "base_frame"
+    };
+    let t = frame
+        .get("transform")
+        .ok_or_else(|| anyhow::anyhow!("{file}: arm {arm}: `{key}` has no `transform`"))?;
+    let m: [[f64; 4]; 4] = serde_json::from_value(t.clone()).with_context(|| {
+        format!("{file}: arm {arm}: `{key}.transform` is not a 4x4 array of numbers")
+    })?;
+    isometry_from_rows(&m, &format!("{file}: arm {arm}: `{key}.transform`")).map(Some)
 }
 
 /// How often the loop runs.
@@ -209,6 +306,10 @@ pub struct SidecarConfig {
     pub compliance: ComplianceConfig,
     pub rate: Rate,
     pub prefix: String,
+    /// `measured_cp = base_frame × local/measured_cp`.
+    pub base_frame: Isometry3<f64>,
+    /// Where the base frame came from, for the start-up log and `check-config`.
+    pub base_frame_origin: String,
     pub reply_timeout: std::time::Duration,
     pub scenario_path: Option<PathBuf>,
     pub scenario: Option<dvrk_sim::Scenario>,
@@ -244,6 +345,46 @@ pub fn load_scenario(path: &Path) -> Result<dvrk_sim::Scenario> {
         .with_context(|| format!("{}: invalid simulator scenario", path.display()))
 }
 
+/// Warnings about a compliance parameter file used with a real source (`udp:`, `fw:`, `tap:`):
+/// parameters fitted on the simulator, or without a calibrated torque offset tau_0(q) (all zero,
+/// as in the paper's file), make every gravity and friction torque look like contact. `text` is
+/// the file's content, `file` its name for the message. Empty for the simulator.
+pub fn compliance_warnings(source: &Source, text: &str, file: &str) -> Vec<String> {
+    if *source == Source::Sim {
+        return Vec::new();
+    }
+    let mut w = Vec::new();
+    if text.contains("Compliance parameters of the built-in simulated PSM") {
+        w.push(format!(
+            "{file} was fitted on the built-in simulator, not on this robot: its torque offsets, \
+             backlash and stiffness describe the simulated arm. Calibrate this arm (calibrate record, \
+             fit) and point `compliance` at the result"
+        ));
+    }
+    let zero_offsets = text
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|t| t.get("joint").and_then(|j| j.as_array()).cloned())
+        .is_some_and(|joints| {
+            !joints.is_empty()
+                && joints.iter().all(|j| {
+                    j.get("torque_offset")
+                        .and_then(|o| o.get("effort_nm"))
+                        .and_then(|e| e.as_array())
+                        .is_some_and(|e| e.iter().all(|v| v.as_float() == Some(0.0)))
+                })
+        });
+    if zero_offsets {
+        w.push(format!(
+            "{file} has no calibrated torque offset (tau_0 is zero for every joint, as in the \
+             paper's published parameters): on a real arm gravity and friction torques then count \
+             as contact and the correction moves the tip. Measure tau_0 with `calibrate record` \
+             (torque-offset sweep) and `fit`"
+        ));
+    }
+    w
+}
+
 /// Looks an instrument up by its dVRK name, listing the known ones when it is not found.
 pub fn find_instrument(name: &str) -> Result<&'static Instrument> {
     dvrk_compliance::instrument(name).ok_or_else(|| {
@@ -274,7 +415,15 @@ impl SidecarConfig {
             }
         };
         let here = path.display();
-        let source = Source::parse(&p.source).with_context(|| format!("{here}: field `source`"))?;
+        let source = match p.source.as_deref().map(str::trim) {
+            None | Some("") => bail!(
+                "{here}: field `source` is not set. Name where the samples come from: \
+                 \"udp:169.254.0.100\" (boards over Ethernet), \"fw:0\" (FireWire port 0), \
+                 \"tap:eth1\" (passive tap of the console's traffic) or \"sim\" (the built-in \
+                 simulated PSM)"
+            ),
+            Some(s) => Source::parse(s).with_context(|| format!("{here}: field `source`"))?,
+        };
         if let Rate::Hz(hz) = p.rate
             && !(hz.is_finite() && (1.0..=20_000.0).contains(&hz))
         {
@@ -307,6 +456,49 @@ impl SidecarConfig {
         let compliance = load_compliance(&compliance_path)
             .with_context(|| format!("{here}: field `compliance`"))?;
 
+        let (base_frame, base_frame_origin) = match &p.base_frame {
+            None => (
+                Isometry3::identity(),
+                "identity (no [base_frame])".to_owned(),
+            ),
+            Some(BaseFrameParams {
+                transform: Some(m),
+                dvrk_json: None,
+                arm: None,
+            }) => (
+                isometry_from_rows(m, &format!("{here}: field `base_frame.transform`"))?,
+                format!("base_frame.transform of {here}"),
+            ),
+            Some(BaseFrameParams {
+                transform: None,
+                dvrk_json: Some(json),
+                arm,
+            }) => {
+                let json = resolve(json);
+                let arm = arm
+                    .clone()
+                    .unwrap_or_else(|| p.prefix.rsplit('/').next().unwrap_or("").to_owned());
+                let text = read_file(&json)
+                    .with_context(|| format!("{here}: field `base_frame.dvrk_json`"))?;
+                let f = base_frame_from_dvrk_json(&text, &arm, &json.display().to_string())
+                    .with_context(|| format!("{here}: field `base_frame.dvrk_json`"))?;
+                match f {
+                    Some(f) => (f, format!("{} (arm {arm})", json.display())),
+                    None => (
+                        Isometry3::identity(),
+                        format!(
+                            "identity: arm {arm} in {} has no base frame",
+                            json.display()
+                        ),
+                    ),
+                }
+            }
+            Some(_) => bail!(
+                "{here}: [base_frame] takes either `transform` (a 4x4 matrix) or `dvrk_json` \
+                 (with an optional `arm`), not both and not neither"
+            ),
+        };
+
         let (scenario_path, scenario) = match (&source, p.sim) {
             (Source::Sim, Some(sim)) => {
                 let sp = resolve(&sim.scenario);
@@ -332,6 +524,8 @@ impl SidecarConfig {
             compliance,
             rate: p.rate,
             prefix: p.prefix,
+            base_frame,
+            base_frame_origin,
             reply_timeout: std::time::Duration::from_secs_f64(p.reply_timeout_ms * 1e-3),
             scenario_path,
             scenario,
@@ -407,5 +601,117 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("fast"), "{e}");
+    }
+
+    #[test]
+    fn base_frame_from_a_matrix_is_checked() {
+        let ok = [
+            [1.0, 0.0, 0.0, -0.2],
+            [0.0, -0.866025404, 0.5, 0.0],
+            [0.0, -0.5, -0.866025404, 0.1],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let f = isometry_from_rows(&ok, "t").unwrap();
+        assert!((f.translation.vector - nalgebra::Vector3::new(-0.2, 0.0, 0.1)).norm() < 1e-15);
+        let p = f * nalgebra::Point3::new(0.0, 1.0, 0.0);
+        assert!(
+            (p - nalgebra::Point3::new(-0.2, -0.866025404, -0.4)).norm() < 1e-8,
+            "{p}"
+        );
+        let mut bad = ok;
+        bad[1][1] = 0.5;
+        let e = isometry_from_rows(&bad, "file.toml: field `base_frame.transform`")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("base_frame.transform") && e.contains("not a rotation"),
+            "{e}"
+        );
+        let mut bad = ok;
+        bad[3][0] = 1.0;
+        assert!(
+            isometry_from_rows(&bad, "t")
+                .unwrap_err()
+                .to_string()
+                .contains("last row")
+        );
+        let mut bad = ok;
+        bad[0][3] = f64::NAN;
+        assert!(
+            isometry_from_rows(&bad, "t")
+                .unwrap_err()
+                .to_string()
+                .contains("[0][3]")
+        );
+        // A reflection is orthonormal but not a rotation.
+        let mut bad = ok;
+        bad[0][0] = -1.0;
+        assert!(isometry_from_rows(&bad, "t").is_err());
+    }
+
+    #[test]
+    fn base_frame_from_dvrk_console_and_system_json() {
+        let console = r#"{
+            // dVRK 2.1 console file, with comments
+            "arms": [
+                { "name": "PSM2", "type": "PSM" },
+                { "name": "PSM1", "type": "PSM", "serial": "28007",
+                  "base-frame": { "reference-frame": "ECM",
+                                  "transform": [[1.0, 0.0, 0.0, 0.1],
+                                                [0.0, 1.0, 0.0, 0.2],
+                                                [0.0, 0.0, 1.0, 0.3],
+                                                [0.0, 0.0, 0.0, 1.0]] } }
+            ]
+        }"#;
+        let f = base_frame_from_dvrk_json(console, "PSM1", "c.json")
+            .unwrap()
+            .unwrap();
+        assert_eq!(f.translation.vector, nalgebra::Vector3::new(0.1, 0.2, 0.3));
+        assert_eq!(
+            base_frame_from_dvrk_json(console, "PSM2", "c.json").unwrap(),
+            None
+        );
+        let e = base_frame_from_dvrk_json(console, "PSM3", "c.json")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("PSM3") && e.contains("PSM2, PSM1") && e.contains("c.json"),
+            "{e}"
+        );
+        let system = console
+            .replace("base-frame", "base_frame")
+            .replace("reference-frame", "reference_frame");
+        let f = base_frame_from_dvrk_json(&system, "PSM1", "s.json")
+            .unwrap()
+            .unwrap();
+        assert_eq!(f.translation.vector, nalgebra::Vector3::new(0.1, 0.2, 0.3));
+        let broken = console.replace("[0.0, 0.0, 0.0, 1.0]]", "[0.0, 0.0, 0.0]]");
+        let e = base_frame_from_dvrk_json(&broken, "PSM1", "c.json").unwrap_err();
+        assert!(format!("{e:#}").contains("base-frame.transform"), "{e:#}");
+        let e = base_frame_from_dvrk_json("{}", "PSM1", "x.json")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("arms"), "{e}");
+    }
+
+    #[test]
+    fn real_sources_with_simulator_or_paper_parameters_are_warned_about() {
+        let sim = include_str!("../../../config/compliance/sim-psm.toml");
+        let paper = include_str!("../../../config/compliance/paper-psm.toml");
+        let udp = Source::parse("udp:169.254.0.100").unwrap();
+        assert!(compliance_warnings(&Source::Sim, sim, "sim-psm.toml").is_empty());
+        assert!(compliance_warnings(&Source::Sim, paper, "paper-psm.toml").is_empty());
+        let w = compliance_warnings(&udp, sim, "sim-psm.toml");
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("sim-psm.toml") && w[0].contains("simulator"),
+            "{w:?}"
+        );
+        let w = compliance_warnings(&Source::Firewire(0), paper, "paper-psm.toml");
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(w[0].contains("torque offset"), "{w:?}");
+        // A lab's own fit (non-zero offsets, no simulator header) passes.
+        let own = paper.replace("effort_nm = [0.0, 0.0]", "effort_nm = [0.1, -0.2]");
+        assert!(compliance_warnings(&udp, &own, "lab.toml").is_empty());
     }
 }

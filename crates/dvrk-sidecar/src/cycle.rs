@@ -1,9 +1,11 @@
 //! The pure glue of one cycle: an [`ArmSample`] from dvrk-io in, the compliance model and the
-//! kinematics applied, the five messages of dvrk-ipc out. No clock, no I/O, no allocation.
+//! kinematics applied, the nine messages of dvrk-ipc out. No clock, no I/O, no allocation.
 
 use dvrk_compliance::{Compensator, ComplianceConfig, Correction, PsmKinematics};
 use dvrk_io::ArmSample;
-use dvrk_ipc::{CompensationStatusV2, Header, JointStateV1, PoseV1, flags};
+use dvrk_ipc::{
+    ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2, PoseV2, flags,
+};
 use nalgebra::Isometry3;
 
 /// Why a read failed, as far as the published flags are concerned.
@@ -224,6 +226,8 @@ fn first6(q: &[f64; 7]) -> [f64; 6] {
 pub struct CycleTiming {
     pub seq: u64,
     pub sample_t_ns: u64,
+    /// CLOCK_REALTIME (ROS time) of the same instant as `sample_t_ns`.
+    pub sample_realtime_ns: u64,
     pub publish_t_ns: u64,
     pub cycle_period_ns: u64,
     pub cycle_duration_ns: u64,
@@ -239,22 +243,12 @@ pub struct CycleTiming {
     pub implausible_total: u64,
 }
 
-/// The five messages of one cycle.
-#[derive(Debug, Clone, Copy)]
-pub struct Messages {
-    pub measured_js: JointStateV1,
-    pub measured_cp: PoseV1,
-    pub compensated_js: JointStateV1,
-    pub compensated_cp: PoseV1,
-    pub status: CompensationStatusV2,
-}
-
-fn pose_msg(header: Header, p: &Isometry3<f64>) -> PoseV1 {
+fn pose_msg(header: Header, p: &Isometry3<f64>) -> PoseV2 {
     let t = p.translation.vector;
     let q = p.rotation.coords; // x, y, z, w
     let r = p.rotation.to_rotation_matrix();
     let m = r.matrix();
-    PoseV1 {
+    PoseV2 {
         header,
         position_m: [t.x, t.y, t.z],
         orientation_xyzw: [q.x, q.y, q.z, q.w],
@@ -272,27 +266,51 @@ fn pose_msg(header: Header, p: &Isometry3<f64>) -> PoseV1 {
     }
 }
 
-/// Writes a cycle into its messages; every message carries the same header.
-pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
+/// The four states of one arm from a joint vector (6 joints + jaw) and its RCM-frame pose.
+fn arm_state(
+    header: Header,
+    position: &[f64; 7],
+    s: &ArmSample,
+    local: &Isometry3<f64>,
+    base_frame: &Isometry3<f64>,
+) -> ArmState {
+    ArmState {
+        measured_js: JointStateV2 {
+            header,
+            position: first6(position),
+            velocity: first6(&s.velocity),
+            effort: first6(&s.effort),
+        },
+        jaw_measured_js: JawStateV1 {
+            header,
+            position: position[6],
+            velocity: s.velocity[6],
+            effort: s.effort[6],
+        },
+        local_measured_cp: pose_msg(header, local),
+        measured_cp: pose_msg(header, &(base_frame * local)),
+    }
+}
+
+/// Writes a cycle into its nine messages; every message carries the same header.
+/// `base_frame` is the arm's base frame (the pose of its RCM frame in the frame the lab chose,
+/// as the dVRK console's `base-frame`): `measured_cp = base_frame × local/measured_cp`.
+pub fn messages(
+    s: &ArmSample,
+    r: &CycleResult,
+    t: &CycleTiming,
+    base_frame: &Isometry3<f64>,
+) -> CycleMessages {
     let header = Header {
         seq: t.seq,
         sample_t_ns: t.sample_t_ns,
+        sample_realtime_ns: t.sample_realtime_ns,
         board_timestamp: Header::pack_board_timestamps(s.board_timestamp),
         publish_t_ns: t.publish_t_ns,
         valid: u32::from(r.valid),
         flags: r.flags,
     };
-    let measured_js = JointStateV1 {
-        header,
-        position: s.position,
-        velocity: s.velocity,
-        effort: s.effort,
-    };
-    let compensated_js = JointStateV1 {
-        position: r.compensated_position,
-        ..measured_js
-    };
-    let status = CompensationStatusV2 {
+    let status = CompensationStatusV3 {
         header,
         tau_ext_nm: r.correction.tau_ext_nm,
         delta_rad: r.correction.delta_rad,
@@ -309,11 +327,15 @@ pub fn messages(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Messages {
         implausible_total: t.implausible_total,
         ..Default::default()
     };
-    Messages {
-        measured_js,
-        measured_cp: pose_msg(header, &r.raw_pose),
-        compensated_js,
-        compensated_cp: pose_msg(header, &r.compensated_pose),
+    CycleMessages {
+        measured: arm_state(header, &s.position, s, &r.raw_pose, base_frame),
+        compensated: arm_state(
+            header,
+            &r.compensated_position,
+            s,
+            &r.compensated_pose,
+            base_frame,
+        ),
         status,
     }
 }
@@ -355,5 +377,62 @@ mod tests {
         s.boards[1].watchdog_timeout = true;
         s.boards[1].power_enabled = true;
         assert_eq!(health_flags(&s, ReadOutcome::Ok), flags::WATCHDOG_TIMEOUT);
+    }
+
+    #[test]
+    fn messages_carry_six_joints_the_jaw_and_both_frames() {
+        let mut s = ArmSample {
+            valid: true,
+            ..Default::default()
+        };
+        s.position = [0.1, -0.2, 0.12, 0.3, 0.05, -0.05, 0.4];
+        s.velocity = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+        s.effort = [0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.1];
+        let kin = PsmKinematics::new(
+            dvrk_compliance::ArmKind::Classic,
+            dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
+        );
+        let model = crate::formats::compliance_from_toml(include_str!(
+            "../../../config/compliance/paper-psm.toml"
+        ))
+        .unwrap();
+        let r = compute(&model, &kin, &s, ReadOutcome::Ok);
+        let base = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.1, -0.2, 0.3),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+        );
+        let t = CycleTiming {
+            seq: 5,
+            sample_t_ns: 100,
+            sample_realtime_ns: 1_700_000_000_000_000_100,
+            ..Default::default()
+        };
+        let m = messages(&s, &r, &t, &base);
+        assert_eq!(
+            m.measured.measured_js.position,
+            [0.1, -0.2, 0.12, 0.3, 0.05, -0.05]
+        );
+        assert_eq!(m.measured.measured_js.velocity[5], 6.0);
+        assert_eq!(m.measured.jaw_measured_js.position, 0.4);
+        assert_eq!(m.measured.jaw_measured_js.velocity, 7.0);
+        assert_eq!(m.measured.jaw_measured_js.effort, 1.1);
+        assert_eq!(m.compensated.jaw_measured_js, m.measured.jaw_measured_js);
+        assert_eq!(
+            m.status.header.sample_realtime_ns,
+            1_700_000_000_000_000_100
+        );
+        // measured_cp = base x local: a point check of the composition.
+        let local = m.measured.local_measured_cp.position_m;
+        let want = base * nalgebra::Point3::new(local[0], local[1], local[2]);
+        let got = m.measured.measured_cp.position_m;
+        for i in 0..3 {
+            assert!((got[i] - want[i]).abs() < 1e-12, "{got:?} vs {want:?}");
+        }
+        // Rotated 90° about z: x_base = -y_local + 0.1.
+        assert!((got[0] - (-local[1] + 0.1)).abs() < 1e-12);
+        // With the identity base frame both poses are equal.
+        let m = messages(&s, &r, &t, &Isometry3::identity());
+        assert_eq!(m.measured.measured_cp, m.measured.local_measured_cp);
+        assert_eq!(m.compensated.measured_cp, m.compensated.local_measured_cp);
     }
 }

@@ -3,17 +3,24 @@
 use anyhow::{Context, Result, bail};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV2, Header, JOINT_NAMES, JointStateV1, Message, NOMINAL_PERIOD, PoseV1,
-    ServiceNames, SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
+    CompensationStatusV3, Header, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, Message,
+    NOMINAL_PERIOD, PoseV2, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
+    WaitStrategy,
 };
-use serde_json::{Value, json};
+use serde_json::Value;
+
+use crate::shape;
 
 use crate::signals::StopFlag;
 
 #[derive(clap::Args)]
 pub struct EchoArgs {
-    /// Full service name, e.g. dvrk/PSM1/compensated/measured_cp.
+    /// Service name as the dVRK names the topic: `PSM1/measured_js`, `/PSM1/local/measured_cp`,
+    /// `PSM1/compensated/measured_cp`, ...; or a bare topic (`local/measured_cp`) under --prefix.
     service: String,
+    /// Prefix of a bare topic name (the arm's name).
+    #[arg(long, default_value = dvrk_ipc::DEFAULT_PREFIX)]
+    prefix: String,
     /// Stop after this many samples (default: until Ctrl-C).
     #[arg(long)]
     count: Option<u64>,
@@ -31,11 +38,15 @@ fn parse_wait(s: &str) -> Result<WaitStrategy, String> {
         .map_err(|e: dvrk_ipc::UnknownWaitStrategy| e.to_string())
 }
 
-pub fn run(args: &EchoArgs) -> Result<()> {
-    let Some((prefix, topic)) = ServiceNames::split(&args.service) else {
+/// The prefix and topic named by `service` (see [`EchoArgs`]).
+fn resolve(service: &str, default_prefix: &str) -> Result<(String, Topic)> {
+    if let Some(topic) = Topic::from_suffix(service.trim_start_matches('/')) {
+        return Ok((default_prefix.to_owned(), topic));
+    }
+    let Some((prefix, topic)) = ServiceNames::split(service) else {
         bail!(
-            "\"{}\" is not a dvrk-sidecar service; expected <prefix>/<topic> with topic one of: {}",
-            args.service,
+            "\"{service}\" is not a dvrk-sidecar service; expected <prefix>/<topic> (e.g. \
+             PSM1/measured_js) with topic one of: {}",
             Topic::ALL
                 .iter()
                 .map(|t| t.suffix())
@@ -43,24 +54,47 @@ pub fn run(args: &EchoArgs) -> Result<()> {
                 .join(", ")
         );
     };
-    let names = ServiceNames::new(prefix).map_err(|e| anyhow::anyhow!("{}: {e}", args.service))?;
+    Ok((prefix.to_owned(), topic))
+}
+
+pub fn run(args: &EchoArgs) -> Result<()> {
+    let (prefix, topic) = resolve(&args.service, &args.prefix)?;
+    let names = ServiceNames::new(&prefix).map_err(|e| anyhow::anyhow!("{}: {e}", args.service))?;
     let stop = StopFlag::install()?;
     let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-echo", None)
         .context("creating the iceoryx2 node")?;
     match topic {
-        Topic::MeasuredJs | Topic::CompensatedMeasuredJs => {
-            echo::<JointStateV1>(&node, &names, topic, args, &stop, joint_json, joint_text)
-        }
-        Topic::MeasuredCp | Topic::CompensatedMeasuredCp => {
-            echo::<PoseV1>(&node, &names, topic, args, &stop, pose_json, pose_text)
-        }
-        Topic::CompensatedStatus => echo::<CompensationStatusV2>(
+        Topic::MeasuredJs | Topic::CompensatedMeasuredJs => echo::<JointStateV2>(
             &node,
             &names,
             topic,
             args,
             &stop,
-            status_json,
+            shape::joint_state,
+            joint_text,
+        ),
+        Topic::JawMeasuredJs | Topic::CompensatedJawMeasuredJs => echo::<JawStateV1>(
+            &node,
+            &names,
+            topic,
+            args,
+            &stop,
+            shape::jaw_state,
+            jaw_text,
+        ),
+        Topic::LocalMeasuredCp
+        | Topic::MeasuredCp
+        | Topic::CompensatedLocalMeasuredCp
+        | Topic::CompensatedMeasuredCp => {
+            echo::<PoseV2>(&node, &names, topic, args, &stop, shape::pose, pose_text)
+        }
+        Topic::CompensatedStatus => echo::<CompensationStatusV3>(
+            &node,
+            &names,
+            topic,
+            args,
+            &stop,
+            shape::status,
             status_text,
         ),
     }
@@ -72,7 +106,7 @@ fn echo<T: Message>(
     topic: Topic,
     args: &EchoArgs,
     stop: &StopFlag,
-    to_json: fn(&T) -> Value,
+    to_json: fn(&str, &T) -> Value,
     to_text: fn(&T) -> String,
 ) -> Result<()> {
     let options = SubscribeOptions {
@@ -93,7 +127,7 @@ fn echo<T: Message>(
             .wait_with(|msg| {
                 if printed < limit {
                     if args.json {
-                        println!("{}", to_json(msg));
+                        println!("{}", to_json(names.topic(topic).as_str(), msg));
                     } else {
                         println!("{}", to_text(msg));
                     }
@@ -122,34 +156,29 @@ fn echo<T: Message>(
     Ok(())
 }
 
-fn header_json(h: &Header) -> Value {
-    json!({
-        "seq": h.seq,
-        "sample_t_ns": h.sample_t_ns,
-        "publish_t_ns": h.publish_t_ns,
-        "board_timestamp": h.board_timestamp,
-        "valid": h.valid != 0,
-        "flags": dvrk_ipc::flags::names(h.flags).collect::<Vec<_>>(),
-    })
-}
-
 fn header_text(h: &Header) -> String {
     let f: Vec<&str> = dvrk_ipc::flags::names(h.flags).collect();
     format!(
-        "seq {} t {:.6} s valid {} flags [{}]",
+        "seq {} t {:.6} s (ros {:.6} s) valid {} flags [{}]",
         h.seq,
         h.sample_t_ns as f64 * 1e-9,
+        h.sample_realtime_ns as f64 * 1e-9,
         h.valid,
         f.join(" ")
     )
 }
 
-fn joint_json(m: &JointStateV1) -> Value {
-    json!({ "header": header_json(&m.header), "name": JOINT_NAMES, "position": m.position,
-            "velocity": m.velocity, "effort": m.effort })
+fn jaw_text(m: &JawStateV1) -> String {
+    format!(
+        "{}\n  {JAW_NAME:<12} position {:+.6}  velocity {:+.6}  effort {:+.4}",
+        header_text(&m.header),
+        m.position,
+        m.velocity,
+        m.effort
+    )
 }
 
-fn joint_text(m: &JointStateV1) -> String {
+fn joint_text(m: &JointStateV2) -> String {
     let mut s = header_text(&m.header);
     for (i, name) in JOINT_NAMES.iter().enumerate() {
         s.push_str(&format!(
@@ -160,12 +189,7 @@ fn joint_text(m: &JointStateV1) -> String {
     s
 }
 
-fn pose_json(m: &PoseV1) -> Value {
-    json!({ "header": header_json(&m.header), "position_m": m.position_m,
-            "orientation_xyzw": m.orientation_xyzw, "rotation": m.rotation })
-}
-
-fn pose_text(m: &PoseV1) -> String {
+fn pose_text(m: &PoseV2) -> String {
     let p = m.position_m;
     let r = m.rotation;
     format!(
@@ -186,17 +210,7 @@ fn pose_text(m: &PoseV1) -> String {
     )
 }
 
-fn status_json(m: &CompensationStatusV2) -> Value {
-    json!({ "header": header_json(&m.header), "tau_ext_nm": m.tau_ext_nm, "delta_rad": m.delta_rad,
-            "insertion_m": m.insertion_m, "cycle_period_ns": m.cycle_period_ns,
-            "cycle_duration_ns": m.cycle_duration_ns, "cycles_total": m.cycles_total,
-            "read_failures_total": m.read_failures_total, "overruns_total": m.overruns_total,
-            "consecutive_read_failures": m.consecutive_read_failures,
-            "tau_margin_nm": m.tau_margin_nm, "held_sample_age_ns": m.held_sample_age_ns,
-            "publish_late_ns": m.publish_late_ns, "implausible_total": m.implausible_total })
-}
-
-fn status_text(m: &CompensationStatusV2) -> String {
+fn status_text(m: &CompensationStatusV3) -> String {
     format!(
         "{}\n  tau_ext_nm [{:+.4}, {:+.4}]  delta_rad [{:+.6}, {:+.6}]  insertion_m {:.4}\n  cycle period {:.1} us, duration {:.1} us, started {:.1} us late, read failures {}",
         header_text(&m.header),
@@ -210,4 +224,33 @@ fn status_text(m: &CompensationStatusV2) -> String {
         m.publish_late_ns as f64 / 1e3,
         m.read_failures_total
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn services_resolve_as_a_dvrk_user_types_them() {
+        let r = |s: &str| resolve(s, "PSM1").unwrap();
+        assert_eq!(r("PSM1/measured_js"), ("PSM1".into(), Topic::MeasuredJs));
+        assert_eq!(r("/PSM1/measured_js"), ("PSM1".into(), Topic::MeasuredJs));
+        assert_eq!(
+            r("PSM2/jaw/measured_js"),
+            ("PSM2".into(), Topic::JawMeasuredJs)
+        );
+        assert_eq!(
+            r("local/measured_cp"),
+            ("PSM1".into(), Topic::LocalMeasuredCp)
+        );
+        assert_eq!(
+            r("/PSM1/compensated/local/measured_cp"),
+            ("PSM1".into(), Topic::CompensatedLocalMeasuredCp)
+        );
+        let e = resolve("PSM1/setpoint_js", "PSM1").unwrap_err().to_string();
+        assert!(
+            e.contains("PSM1/setpoint_js") && e.contains("jaw/measured_js"),
+            "{e}"
+        );
+    }
 }

@@ -14,6 +14,7 @@ pub mod formats;
 pub mod offline;
 pub mod rt;
 pub mod serve;
+pub mod shape;
 pub mod signals;
 pub mod simcmd;
 pub mod stats;

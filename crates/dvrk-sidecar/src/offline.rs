@@ -75,7 +75,11 @@ pub fn fk(args: &FkArgs) -> Result<()> {
         ],
     };
     if args.json {
-        println!("{}", serde_json::to_string(&out)?);
+        // The pose body of `echo --json` (crate::shape), without topic and header.
+        let q = pose.rotation.coords;
+        let flat: [f64; 9] = core::array::from_fn(|i| out.rotation[i / 3][i % 3]);
+        let body = crate::shape::pose_body(out.position_m, [q.x, q.y, q.z, q.w], &flat);
+        println!("{}", serde_json::to_string(&body)?);
     } else {
         println!(
             "tool {} on a {} PSM, RCM frame (local/measured_cp)",

@@ -3,10 +3,14 @@
 //! Setup allocates everything (ports, buffers, publishers, the histogram). The loop then does,
 //! each cycle: wait for the deadline, read the clock once for the sample, read the boards,
 //! convert, compensate, compute both tip poses, read the clock once for the publish stamp,
-//! publish the five messages and notify. Nothing in the loop allocates, locks, logs or
-//! formats; a summary is logged once per second, after a cycle.
+//! publish the nine messages and notify. Nothing in the loop allocates, locks, logs or
+//! formats. Once per second it hands a copy of its counters to a housekeeping thread (a
+//! lock-free `try_send` into a one-slot channel that the thread polls); that thread logs the
+//! summary and removes dead subscriber nodes every 5 s, so neither a slow stderr (journald)
+//! nor listing files can stall a cycle.
 
 use std::path::Path;
+use std::sync::mpsc::{Receiver, TryRecvError, sync_channel};
 
 use anyhow::{Context, Result};
 use dvrk_io::plausibility::{PlausibilityLimits, SampleCheck};
@@ -14,7 +18,7 @@ use dvrk_io::port::{Port, UdpLink, UdpPort};
 use dvrk_io::reader::ArmReader;
 use dvrk_io::{ArmSample, IoConfig};
 use dvrk_ipc::iceoryx2;
-use dvrk_ipc::{ArmPublisher, ServiceNames, flags};
+use dvrk_ipc::{ArmPublisher, ServiceNames, SubscriberCounts, flags};
 use tracing::{info, warn};
 
 use crate::config::{Rate, SidecarConfig, Source};
@@ -47,10 +51,24 @@ pub fn check_config(path: &Path) -> Result<()> {
     println!("  compliance  {}", cfg.compliance_path.display());
     println!("  rate        {}", cfg.rate);
     println!("  prefix      {}", cfg.prefix);
+    println!("  base frame  {}", cfg.base_frame_origin);
     if let Some(p) = &cfg.scenario_path {
         println!("  scenario    {}", p.display());
     }
+    for w in compliance_warnings(&cfg) {
+        eprintln!("warning: {w}");
+    }
     Ok(())
+}
+
+/// [`crate::config::compliance_warnings`] for the loaded configuration.
+fn compliance_warnings(cfg: &SidecarConfig) -> Vec<String> {
+    let text = std::fs::read_to_string(&cfg.compliance_path).unwrap_or_default();
+    crate::config::compliance_warnings(
+        &cfg.source,
+        &text,
+        &cfg.compliance_path.display().to_string(),
+    )
 }
 
 /// Every check `serve` makes before its loop, without starting anything: the real-time
@@ -201,6 +219,10 @@ impl SampleSource for SimSource {
 pub fn run(path: &Path) -> Result<()> {
     let cfg = SidecarConfig::load(path)?;
     preflight(&cfg).with_context(|| format!("{}", path.display()))?;
+    for w in compliance_warnings(&cfg) {
+        warn!("{w}");
+    }
+    info!(base_frame = %cfg.base_frame_origin, "measured_cp = base frame x local/measured_cp");
     let stop = StopFlag::install()?;
     match cfg.source.clone() {
         Source::Sim => {
@@ -331,6 +353,8 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     /// reset by every invalid sample.
     compensator: dvrk_compliance::Compensator,
     held: Option<cycle::Held>,
+    /// The arm's base frame: `measured_cp = base_frame × local/measured_cp`.
+    base_frame: nalgebra::Isometry3<f64>,
     last_duration_ns: u64,
     last_sample_t_ns: Option<u64>,
 }
@@ -355,6 +379,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             check: None,
             compensator: dvrk_compliance::Compensator::new(),
             held: None,
+            base_frame: nalgebra::Isometry3::identity(),
             last_duration_ns: 0,
             last_sample_t_ns: None,
         }
@@ -364,6 +389,12 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
     /// is published as valid; `io` converts joint values back to actuator space.
     pub fn with_check(mut self, check: SampleCheck, io: &'a IoConfig) -> Self {
         self.check = Some((check, io));
+        self
+    }
+
+    /// Publishes `measured_cp` (raw and compensated) in `base_frame` (default: identity).
+    pub fn with_base_frame(mut self, base_frame: nalgebra::Isometry3<f64>) -> Self {
+        self.base_frame = base_frame;
         self
     }
 
@@ -385,6 +416,8 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         let c = &mut self.counters;
         let mut read = self.source.read(t_start, &mut self.sample);
         let t_sample = clock();
+        // The same instant on the realtime (ROS) clock: one vDSO read, tens of ns later.
+        let t_sample_real = dvrk_ipc::clock::realtime_ns();
         if read == ReadOutcome::Ok
             && self.sample.valid
             && let Some((check, io)) = self.check.as_mut()
@@ -445,6 +478,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         let timing = CycleTiming {
             seq: c.cycles,
             sample_t_ns: t_sample,
+            sample_realtime_ns: t_sample_real,
             publish_t_ns,
             cycle_period_ns: self
                 .last_sample_t_ns
@@ -458,14 +492,8 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             publish_late_ns: self.late_ns,
             implausible_total: c.implausible,
         };
-        let msgs = cycle::messages(&sample, &result, &timing);
-        let sent = self.publisher.publish_cycle(
-            &msgs.measured_js,
-            &msgs.measured_cp,
-            &msgs.compensated_js,
-            &msgs.compensated_cp,
-            &msgs.status,
-        );
+        let msgs = cycle::messages(&sample, &result, &timing, &self.base_frame);
+        let sent = self.publisher.publish_cycle(&msgs);
         if sent.is_err() {
             c.publish_failures += 1;
         }
@@ -511,9 +539,12 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         publisher,
         period_ns,
     )
-    .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io);
+    .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io)
+    .with_base_frame(cfg.base_frame);
     let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
     let mut hist = DurationHistogram::new();
+    let (summaries, summary_rx) = sync_channel::<Summary>(1);
+    let housekeeping = spawn_housekeeping(summary_rx, stop.clone())?;
 
     info!(
         source = %cfg.source, access = ?cfg.access, rate = %cfg.rate, prefix = %cfg.prefix,
@@ -525,7 +556,6 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     let mut deadline = t0;
     let mut next_summary = t0 + 1_000_000_000;
     let mut next_watchdog = t0;
-    let mut next_reap = t0 + REAP_PERIOD_NS;
 
     while !stop.raised() {
         if period_ns > 0 {
@@ -555,21 +585,15 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
             next_watchdog = t_end + w;
         }
-        if t_end >= next_reap {
-            // Subscribers killed without cleaning up (SIGKILL) would otherwise count, and cost a
-            // notification per cycle, until another process happened to reap them.
-            let r = pipe.publisher.reap_dead_nodes();
-            if r.reaped > 0 || r.failed > 0 {
-                info!(
-                    reaped = r.reaped,
-                    failed = r.failed,
-                    "removed dead subscriber nodes"
-                );
-            }
-            next_reap = rt::monotonic_ns() + REAP_PERIOD_NS;
-        }
         if t_end >= next_summary {
-            summary(&pipe.counters, &hist, &pipe.publisher);
+            // A full slot (the thread has not taken the last one) drops this second's summary:
+            // the loop never waits for logging.
+            let _ = summaries.try_send(Summary {
+                counters: pipe.counters,
+                cycle_p99_ns: hist.quantile_ns(0.99).unwrap_or(0),
+                cycle_max_ns: hist.max_ns(),
+                subscribers: pipe.publisher.subscriber_counts(),
+            });
             hist.reset();
             let c = &mut pipe.counters;
             c.window_cycles = 0;
@@ -585,6 +609,10 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         }
     }
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    drop(summaries);
+    if housekeeping.join().is_err() {
+        warn!("the housekeeping thread panicked");
+    }
     let c = pipe.counters;
     info!(
         cycles = c.cycles,
@@ -597,9 +625,9 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     Ok(())
 }
 
-/// How often `serve` removes the shared-memory resources of dead subscriber processes (outside
-/// the cycle; it lists files).
-const REAP_PERIOD_NS: u64 = 5_000_000_000;
+/// How often `serve` removes the shared-memory resources of dead subscriber processes (in the
+/// housekeeping thread; it lists files).
+const REAP_PERIOD: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// Plausibility limits of the configured arm (reference §5.2 and the kinematics reference).
 pub fn plausibility_limits(cfg: &SidecarConfig) -> PlausibilityLimits {
@@ -609,14 +637,70 @@ pub fn plausibility_limits(cfg: &SidecarConfig) -> PlausibilityLimits {
     }
 }
 
-fn summary<Svc: iceoryx2::service::Service>(
-    c: &Counters,
-    hist: &DurationHistogram,
-    publisher: &ArmPublisher<Svc>,
-) {
-    let p99_us = hist.quantile_ns(0.99).unwrap_or(0) as f64 / 1e3;
-    let max_us = hist.max_ns() as f64 / 1e3;
-    let counts = publisher.subscriber_counts();
+/// One second of the loop, copied out of it for the housekeeping thread.
+#[derive(Debug, Clone, Copy)]
+struct Summary {
+    counters: Counters,
+    cycle_p99_ns: u64,
+    cycle_max_ns: u64,
+    subscribers: SubscriberCounts,
+}
+
+/// How often the housekeeping thread looks for a summary (and for a stop).
+const HOUSEKEEPING_POLL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Starts the thread that logs the loop's summaries and reaps dead subscriber nodes with its own
+/// iceoryx2 node. It polls the channel (`try_recv`) instead of blocking on it, so the loop's
+/// `try_send` never has a waiter to wake and never takes the channel's internal lock. It ends
+/// when the loop drops its sender or on a stop request.
+fn spawn_housekeeping(
+    summaries: Receiver<Summary>,
+    stop: StopFlag,
+) -> Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("housekeeping".into())
+        .spawn(move || {
+            let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>(
+                "dvrk-sidecar-reaper",
+                None,
+            );
+            if let Err(e) = &node {
+                warn!("no dead-node cleanup: creating the housekeeping node failed: {e}");
+            }
+            let mut next_reap = std::time::Instant::now() + REAP_PERIOD;
+            loop {
+                match summaries.try_recv() {
+                    Ok(s) => summary(&s),
+                    Err(TryRecvError::Disconnected) => return,
+                    Err(TryRecvError::Empty) if stop.raised() => return,
+                    Err(TryRecvError::Empty) => {}
+                }
+                if let Ok(node) = &node
+                    && std::time::Instant::now() >= next_reap
+                {
+                    // Subscribers killed without cleaning up (SIGKILL) would otherwise count,
+                    // and cost a notification per cycle, until another process reaped them.
+                    let r = node.try_cleanup_dead_nodes();
+                    if r.cleanups > 0 || r.failed_cleanups > 0 {
+                        info!(
+                            reaped = r.cleanups,
+                            failed = r.failed_cleanups,
+                            "removed dead subscriber nodes"
+                        );
+                    }
+                    next_reap = std::time::Instant::now() + REAP_PERIOD;
+                }
+                std::thread::sleep(HOUSEKEEPING_POLL);
+            }
+        })
+        .context("starting the housekeeping thread")
+}
+
+fn summary(s: &Summary) {
+    let c = &s.counters;
+    let p99_us = s.cycle_p99_ns as f64 / 1e3;
+    let max_us = s.cycle_max_ns as f64 / 1e3;
+    let counts = s.subscribers;
     let (most_topic, most) = counts.max();
     let (fewest_topic, fewest) = counts.min();
     let subscribers = format_args!(

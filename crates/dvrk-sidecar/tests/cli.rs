@@ -51,7 +51,7 @@ fn fk_json_has_the_exact_shape_and_the_reference_values() {
         "fk", "--json", "--", "0.2", "-0.3", "0.15", "0.4", "0.3", "-0.2",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert_exact_keys(&stdout(&o), &["position_m", "rotation"]);
+    assert_exact_keys(&stdout(&o), &["orientation_xyzw", "position_m", "rotation"]);
     let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
     let p: Vec<f64> = v["position_m"]
         .as_array()

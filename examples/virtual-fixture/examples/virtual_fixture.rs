@@ -4,7 +4,7 @@
 //! disagree while the instrument pushes on something.
 //!
 //! ```text
-//! cargo run --release -p virtual-fixture --example virtual_fixture -- --prefix dvrk/PSM1 \
+//! cargo run --release -p virtual-fixture --example virtual_fixture -- --prefix PSM1 \
 //!     --point 0,0,-0.12 --normal 0,0,1 --margin 0.001 --count 3000 [--wait predictive]
 //! ```
 //! The plane is given in the RCM frame (CRTK local/measured_cp) by a point and a normal pointing
@@ -16,7 +16,7 @@ use std::process::ExitCode;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    NOMINAL_PERIOD, PoseV1, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
+    NOMINAL_PERIOD, PoseV2, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
     WaitStrategy, create_node,
 };
 use virtual_fixture::{Args, parse_args, signed_distance};
@@ -46,10 +46,10 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
         wait: args.wait,
         deadline: args.deadline,
     };
-    let mut tip = Subscription::<PoseV1, Service>::with_options(
+    let mut tip = Subscription::<PoseV2, Service>::with_options(
         &node,
         &names,
-        Topic::CompensatedMeasuredCp,
+        Topic::CompensatedLocalMeasuredCp,
         options,
     )?;
     // The raw pose is only looked at when a tip pose came: it never waits, so it needs no
@@ -58,10 +58,10 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
         wait: WaitStrategy::Spin,
         ..options
     };
-    let mut raw = Subscription::<PoseV1, Service>::with_options(
+    let mut raw = Subscription::<PoseV2, Service>::with_options(
         &node,
         &names,
-        Topic::MeasuredCp,
+        Topic::LocalMeasuredCp,
         raw_options,
     )?;
     let mut seen = 0u64;

@@ -25,7 +25,7 @@ pub struct Args {
 impl Default for Args {
     fn default() -> Self {
         Self {
-            prefix: "dvrk/PSM1".into(),
+            prefix: "PSM1".into(),
             point: [0.0, 0.0, -0.12],
             normal: [0.0, 0.0, 1.0],
             margin: 0.001,
@@ -36,7 +36,7 @@ impl Default for Args {
     }
 }
 
-pub const USAGE: &str = "virtual_fixture [--prefix dvrk/PSM1] [--point X,Y,Z] [--normal X,Y,Z] \
+pub const USAGE: &str = "virtual_fixture [--prefix PSM1] [--point X,Y,Z] [--normal X,Y,Z] \
 [--margin M] [--count N] [--wait event|spin|predictive] [--deadline-ms MS]";
 
 fn parse_vec3(name: &str, s: &str) -> Result<[f64; 3], String> {

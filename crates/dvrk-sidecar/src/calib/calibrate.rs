@@ -325,7 +325,7 @@ pub fn run_calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     run_procedure(&args.procedure, &stop)
 }
 
-/// The `prefix` of a sidecar configuration file (default `dvrk/PSM1` when absent).
+/// The `prefix` of a sidecar configuration file (default `PSM1` when absent).
 fn config_prefix(path: &Path) -> anyhow::Result<String> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -336,7 +336,7 @@ fn config_prefix(path: &Path) -> anyhow::Result<String> {
         None => Ok(dvrk_ipc::DEFAULT_PREFIX.to_owned()),
         Some(toml::Value::String(p)) => Ok(p.clone()),
         Some(other) => bail!(
-            "{}: prefix = {other}; expected a string such as \"dvrk/PSM1\"",
+            "{}: prefix = {other}; expected a string such as \"PSM1\"",
             path.display()
         ),
     }
@@ -364,7 +364,7 @@ fn sweep_offsets(paths: &[PathBuf], joints: &[u8]) -> anyhow::Result<Vec<fit::To
 pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     use dvrk_compliance::calibration::{Recorder, RecorderConfig};
     use dvrk_ipc::iceoryx2::service::ipc::Service;
-    use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+    use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
 
     if a.dynamics {
         return super::dynamics_cmd::record_live(a, &config_prefix(&a.config)?, stop);
@@ -380,7 +380,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     let names = ServiceNames::new(&prefix).with_context(|| format!("prefix {prefix}"))?;
     let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
         .context("creating the iceoryx2 node")?;
-    let mut sub = Subscription::<JointStateV1, Service>::new(
+    let mut sub = Subscription::<JointStateV2, Service>::new(
         &node,
         &names,
         Topic::MeasuredJs,
