@@ -151,7 +151,7 @@ pub fn record_live(
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     use dvrk_ipc::iceoryx2::service::ipc::Service;
-    use dvrk_ipc::{JointStateV1, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+    use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
 
     super::data::check_output_path(&a.out)?;
     let seconds = a.seconds.unwrap_or(f64::INFINITY);
@@ -162,7 +162,7 @@ pub fn record_live(
     let names = ServiceNames::new(prefix).with_context(|| format!("prefix {prefix}"))?;
     let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
         .context("creating the iceoryx2 node")?;
-    let mut sub = Subscription::<JointStateV1, Service>::new(
+    let mut sub = Subscription::<JointStateV2, Service>::new(
         &node,
         &names,
         Topic::MeasuredJs,
