@@ -2,7 +2,8 @@
 //!
 //! A scenario fixes the seed and step of the physics, the starting pose, the environment at the
 //! tip, a motion (the setpoints the stand-in console commands over time) and the measurement
-//! noise; optionally the shaft's true compliance and backlash. Files are parsed into
+//! noise; optionally the shaft's true compliance and backlash (`[shaft]`), the transmission's
+//! friction (`[transmission]`) and the distal part's inertia (`[distal]`). Files are parsed into
 //! [`ScenarioParams`] (`deny_unknown_fields`) and validated into a [`Scenario`]; every error names
 //! the field and the value.
 //!
