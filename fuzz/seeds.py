@@ -1,15 +1,13 @@
 #!/usr/bin/env python3
 """Writes the seed corpus (corpus/<target>/) from the repository's real files, excerpts of the
-2017 calibration data in ../shared/data (or $DVRK_SHARED/data), and the example bytes of the
+2017 calibration data in data/2017, and the example bytes of the
 board-protocol reference (section 9). Run from anywhere: python3 fuzz/seeds.py. Idempotent."""
 import os, re, struct, pathlib
 
 FUZZ = pathlib.Path(__file__).resolve().parent
 REPO = FUZZ.parent
-SHARED = pathlib.Path(os.environ.get("DVRK_SHARED", REPO.parent / "shared"))
-if not (SHARED / "data").is_dir():
-    SHARED = pathlib.Path("/work/shared")
 CORPUS = FUZZ / "corpus"
+DATA = REPO / "data" / "2017"
 
 def put(target, name, data):
     d = CORPUS / target
@@ -120,8 +118,8 @@ def excerpt(path, depths, every):
         if int(cols[1]) in depths and int(cols[0]) % every == 0:
             out.append(l)
     return "\n".join(out) + "\n"
-clamp = SHARED / "data/dvrk2017-clamp-joint1.csv"
-sweep = SHARED / "data/dvrk2017-torque-offset-joint1.csv"
+clamp = DATA / "dvrk2017-clamp-joint1.csv"
+sweep = DATA / "dvrk2017-torque-offset-joint1.csv"
 # 4 depths (a cubic 1/K(L) needs 4) and every 8th step: enough for `fit` to succeed (4.3 KB).
 clamp4 = excerpt(clamp, {0, 4, 9, 13}, 8)
 # selector byte: bits 0-1 joint (0 none, 1, 2, 3), bit 2 also the sweep, bit 3 continuous.

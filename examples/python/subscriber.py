@@ -1,179 +1,45 @@
 #!/usr/bin/env python3
-"""Python subscriber for dvrk-sidecar: prints samples of one topic (default the compensated tip pose).
+"""Python subscriber for dvrk-sidecar: prints the raw samples of one topic (default the
+compensated tip pose in the base frame), every field as published.
 
-Requires the iceoryx2 Python package of the same version as the sidecar's crate:
-
-    python3 -m pip install iceoryx2==0.10.0
+A thin user of the `dvrk_sidecar` package in python/ (its ctypes message layouts, the project's
+QoS and the three wait strategies), one layer below its crtk-like `Arm` (see arm.py beside this
+file). Install the package once with `python3 -m pip install ./python`; from a checkout without
+it, this script falls back to the repository's python/ (it then needs only the iceoryx2 package,
+`python3 -m pip install iceoryx2==0.10.0`).
 
 Usage:
 
-    python3 examples/python/subscriber.py [--prefix dvrk/PSM1] [--count 10] [--json]
+    python3 examples/python/subscriber.py [--prefix PSM1] [--count 10] [--json]
         [--topic compensated/measured_cp] [--timeout-s 10] [--wait event|spin|predictive]
         [--domain PREFIX [--root /tmp/iox2t/]]
 
 `--wait` chooses how to wait for the next sample, as dvrk_ipc::WaitStrategy does in Rust:
-- `event` (default): sleep in an iceoryx2 WaitSet on the `<prefix>/cycle` event (deadline: 10 ms),
-  then drain the event and every buffered sample;
-- `spin`: poll the subscriber without sleeping (one whole core; opens no listener, so it costs the
-  publisher nothing);
-- `predictive`: learn the publisher's period and phase from the samples' `publish_t_ns`, sleep on
-  the cycle event's socket with a timeout that ends shortly before the next sample is due
-  (select(2), timer slack set to 1 ns), then poll; never later than the event.
-It prints the newest sample of each wake-up, until `--count` samples are printed (exit 0). Exit 2
-if no sample arrives for `--timeout-s` seconds, exit 3 if the publisher goes away (one line on
-stderr). `--json` prints one JSON object per line.
+`event` (sleep on the `<prefix>/cycle` event), `spin` (poll, one whole core, no listener) or
+`predictive` (learn the publisher's period and phase, sleep until shortly before the next sample
+is due, then poll; never later than the event).
 
-The ctypes structures mirror crates/dvrk-ipc/src/msg.rs (and include/dvrk_ipc.h) byte for byte,
-and declare the same iceoryx2 type names (`dvrk::PoseV1`, ...) through the `type_name()`
-classmethod that the iceoryx2 package looks for. The services are opened (or created) with the
-project's QoS, so this script may start before or after the sidecar.
+It prints the newest sample of each wake-up until `--count` samples are printed (exit 0). Exit 2
+if no sample arrives for `--timeout-s` seconds, exit 3 if the publisher goes away (one line on
+stderr). `--json` prints one object per line with the message's raw fields (`header.valid` and
+`header.flags` as the integers published, `rotation` as 9 row-major numbers), plus `topic` and
+`flag_names`. For the project's one JSON shape per message, use
+`python3 -m dvrk_sidecar echo PSM1/measured_js --json`, which prints what `dvrk-sidecar echo
+--json` prints.
 """
 
 import argparse
 import ctypes
 import json
 import os
-import select
 import sys
 import time
 
-import iceoryx2 as iox2
-
-NUM_JOINTS = 7
-JOINT_NAMES = ("yaw", "pitch", "insertion", "roll", "wrist_pitch", "wrist_yaw", "jaw")
-
-# QoS: the same values as dvrk_ipc::qos (Rust) and DVRK_IPC_QOS_* (C).
-QOS_MAX_PUBLISHERS = 1
-QOS_MAX_SUBSCRIBERS = 32
-QOS_SUBSCRIBER_MAX_BUFFER_SIZE = 256
-QOS_SUBSCRIBER_MAX_BORROWED_SAMPLES = 2
-QOS_HISTORY_SIZE = 1
-QOS_ENABLE_SAFE_OVERFLOW = True
-QOS_MAX_NODES = 36
-QOS_EVENT_MAX_NOTIFIERS = 1
-QOS_EVENT_MAX_LISTENERS = 32
-
-NOMINAL_PERIOD_NS = 666_667  # 1500 Hz
-# Staleness deadline: 3 periods, at least 10 ms (dvrk_ipc::SubscribeOptions::effective_deadline).
-DEADLINE_NS = max(3 * NOMINAL_PERIOD_NS, 10_000_000)
-
-# Header.flags bits (dvrk_ipc::flags), in bit order.
-FLAG_NAMES = (
-    "BOARD_TIMEOUT",
-    "BOARD_ERROR",
-    "WATCHDOG_TIMEOUT",
-    "POWER_OFF",
-    "ENCODER_ERROR",
-    "AMP_FAULT",
-    "INSERTION_CLAMPED",
-    "CORRECTION_ACTIVE_J1",
-    "CORRECTION_ACTIVE_J2",
-    "SIMULATED",
-    "OVERRUN",
-    "IMPLAUSIBLE",
-    "NO_SOURCE",
-    "HELD",
-)
-
-f64 = ctypes.c_double
-u64 = ctypes.c_uint64
-u32 = ctypes.c_uint32
-
-
-class Header(ctypes.Structure):
-    """Common header, 40 bytes."""
-
-    _fields_ = [
-        ("seq", u64),
-        ("sample_t_ns", u64),
-        ("board_timestamp", u64),
-        ("publish_t_ns", u64),
-        ("valid", u32),
-        ("flags", u32),
-    ]
-
-    @classmethod
-    def type_name(cls) -> str:
-        return "dvrk::HeaderV1"
-
-
-class JointStateV1(ctypes.Structure):
-    """measured_js and compensated/measured_js, 208 bytes."""
-
-    _fields_ = [
-        ("header", Header),
-        ("position", f64 * NUM_JOINTS),
-        ("velocity", f64 * NUM_JOINTS),
-        ("effort", f64 * NUM_JOINTS),
-    ]
-
-    @classmethod
-    def type_name(cls) -> str:
-        return "dvrk::JointStateV1"
-
-
-class PoseV1(ctypes.Structure):
-    """measured_cp and compensated/measured_cp (RCM frame), 168 bytes; rotation row-major."""
-
-    _fields_ = [
-        ("header", Header),
-        ("position_m", f64 * 3),
-        ("orientation_xyzw", f64 * 4),
-        ("rotation", f64 * 9),
-    ]
-
-    @classmethod
-    def type_name(cls) -> str:
-        return "dvrk::PoseV1"
-
-
-class CompensationStatusV2(ctypes.Structure):
-    """compensated/status, 168 bytes."""
-
-    _fields_ = [
-        ("header", Header),
-        ("tau_ext_nm", f64 * 2),
-        ("delta_rad", f64 * 2),
-        ("insertion_m", f64),
-        ("cycle_period_ns", u64),
-        ("cycle_duration_ns", u64),
-        ("cycles_total", u64),
-        ("read_failures_total", u64),
-        ("overruns_total", u64),
-        ("consecutive_read_failures", u32),
-        ("_reserved", u32),
-        ("tau_margin_nm", f64 * 2),
-        ("held_sample_age_ns", u64),
-        ("publish_late_ns", u64),
-        ("implausible_total", u64),
-    ]
-
-    @classmethod
-    def type_name(cls) -> str:
-        return "dvrk::CompensationStatusV2"
-
-
-# Layout checks: the same sizes and offsets as the Rust const assertions.
-for _t, _size in ((Header, 40), (JointStateV1, 208), (PoseV1, 168), (CompensationStatusV2, 168)):
-    assert ctypes.sizeof(_t) == _size, (_t.__name__, ctypes.sizeof(_t))
-    assert ctypes.alignment(_t) == 8, _t.__name__
-assert Header.flags.offset == 36
-assert JointStateV1.effort.offset == 152
-assert PoseV1.rotation.offset == 96
-assert CompensationStatusV2.consecutive_read_failures.offset == 120
-assert CompensationStatusV2.implausible_total.offset == 160
-
-TOPICS = {
-    "measured_js": JointStateV1,
-    "measured_cp": PoseV1,
-    "compensated/measured_js": JointStateV1,
-    "compensated/measured_cp": PoseV1,
-    "compensated/status": CompensationStatusV2,
-}
-
-
-def flag_names(flags: int) -> list:
-    return [name for bit, name in enumerate(FLAG_NAMES) if flags & (1 << bit)]
+try:
+    from dvrk_sidecar import ipc, msg
+except ImportError:  # running from a checkout without `pip install ./python`
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "python"))
+    from dvrk_sidecar import ipc, msg
 
 
 def to_dict(value) -> dict:
@@ -190,276 +56,83 @@ def to_dict(value) -> dict:
     return out
 
 
-def format_text(topic: str, sample) -> str:
+def format_text(sample) -> str:
     h = sample.header
-    flags = "|".join(flag_names(h.flags)) or "-"
+    flags = "|".join(msg.flag_names(h.flags)) or "-"
     head = f"seq={h.seq} valid={h.valid} sample_t_ns={h.sample_t_ns} flags={flags}"
     fmt = lambda xs: "[" + ", ".join(f"{x:.6f}" for x in xs) + "]"  # noqa: E731
-    if isinstance(sample, PoseV1):
+    if isinstance(sample, msg.PoseV2):
         return f"{head} position_m={fmt(sample.position_m)} xyzw={fmt(sample.orientation_xyzw)}"
-    if isinstance(sample, JointStateV1):
+    if isinstance(sample, msg.JointStateV2):
         return f"{head} position={fmt(sample.position)} effort={fmt(sample.effort)}"
+    if isinstance(sample, msg.JawStateV1):
+        return f"{head} position={sample.position:.6f} effort={sample.effort:.6f}"
     return (
         f"{head} tau_ext_nm={fmt(sample.tau_ext_nm)} delta_rad={fmt(sample.delta_rad)} "
         f"insertion_m={sample.insertion_m:.6f} cycle_period_ns={sample.cycle_period_ns}"
     )
 
 
-def make_config(domain, root):
-    """iceoryx2's built-in defaults (no config file lookup), optionally an isolated domain."""
-    cfg = iox2.config.default()
-    if domain is not None:
-        cfg.global_cfg.prefix = iox2.FileName.new(domain)
-    if root is not None:
-        cfg.global_cfg.root_path = iox2.Path.new(root if root.endswith("/") else root + "/")
-    return cfg
-
-
-def open_services(node, prefix: str, topic: str):
-    """Opens or creates the topic and the cycle event with the project's QoS."""
-    payload = TOPICS[topic]
-    service = (
-        node.service_builder(iox2.ServiceName.new(f"{prefix}/{topic}"))
-        .publish_subscribe(payload)
-        .max_publishers(QOS_MAX_PUBLISHERS)
-        .max_subscribers(QOS_MAX_SUBSCRIBERS)
-        .max_nodes(QOS_MAX_NODES)
-        .subscriber_max_buffer_size(QOS_SUBSCRIBER_MAX_BUFFER_SIZE)
-        .subscriber_max_borrowed_samples(QOS_SUBSCRIBER_MAX_BORROWED_SAMPLES)
-        .history_size(QOS_HISTORY_SIZE)
-        .enable_safe_overflow(QOS_ENABLE_SAFE_OVERFLOW)
-        .open_or_create()
-    )
-    event = (
-        node.service_builder(iox2.ServiceName.new(f"{prefix}/cycle"))
-        .event()
-        .max_notifiers(QOS_EVENT_MAX_NOTIFIERS)
-        .max_listeners(QOS_EVENT_MAX_LISTENERS)
-        .max_nodes(QOS_MAX_NODES)
-        .open_or_create()
-    )
-    return service, event
-
-
-def drain(subscriber, payload):
-    """Takes every buffered sample; returns the newest as a copy (or None)."""
-    newest = None
-    while True:
-        sample = subscriber.receive()
-        if sample is None:
-            return newest
-        newest = payload.from_buffer_copy(sample.payload().contents)
-        sample.delete()  # release the shared-memory slot now, not at garbage collection
-
-
-def socket_fds() -> set:
-    """This process's open socket descriptors."""
-    fds = set()
-    for name in os.listdir("/proc/self/fd"):
-        try:
-            if os.readlink(f"/proc/self/fd/{name}").startswith("socket:"):
-                fds.add(int(name))
-        except OSError:
-            pass
-    return fds
-
-
-def minimise_timer_slack() -> None:
-    """PR_SET_TIMERSLACK = 1 ns, so the predictive wake-up is not deferred by 50 µs."""
-    libc = ctypes.CDLL(None, use_errno=True)
-    PR_SET_TIMERSLACK = 29
-    if libc.prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0) != 0:
-        raise OSError(ctypes.get_errno(), "prctl(PR_SET_TIMERSLACK)")
-
-
-class Predictor:
-    """The publisher's period (over the longest baseline) and phase (earliest arrival of the last
-    128), and an adaptive guard: the same model as dvrk_ipc's predictive wait."""
-
-    WINDOW = 128
-    LEARN = 16
-
-    def __init__(self, period_ns: int):
-        self.nominal = period_ns
-        self.period = float(period_ns)
-        self.anchor = None
-        self.recent = []
-        self.guard = 100_000.0  # Python wakes up slower than Rust: start wider
-        self.spin_after = 50_000.0
-
-    def ready(self) -> bool:
-        return len(self.recent) >= self.LEARN
-
-    def observe(self, seq: int, t_ns: int) -> None:
-        if self.recent and (seq <= self.recent[-1][0] or t_ns <= self.recent[-1][1]):
-            self.anchor, self.recent, self.period = None, [], float(self.nominal)
-        if self.anchor is None:
-            self.anchor = (seq, t_ns)
-        a_seq, a_t = self.anchor
-        if seq - a_seq >= self.LEARN:
-            self.period = (t_ns - a_t) / (seq - a_seq)
-        self.recent.append((seq, t_ns))
-        del self.recent[: -self.WINDOW]
-
-    def next_arrival_ns(self) -> int:
-        target = self.recent[-1][0] + 1
-        return int(min(t + (target - s) * self.period for s, t in self.recent))
-
-    def graded(self, on_time: bool) -> None:
-        cap = self.period / 4
-        self.guard = max(10_000.0, self.guard - 1_000.0) if on_time else min(cap, self.guard + 30_000.0)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--prefix", default="dvrk/PSM1", help="service prefix (default dvrk/PSM1)")
+    parser.add_argument("--prefix", default="PSM1", help="service prefix, the arm's name (default PSM1)")
     parser.add_argument("--count", type=int, default=10, help="samples to print, then exit 0")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     parser.add_argument(
         "--topic",
         default="compensated/measured_cp",
-        choices=sorted(TOPICS),
+        choices=list(msg.TOPICS),
         help="topic under the prefix (default compensated/measured_cp)",
     )
     parser.add_argument(
         "--timeout-s", type=float, default=10.0, help="give up (exit 2) after this long without a sample"
     )
-    parser.add_argument(
-        "--wait",
-        default="event",
-        choices=("event", "spin", "predictive"),
-        help="how to wait for samples (default event)",
-    )
+    parser.add_argument("--wait", default="event", choices=ipc.WAIT_STRATEGIES, help="how to wait (default event)")
     parser.add_argument("--domain", help="iceoryx2 domain prefix (default: iceoryx2's iox2_)")
     parser.add_argument("--root", help="iceoryx2 root path of the domain (default /tmp/iceoryx2/)")
     args = parser.parse_args(argv)
     if args.count < 1:
         parser.error("--count must be at least 1")
 
-    iox2.set_log_level_from_env_or(iox2.LogLevel.Warn)
-    payload = TOPICS[args.topic]
-    node = (
-        iox2.NodeBuilder.new()
-        .config(make_config(args.domain, args.root))
-        .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
-        .create(iox2.ServiceType.Ipc)
-    )
-    service, event = open_services(node, args.prefix, args.topic)
-    subscriber = service.subscriber_builder().create()
-    listener = None
-    listener_fd = None
-    waitset = guard = None
-    predictor = None
-    if args.wait != "spin":
-        before = socket_fds()
-        listener = event.listener_builder().create()
-        # iceoryx2's Python API does not expose the listener's descriptor; it is the one unix
-        # socket that creating the listener opened.
-        new = socket_fds() - before
-        listener_fd = new.pop() if len(new) == 1 else None
-    if args.wait == "predictive":
-        if listener_fd is None:
-            print("cannot find the cycle event's socket; use --wait event", file=sys.stderr)
-            return 1
-        minimise_timer_slack()
-        predictor = Predictor(NOMINAL_PERIOD_NS)
-    if args.wait == "event":
-        waitset = (
-            iox2.WaitSetBuilder.new()
-            .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
-            .create(iox2.ServiceType.Ipc)
-        )
-        guard = waitset.attach_deadline(listener, iox2.Duration.from_nanos(DEADLINE_NS))
-
-    def wait_readable(fd, until_ns) -> bool:
-        """Sleeps until the event's socket is readable (True) or until_ns passes (False)."""
-        timeout = max(0.0, (until_ns - time.monotonic_ns()) / 1e9)
-        try:
-            readable, _, _ = select.select([fd], [], [], timeout)
-        except InterruptedError:
-            return False
-        return bool(readable)
-
-    def next_sample():
-        """Waits as --wait says; returns the newest sample or None after the deadline."""
-        stale_at = time.monotonic_ns() + DEADLINE_NS
-        if args.wait == "spin":
-            while time.monotonic_ns() < stale_at:
-                sample = drain(subscriber, payload)
-                if sample is not None:
-                    return sample
-            return None
-        if args.wait == "event":
-            (triggers, result) = waitset.wait_and_process()
-            for attachment in triggers:
-                if attachment.has_event_from(guard):
-                    listener.try_wait()  # level-triggered: consume the notifications
-            if result in (iox2.WaitSetRunResult.Interrupt, iox2.WaitSetRunResult.TerminationRequest):
-                raise KeyboardInterrupt
-            return drain(subscriber, payload)
-        # predictive: consume old notifications, then look before sleeping.
-        sample = drain(subscriber, payload)
-        if sample is None:
-            listener.try_wait()
-            sample = drain(subscriber, payload)
-        if sample is not None or not predictor.ready():
-            if sample is None and wait_readable(listener_fd, stale_at):
-                sample = drain(subscriber, payload)
-            return sample
-        arrival = predictor.next_arrival_ns()
-        woke_on_event = wait_readable(listener_fd, min(stale_at, arrival - int(predictor.guard)))
-        started = time.monotonic_ns()
-        spin_until = min(stale_at, arrival + int(predictor.spin_after))
-        first = True
-        while True:
-            sample = drain(subscriber, payload)
-            if sample is not None:
-                predictor.graded(not woke_on_event and not first and started <= sample.header.publish_t_ns)
-                return sample
-            first = False
-            if time.monotonic_ns() >= spin_until:
-                break
-        if wait_readable(listener_fd, stale_at):
-            return drain(subscriber, payload)
-        return None
+    node = ipc.create_node("dvrk-sidecar-example", args.domain, args.root)
+    # Subscriber first, then the listener (if the strategy has one).
+    reader = ipc.Reader(node, args.prefix, args.topic, buffer=ipc.QOS_SUBSCRIBER_MAX_BUFFER_SIZE)
+    waiter = ipc.Waiter(node, args.prefix, args.wait)
+    service = f"{args.prefix}/{args.topic}"
 
     printed = 0
-    publisher_seen = service.dynamic_config.number_of_publishers > 0
+    publisher_seen = reader.service.dynamic_config.number_of_publishers > 0
     last_fresh = time.monotonic()
     while printed < args.count:
-        try:
-            sample = next_sample()
-        except KeyboardInterrupt:
-            return 130
+        # The newest sample of this wake-up (older ones buffered meanwhile are skipped).
+        sample = waiter.wait_for(reader.take_newest, time.monotonic_ns() + ipc.NOMINAL_PERIOD_NS * 15)
         if sample is not None:
             publisher_seen = True
             last_fresh = time.monotonic()
-            if predictor is not None:
-                predictor.observe(sample.header.seq, sample.header.publish_t_ns or time.monotonic_ns())
             if args.json:
                 record = to_dict(sample)
-                record["topic"] = f"{args.prefix}/{args.topic}"
-                record["flag_names"] = flag_names(sample.header.flags)
+                record["topic"] = service
+                record["flag_names"] = msg.flag_names(sample.header.flags)
                 print(json.dumps(record), flush=True)
             else:
-                print(format_text(args.topic, sample), flush=True)
+                print(format_text(sample), flush=True)
             printed += 1
             continue
-        # No sample: deadline missed, or an event for a cycle already drained. A publisher whose
-        # process died still counts until its node is cleaned up.
-        service.try_cleanup_dead_nodes()
-        if service.dynamic_config.number_of_publishers > 0:
+        # No sample within the deadline. A publisher whose process died still counts until its
+        # node is cleaned up (publishers() reaps dead nodes).
+        if reader.publishers() > 0:
             publisher_seen = True
         elif publisher_seen:
-            print(f"publisher of {args.prefix}/{args.topic} is gone", file=sys.stderr)
+            print(f"publisher of {service} is gone", file=sys.stderr)
             return 3
         if time.monotonic() - last_fresh > args.timeout_s:
-            print(
-                f"no sample on {args.prefix}/{args.topic} for {args.timeout_s} s", file=sys.stderr
-            )
+            print(f"no sample on {service} for {args.timeout_s} s", file=sys.stderr)
             return 2
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        sys.exit(130)

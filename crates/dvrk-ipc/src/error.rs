@@ -105,6 +105,24 @@ pub enum IpcError {
         source: ListenerCreateError,
     },
 
+    /// This process may not use a file of the iceoryx2 domain, which another user created
+    /// (iceoryx2 0.10 opens what it creates to its owner only): see [`crate::access`].
+    #[error(
+        "permission denied on the shared memory of the dVRK sidecar while {during}: {} belongs \
+         to user {owner} (mode {mode:04o}) and iceoryx2 0.10 lets only its owner use it. {hint}",
+        path.display()
+    )]
+    PermissionDenied {
+        during: String,
+        path: std::path::PathBuf,
+        owner: String,
+        mode: u32,
+        /// What to do, in a sentence (see [`crate::access::hint`]).
+        hint: String,
+        #[source]
+        source: Box<IpcError>,
+    },
+
     /// The timer of a predictive subscription could not be set up.
     #[error("{what} failed: {source}")]
     Timer {

@@ -52,6 +52,7 @@
 //! Everything is generic over the iceoryx2 service variant `S` (default `ipc::Service`, across
 //! processes; `local::Service` works inside one process, e.g. for benchmarks).
 
+pub mod access;
 pub mod clock;
 mod error;
 pub mod flags;

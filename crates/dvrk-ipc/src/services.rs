@@ -129,6 +129,7 @@ pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<No
             name: name.to_owned(),
             source,
         })
+        .map_err(|e| crate::access::explain(e, config, format!("creating the node {name:?}")))
 }
 
 /// Opens or creates the pub-sub service of `topic` with the project's QoS.
@@ -161,6 +162,7 @@ pub fn open_topic<T: Message, S: Service>(
             service: name.as_str().to_owned(),
             source,
         })
+        .map_err(|e| crate::access::explain(e, node.config(), format!("opening {name}")))
 }
 
 /// Opens or creates the cycle event service with the project's QoS.
@@ -179,6 +181,7 @@ pub fn open_cycle_event<S: Service>(
             service: name.as_str().to_owned(),
             source,
         })
+        .map_err(|e| crate::access::explain(e, node.config(), format!("opening {name}")))
 }
 
 /// The four pub-sub services of one arm state (raw or compensated).

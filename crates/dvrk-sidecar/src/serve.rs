@@ -98,10 +98,8 @@ pub fn preflight(cfg: &SidecarConfig) -> Result<()> {
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
     let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar-check", None)
-        .map_err(|e| anyhow::anyhow!("{e}"))
         .context(shm_hint())?;
     dvrk_ipc::ArmServices::open_or_create(&node, &names)
-        .map_err(|e| anyhow::anyhow!("{e}"))
         .with_context(|| format!("opening the services under {}; {}", cfg.prefix, shm_hint()))?;
     Ok(())
 }
@@ -720,29 +718,24 @@ fn summary(s: &Summary) {
         );
     }
     // Displacements only from valid cycles of this window: a second without any prints none.
-    match c.window_last_displacement_m {
-        Some(last) => info!(
-            rate_hz = c.window_cycles,
-            valid = c.window_valid,
-            cycle_p99_us = format_args!("{p99_us:.1}"),
-            cycle_max_us = format_args!("{max_us:.1}"),
-            missed_reads = c.window_read_failures,
-            implausible = c.window_implausible,
-            tip_displacement_mm = format_args!("{:.3}", last * 1e3),
-            tip_displacement_max_mm = format_args!("{:.3}", c.window_max_displacement_m * 1e3),
-            subscribers = %subscribers,
-            "summary"
+    // (This runs in the housekeeping thread, so formatting here costs the loop nothing.)
+    let (tip_mm, tip_max_mm) = match c.window_last_displacement_m {
+        Some(last) => (
+            format!("{:.3}", last * 1e3),
+            format!("{:.3}", c.window_max_displacement_m * 1e3),
         ),
-        None => info!(
-            rate_hz = c.window_cycles,
-            valid = 0,
-            cycle_p99_us = format_args!("{p99_us:.1}"),
-            cycle_max_us = format_args!("{max_us:.1}"),
-            missed_reads = c.window_read_failures,
-            implausible = c.window_implausible,
-            tip_displacement_mm = "n/a (no valid sample)",
-            subscribers = %subscribers,
-            "summary"
-        ),
-    }
+        None => ("n/a (no valid sample)".to_owned(), "n/a".to_owned()),
+    };
+    info!(
+        rate_hz = c.window_cycles,
+        valid = c.window_valid,
+        cycle_p99_us = format_args!("{p99_us:.1}"),
+        cycle_max_us = format_args!("{max_us:.1}"),
+        missed_reads = c.window_read_failures,
+        implausible = c.window_implausible,
+        tip_displacement_mm = %tip_mm,
+        tip_displacement_max_mm = %tip_max_mm,
+        subscribers = %subscribers,
+        "summary"
+    );
 }

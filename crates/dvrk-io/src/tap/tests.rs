@@ -322,3 +322,47 @@ fn hostile_bytes_never_panic() {
     let bad = [0xFFu8; 64];
     push(&mut d, &block_reply(CONSOLE, 6, 9, &bad), &mut out);
 }
+
+/// The fuzz target `tap_frames` reads records `[len: u16 LE][link: u8][frame: len bytes]`.
+fn fuzz_record(out: &mut Vec<u8>, link: LinkType, frame: &[u8]) {
+    out.extend_from_slice(&(frame.len() as u16).to_le_bytes());
+    out.push(u8::from(link == LinkType::Ip));
+    out.extend_from_slice(frame);
+}
+
+/// Writes the seed corpus of the `tap_frames` fuzz target (two cycles of block reads of both
+/// boards) into `$TAP_FUZZ_SEEDS`. Run by hand when the framing changes:
+/// `TAP_FUZZ_SEEDS=fuzz/corpus/tap_frames cargo test -p dvrk-io write_tap_fuzz_seeds -- --ignored`
+#[test]
+#[ignore = "writes the fuzz seed corpus; run by hand"]
+fn write_tap_fuzz_seeds() {
+    let dir = std::path::PathBuf::from(std::env::var("TAP_FUZZ_SEEDS").expect("TAP_FUZZ_SEEDS"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let len = lay().len_bytes() as u16;
+    let mut seq = Vec::new();
+    for cycle in 0..2u8 {
+        for (node, label) in [(6u8, cycle * 2), (7, cycle * 2 + 1)] {
+            let req = request(CONSOLE, node, label, 0, RequestKind::BlockRead { len });
+            fuzz_record(&mut seq, LinkType::Ethernet, &req);
+            let rep = block_reply(CONSOLE, node, label, &block(node, 100, 1000));
+            fuzz_record(&mut seq, LinkType::Ethernet, &rep);
+        }
+    }
+    // The decoder must turn the seed into samples, or the seed explores nothing.
+    let mut d = TapDecoder::new(cfg());
+    let mut out = ArmSample::default();
+    let mut rest = &seq[..];
+    while rest.len() >= 3 {
+        let n = usize::from(u16::from_le_bytes([rest[0], rest[1]]));
+        let f = &rest[3..3 + n];
+        d.push(f, LinkType::Ethernet, 1, &mut out);
+        rest = &rest[3 + n..];
+    }
+    assert_eq!(d.counters().samples, 2);
+    std::fs::write(dir.join("two-cycles-block-reads"), &seq).unwrap();
+    // The IPv4-only framing of the same first request.
+    let req = request(CONSOLE, 6, 0, 0, RequestKind::BlockRead { len });
+    let mut ip = Vec::new();
+    fuzz_record(&mut ip, LinkType::Ip, &req[14..]);
+    std::fs::write(dir.join("ip-request"), &ip).unwrap();
+}

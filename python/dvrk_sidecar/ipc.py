@@ -1,0 +1,461 @@
+"""iceoryx2 plumbing: domains, the project's QoS, readers of one topic and the three ways to wait.
+
+Every process opens (or creates) the services with the same QoS as dvrk_ipc::qos in Rust and
+DVRK_IPC_QOS_* in C, because whichever process creates a service first fixes its QoS.
+"""
+
+import collections
+import ctypes
+import math
+import os
+import select
+import time
+
+import iceoryx2 as iox2
+
+from . import msg
+
+# QoS: the same values as dvrk_ipc::qos (Rust) and DVRK_IPC_QOS_* (C).
+QOS_MAX_PUBLISHERS = 1
+QOS_MAX_SUBSCRIBERS = 32
+QOS_SUBSCRIBER_MAX_BUFFER_SIZE = 256
+QOS_SUBSCRIBER_MAX_BORROWED_SAMPLES = 2
+QOS_HISTORY_SIZE = 1
+QOS_ENABLE_SAFE_OVERFLOW = True
+QOS_MAX_NODES = QOS_MAX_SUBSCRIBERS + 4
+QOS_EVENT_MAX_NOTIFIERS = 1
+QOS_EVENT_MAX_LISTENERS = QOS_MAX_SUBSCRIBERS
+
+NOMINAL_PERIOD_NS = 666_667
+"""The sidecar's nominal cycle period (1500 Hz)."""
+
+WAIT_STRATEGIES = ("event", "spin", "predictive")
+
+# The same limits as dvrk_ipc::MAX_DOMAIN_PREFIX_LEN / MAX_ROOT_PATH_LEN: the event socket
+# `<root><prefix><id>.event` must fit a 108-byte unix socket path.
+MAX_DOMAIN_PREFIX_LEN = 24
+MAX_ROOT_PATH_LEN = 48
+
+# Longest single sleep, so that Ctrl-C (handled by Python between calls) is never held up.
+_MAX_SLEEP_NS = 100_000_000
+
+
+class DvrkSidecarError(Exception):
+    """Base class of this package's errors."""
+
+
+class ConfigError(DvrkSidecarError, ValueError):
+    """A bad argument: names the argument and the value."""
+
+
+class OpenError(DvrkSidecarError):
+    """A service could not be opened or created; the message names it and iceoryx2's reason."""
+
+
+def _hint(reason: str) -> str:
+    if "IncompatibleTypes" in reason:
+        return (
+            ": the publisher uses another message type or version; run the dvrk-sidecar and the "
+            "dvrk_sidecar package of the same release"
+        )
+    if "Permission" in reason or "InsufficientPermissions" in reason:
+        return ": permission denied on the shared memory (is your user in the sidecar's group?)"
+    if "DoesNotSupport" in reason or "Exceeds" in reason:
+        return ": the service was created with another QoS, or is full"
+    return ""
+
+
+class NoSample(DvrkSidecarError, TimeoutError):
+    """No fresh sample arrived in time; the message says whether a publisher is connected."""
+
+
+def domain_config(domain=None, root=None):
+    """iceoryx2's built-in defaults (no config file lookup, like dvrk_ipc::create_node), in the
+    isolated domain `domain` (the file-name prefix of its shared memory and its own service
+    namespace) under the root path `root` (default /tmp/iceoryx2/). Both None: the default
+    domain, where `dvrk-sidecar serve` publishes."""
+    cfg = iox2.config.default()
+    if domain is not None:
+        ok = all(c.isascii() and (c.isalnum() or c in "_-.") for c in domain)
+        if not domain or len(domain) > MAX_DOMAIN_PREFIX_LEN or not ok:
+            raise ConfigError(
+                f"domain {domain!r}: must be 1 to {MAX_DOMAIN_PREFIX_LEN} ASCII letters, digits, "
+                "'_', '-' or '.'"
+            )
+        cfg.global_cfg.prefix = iox2.FileName.new(domain)
+    if root is not None:
+        if not root.startswith("/") or len(root) > MAX_ROOT_PATH_LEN:
+            raise ConfigError(
+                f"root {root!r}: must be an absolute path of at most {MAX_ROOT_PATH_LEN} bytes"
+            )
+        cfg.global_cfg.root_path = iox2.Path.new(root if root.endswith("/") else root + "/")
+    return cfg
+
+
+def create_node(name, domain=None, root=None):
+    """An iceoryx2 node with signal handling left to Python. iceoryx2's own log level is Fatal
+    unless IOX2_LOG_LEVEL says otherwise (its failures come back here as exceptions)."""
+    iox2.set_log_level_from_env_or(iox2.LogLevel.Fatal)
+    config = domain_config(domain, root)
+    try:
+        return (
+            iox2.NodeBuilder.new()
+            .name(iox2.NodeName.new(name))
+            .config(config)
+            .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+            .create(iox2.ServiceType.Ipc)
+        )
+    except Exception as e:
+        where = f"domain {domain!r}" if domain else "the default domain"
+        reason = str(e)
+        hint = _hint(reason) or (
+            ": often a permission problem on the shared memory or on the domain's root path"
+            if "InternalError" in reason
+            else ""
+        )
+        raise OpenError(f"creating an iceoryx2 node in {where}: {reason}{hint}") from e
+
+
+def check_prefix(prefix: str) -> str:
+    """The service prefix (the arm's name), checked like dvrk_ipc::ServiceNames::new."""
+    if not isinstance(prefix, str) or not prefix or len(prefix) > 200:
+        raise ConfigError(f"arm name {prefix!r}: must be 1 to 200 bytes")
+    if prefix.startswith("/") or prefix.endswith("/") or "//" in prefix:
+        raise ConfigError(f"arm name {prefix!r}: no leading, trailing or double '/'")
+    return prefix
+
+
+def open_topic(node, prefix: str, topic: str):
+    """Opens or creates `<prefix>/<topic>` with the project's QoS."""
+    if topic not in msg.TOPICS:
+        raise ConfigError(f"topic {topic!r}: expected one of {', '.join(msg.TOPICS)}")
+    try:
+        return _open_topic(node, prefix, topic)
+    except Exception as e:
+        name = f"{prefix}/{topic}"
+        reason = str(e)
+        raise OpenError(
+            f"opening {name} as {msg.TOPICS[topic].type_name()}: {reason}{_hint(reason)}"
+        ) from e
+
+
+def _open_topic(node, prefix, topic):
+    return (
+        node.service_builder(iox2.ServiceName.new(f"{prefix}/{topic}"))
+        .publish_subscribe(msg.TOPICS[topic])
+        .max_publishers(QOS_MAX_PUBLISHERS)
+        .max_subscribers(QOS_MAX_SUBSCRIBERS)
+        .max_nodes(QOS_MAX_NODES)
+        .subscriber_max_buffer_size(QOS_SUBSCRIBER_MAX_BUFFER_SIZE)
+        .subscriber_max_borrowed_samples(QOS_SUBSCRIBER_MAX_BORROWED_SAMPLES)
+        .history_size(QOS_HISTORY_SIZE)
+        .enable_safe_overflow(QOS_ENABLE_SAFE_OVERFLOW)
+        .open_or_create()
+    )
+
+
+def open_cycle_event(node, prefix: str):
+    """Opens or creates the event `<prefix>/cycle` with the project's QoS."""
+    try:
+        return (
+            node.service_builder(iox2.ServiceName.new(f"{prefix}/{msg.CYCLE_EVENT}"))
+            .event()
+            .max_notifiers(QOS_EVENT_MAX_NOTIFIERS)
+            .max_listeners(QOS_EVENT_MAX_LISTENERS)
+            .max_nodes(QOS_MAX_NODES)
+            .open_or_create()
+        )
+    except Exception as e:
+        reason = str(e)
+        raise OpenError(f"opening the event {prefix}/{msg.CYCLE_EVENT}: {reason}{_hint(reason)}") from e
+
+
+class Reader:
+    """A subscriber of one topic that copies samples out of shared memory at once.
+
+    It buffers `buffer` samples and remembers as many of the last it took: 4 for the Arm (the
+    newest, plus the few before it to find one cycle's messages), 256 for `echo`, which prints
+    every sample of the last 170 ms."""
+
+    def __init__(self, node, prefix: str, topic: str, buffer: int = 4):
+        self.service_name = f"{prefix}/{topic}"
+        self.topic = topic
+        self.payload = msg.TOPICS[topic]
+        self.service = open_topic(node, prefix, topic)
+        self.subscriber = self.service.subscriber_builder().buffer_size(buffer).create()
+        self.recent = collections.deque(maxlen=min(buffer, 4))
+        """The last samples taken (ctypes copies), oldest first."""
+
+    @property
+    def last(self):
+        """The newest sample taken so far, or None."""
+        return self.recent[-1] if self.recent else None
+
+    def take(self):
+        """The oldest buffered sample as a copy, or None; releases its shared-memory slot now."""
+        sample = self.subscriber.receive()
+        if sample is None:
+            return None
+        value = self.payload.from_buffer_copy(sample.payload().contents)
+        sample.delete()
+        self.recent.append(value)
+        return value
+
+    def find(self, seq: int):
+        """The remembered sample of cycle `seq`, or None."""
+        for value in self.recent:
+            if value.header.seq == seq:
+                return value
+        return None
+
+    def take_newest(self):
+        """Drains the buffer; returns the newest sample received by this call, or None."""
+        newest = None
+        while True:
+            value = self.take()
+            if value is None:
+                return newest
+            newest = value
+
+    def publishers(self) -> int:
+        """Connected publishers, after reaping those whose process died."""
+        self.service.try_cleanup_dead_nodes()
+        return self.service.dynamic_config.number_of_publishers
+
+    def no_sample(self, waited_s: float) -> NoSample:
+        """The error for a wait that ended without a sample."""
+        if self.publishers() == 0:
+            why = "no publisher is connected (is `dvrk-sidecar serve` running with this prefix and domain?)"
+        else:
+            why = "a publisher is connected but sent nothing"
+        return NoSample(f"no sample on {self.service_name} within {waited_s:g} s: {why}")
+
+    def close(self):
+        self.subscriber.delete()
+
+
+def _socket_fds() -> set:
+    fds = set()
+    for name in os.listdir("/proc/self/fd"):
+        try:
+            if os.readlink(f"/proc/self/fd/{name}").startswith("socket:"):
+                fds.add(int(name))
+        except OSError:
+            pass
+    return fds
+
+
+def _event_socket_fds(fds) -> set:
+    """Those of `fds` that are unix sockets bound to an iceoryx2 event path (`*.event`): a
+    listener's. A notifier's sockets (e.g. of a publisher in this process) are not bound."""
+    inodes = {}
+    for fd in fds:
+        try:
+            link = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        inodes[link[len("socket:["):-1]] = fd
+    found = set()
+    try:
+        with open("/proc/net/unix") as table:
+            for line in table:
+                parts = line.split()
+                if len(parts) >= 8 and parts[6] in inodes and parts[7].endswith(".event"):
+                    found.add(inodes[parts[6]])
+    except OSError:
+        pass
+    return found
+
+
+def _minimise_timer_slack() -> None:
+    """PR_SET_TIMERSLACK = 1 ns for this thread, so a timed sleep is not deferred by 50 us."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    pr_set_timerslack = 29
+    if libc.prctl(pr_set_timerslack, ctypes.c_ulong(1), 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_TIMERSLACK)")
+
+
+class Predictor:
+    """The publisher's cycle: a period and a phase learnt from the samples' `publish_t_ns`, and
+    two adaptive margins around the predicted arrival (the model of dvrk_ipc's predictive wait:
+    period smoothed over consecutive cycles, phase a low quantile of recent arrivals, a guard
+    that grows on a late wake-up and shrinks on an on-time one)."""
+
+    LEARN = 16
+    WINDOW = 16
+    PHASE_QUANTILE = 0.1
+    PERIOD_ALPHA = 1.0 / 64.0
+
+    def __init__(self, nominal_period_ns: int = NOMINAL_PERIOD_NS):
+        self.nominal = float(nominal_period_ns)
+        self.period = self.nominal
+        self.recent = collections.deque(maxlen=self.WINDOW)
+        self.observed = 0
+        # Python wakes up later than Rust: wider starting margins than dvrk_ipc's.
+        self.guard = min(100_000.0, self.nominal / 4)
+        self.spin_after = min(50_000.0, self.nominal / 4)
+
+    def ready(self) -> bool:
+        return self.observed >= self.LEARN
+
+    def observe(self, seq: int, t_ns: int) -> None:
+        """Sample `seq` was published at `t_ns` (CLOCK_MONOTONIC)."""
+        if self.recent:
+            last_seq, last_t = self.recent[-1]
+            if seq <= last_seq or t_ns <= last_t:
+                if seq == last_seq:
+                    return  # the same cycle read through another topic
+                self.recent.clear()  # a new publisher, or a clock oddity: learn afresh
+                self.observed = 0
+                self.period = self.nominal
+            else:
+                per_cycle = (t_ns - last_t) / (seq - last_seq)
+                # A stall restarts the publisher's grid: leave those gaps out.
+                if 0.5 * self.period < per_cycle < 1.5 * self.period:
+                    alpha = 1.0 / (self.observed + 1) if not self.ready() else self.PERIOD_ALPHA
+                    self.period += alpha * (per_cycle - self.period)
+        self.recent.append((seq, t_ns))
+        self.observed += 1
+
+    def next_arrival_ns(self, now_ns: int) -> int:
+        """The predicted publish time of the next cycle not yet due `spin_after` before now."""
+        newest_seq = self.recent[-1][0]
+        projected = sorted(t + (newest_seq - s) * self.period for s, t in self.recent)
+        base = projected[int(self.PHASE_QUANTILE * (len(projected) - 1))]
+        k = max(1, math.ceil((now_ns - self.spin_after - base) / self.period))
+        return int(base + k * self.period)
+
+    def graded(self, on_time: bool) -> None:
+        """The last predictive wake-up came before the sample (True) or after it."""
+        cap = self.period / 4
+        if on_time:
+            self.guard = max(10_000.0, self.guard - 1_000.0)
+        else:
+            self.guard = min(cap, self.guard + 30_000.0)
+
+    def missed(self) -> None:
+        """Polling ended `spin_after` past the prediction without the sample."""
+        self.spin_after = min(self.period / 4, self.spin_after + 30_000.0)
+
+    def caught(self) -> None:
+        self.spin_after = max(20_000.0, self.spin_after - 1_000.0)
+
+
+class Waiter:
+    """Waits for a sample as the consumer chooses (dvrk_ipc::WaitStrategy):
+
+    - `event`: sleep on the `<prefix>/cycle` event, notified once per cycle after all nine
+      messages; costs nothing while waiting;
+    - `spin`: poll without sleeping (a whole core; opens no listener, so it costs the publisher
+      nothing);
+    - `predictive`: learn the publisher's period and phase from `publish_t_ns`, sleep on the
+      event's socket until shortly before the next sample is due, then poll; never later than
+      the event. Sets this thread's timer slack to 1 ns.
+    """
+
+    def __init__(self, node, prefix: str, strategy: str = "event", nominal_period_ns: int = NOMINAL_PERIOD_NS):
+        if strategy not in WAIT_STRATEGIES:
+            raise ConfigError(f"wait {strategy!r}: expected one of {', '.join(WAIT_STRATEGIES)}")
+        self.strategy = strategy
+        self.listener = None
+        self.fd = None
+        self.predictor = None
+        if strategy == "spin":
+            return
+        self.event = open_cycle_event(node, prefix)
+        before = _socket_fds()
+        self.listener = self.event.listener_builder().create()
+        if strategy == "predictive":
+            # iceoryx2's Python API does not expose the listener's descriptor; it is the unix
+            # socket that creating the listener opened and bound to the event's path.
+            new = _event_socket_fds(_socket_fds() - before)
+            if len(new) != 1:
+                self.listener.delete()
+                raise DvrkSidecarError(
+                    f"wait 'predictive': cannot find the socket of {prefix}/cycle "
+                    f"({len(new)} new event sockets); use wait='event'"
+                )
+            self.fd = new.pop()
+            _minimise_timer_slack()
+            self.predictor = Predictor(nominal_period_ns)
+
+    def observe(self, header) -> None:
+        if self.predictor is not None and header.publish_t_ns:
+            self.predictor.observe(header.seq, header.publish_t_ns)
+
+    def _readable(self, until_ns: int) -> bool:
+        """Sleeps until the event's socket is readable (True) or until_ns (False)."""
+        timeout = max(0, min(until_ns - time.monotonic_ns(), _MAX_SLEEP_NS)) / 1e9
+        try:
+            readable, _, _ = select.select([self.fd], [], [], timeout)
+        except InterruptedError:
+            return False
+        return bool(readable)
+
+    def wait_for(self, poll, until_ns: int):
+        """Calls `poll()` until it returns a message (returned) or until_ns passes (None).
+
+        `poll` takes what was received since its last call and returns the newest message or
+        None; the predictor learns from what it returns."""
+        value = self._wait_for(poll, until_ns)
+        if value is not None:
+            self.observe(value.header)
+        return value
+
+    def _wait_for(self, poll, until_ns: int):
+        if self.strategy == "spin":
+            while True:
+                value = poll()
+                if value is not None or time.monotonic_ns() >= until_ns:
+                    return value
+        if self.strategy == "event":
+            while True:
+                value = poll()
+                if value is not None:
+                    return value
+                now = time.monotonic_ns()
+                if now >= until_ns:
+                    return None
+                # Consumes the notifications too: after it, a pending sample is polled first.
+                self.listener.timed_wait(iox2.Duration.from_nanos(min(until_ns - now, _MAX_SLEEP_NS)))
+        # predictive
+        value = poll()
+        if value is not None:
+            return value
+        self.listener.try_wait()  # old notifications: their samples are polled next
+        p = self.predictor
+        while True:
+            value = poll()
+            if value is not None:
+                return value
+            now = time.monotonic_ns()
+            if now >= until_ns:
+                return None
+            if not p.ready():
+                if self._readable(until_ns):
+                    self.listener.try_wait()
+                continue
+            arrival = p.next_arrival_ns(now)
+            woke_on_event = self._readable(min(until_ns, arrival - int(p.guard)))
+            if woke_on_event:
+                self.listener.try_wait()
+            started = time.monotonic_ns()
+            spin_until = min(until_ns, max(started, arrival + int(p.spin_after)))
+            first = True
+            while True:
+                value = poll()
+                if value is not None:
+                    late = woke_on_event or first or value.header.publish_t_ns < started
+                    p.graded(not late)
+                    p.caught()
+                    return value
+                first = False
+                if time.monotonic_ns() >= spin_until:
+                    break
+            if spin_until < until_ns:
+                p.missed()
+
+    def close(self):
+        if self.listener is not None:
+            self.listener.delete()
+            self.listener = None

@@ -1,0 +1,177 @@
+"""Unit tests of the pure parts of dvrk_sidecar (no shared memory): layouts, the JSON shape,
+service names, argument checks and the predictor. Run: python3 -m unittest discover python/tests
+(tests/python_client.rs runs them against the installed package)."""
+
+import ctypes
+import json
+import math
+import unittest
+
+import numpy
+
+from dvrk_sidecar import arm, ipc, msg
+
+
+class Layouts(unittest.TestCase):
+    def test_sizes_and_offsets_follow_the_spec(self):
+        self.assertEqual(ctypes.sizeof(msg.HeaderV2), 48)
+        self.assertEqual(msg.HeaderV2.sample_realtime_ns.offset, 16)
+        self.assertEqual(msg.HeaderV2.flags.offset, 44)
+        self.assertEqual(msg.JointStateV2.effort.offset, 144)
+        self.assertEqual(msg.JawStateV1.effort.offset, 64)
+        self.assertEqual(msg.PoseV2.rotation.offset, 104)
+        self.assertEqual(msg.CompensationStatusV3.consecutive_read_failures.offset, 128)
+        self.assertEqual(msg.CompensationStatusV3.implausible_total.offset, 168)
+
+    def test_layouts_have_no_holes(self):
+        for lay in msg.layouts():
+            end = 0
+            for f in lay["fields"]:
+                self.assertEqual(f["offset"], end, (lay["type_name"], f["name"]))
+                end += f["size"]
+            self.assertEqual(end, lay["size"], lay["type_name"])
+
+    def test_layout_type_names(self):
+        names = [lay["type_name"] for lay in msg.layouts()]
+        self.assertEqual(
+            names,
+            ["dvrk::HeaderV2", "dvrk::JointStateV2", "dvrk::JawStateV1", "dvrk::PoseV2", "dvrk::CompensationStatusV3"],
+        )
+        pose = msg.layout(msg.PoseV2)
+        self.assertEqual(pose["fields"][0]["type"], "dvrk::HeaderV2")
+        self.assertEqual(pose["fields"][3]["type"], "[f64; 9]")
+
+
+def _header(**kw):
+    h = msg.HeaderV2(seq=7, sample_t_ns=11, sample_realtime_ns=1_700_000_000_123_456_789, board_timestamp=5, publish_t_ns=13, valid=1)
+    for k, v in kw.items():
+        setattr(h, k, v)
+    return h
+
+
+class JsonShape(unittest.TestCase):
+    def test_joint_state(self):
+        m = msg.JointStateV2(header=_header(flags=(1 << 9) | (1 << 7)))
+        m.position[2] = 0.1
+        m.effort[5] = float("nan")
+        j = msg.to_json("PSM1/measured_js", m)
+        self.assertEqual(j["topic"], "PSM1/measured_js")
+        self.assertEqual(j["name"], list(msg.JOINT_NAMES))
+        self.assertEqual(j["position"][2], 0.1)
+        self.assertIsNone(j["effort"][5])  # serde_json writes a non-finite f64 as null
+        self.assertEqual(j["header"]["flags"], ["CORRECTION_ACTIVE_J1", "SIMULATED"])
+        self.assertIs(j["header"]["valid"], True)
+        self.assertEqual(j["header"]["sample_realtime_ns"], 1_700_000_000_123_456_789)
+        json.dumps(j, allow_nan=False)
+
+    def test_jaw_is_lists_of_one(self):
+        m = msg.JawStateV1(header=_header(valid=0), position=0.5, velocity=-1.0, effort=0.25)
+        j = msg.to_json("PSM1/jaw/measured_js", m)
+        self.assertEqual((j["name"], j["position"], j["velocity"], j["effort"]), (["jaw"], [0.5], [-1.0], [0.25]))
+        self.assertIs(j["header"]["valid"], False)
+
+    def test_pose_rotation_is_rows(self):
+        m = msg.PoseV2(header=_header())
+        for i in range(9):
+            m.rotation[i] = float(i)
+        j = msg.to_json("PSM1/local/measured_cp", m)
+        self.assertEqual(j["rotation"], [[0.0, 1.0, 2.0], [3.0, 4.0, 5.0], [6.0, 7.0, 8.0]])
+        self.assertEqual(set(j), {"topic", "header", "position_m", "orientation_xyzw", "rotation"})
+
+    def test_status_has_its_field_names_without_reserved(self):
+        j = msg.to_json("PSM1/compensated/status", msg.CompensationStatusV3(header=_header(), cycles_total=3))
+        self.assertNotIn("_reserved", j)
+        self.assertEqual(j["cycles_total"], 3)
+        self.assertEqual(len(j), 2 + len(msg.CompensationStatusV3._fields_) - 2)
+
+    def test_reserved_flag_bits_are_skipped_as_in_rust(self):
+        self.assertEqual(msg.flag_names((1 << 0) | (1 << 20) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
+
+
+class Names(unittest.TestCase):
+    def test_split_service_takes_the_longest_topic(self):
+        self.assertEqual(msg.split_service("PSM1/measured_cp"), ("PSM1", "measured_cp"))
+        self.assertEqual(msg.split_service("PSM1/local/measured_cp"), ("PSM1", "local/measured_cp"))
+        self.assertEqual(
+            msg.split_service("test/p1/x/compensated/jaw/measured_js"), ("test/p1/x", "compensated/jaw/measured_js")
+        )
+
+    def test_split_service_names_what_is_wrong(self):
+        with self.assertRaisesRegex(ValueError, '"PSM1/measured_xx" is not a dvrk-sidecar service'):
+            msg.split_service("PSM1/measured_xx")
+        with self.assertRaises(ValueError):
+            msg.split_service("PSM1")
+
+    def test_split_service_reads_ros_names_and_bare_topics(self):
+        self.assertEqual(msg.split_service("/PSM2/jaw/measured_js"), ("PSM2", "jaw/measured_js"))
+        self.assertEqual(msg.split_service("local/measured_cp"), ("PSM1", "local/measured_cp"))
+        self.assertEqual(msg.split_service("measured_js", "PSM3"), ("PSM3", "measured_js"))
+
+    def test_bad_domain_and_prefix_are_named(self):
+        with self.assertRaisesRegex(ipc.ConfigError, "domain 'a/b'"):
+            ipc.domain_config("a/b")
+        with self.assertRaisesRegex(ipc.ConfigError, "root 'tmp'"):
+            ipc.domain_config("ok_", "tmp")
+        with self.assertRaisesRegex(ipc.ConfigError, "arm name '/PSM1'"):
+            ipc.check_prefix("/PSM1")
+
+
+class Poses(unittest.TestCase):
+    def test_pose_matrix_is_homogeneous(self):
+        p = msg.PoseV2()
+        rot = [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+        for i, v in enumerate(rot):
+            p.rotation[i] = v
+        p.position_m[0], p.position_m[1], p.position_m[2] = 0.1, 0.2, -0.3
+        m = arm.pose_matrix(p)
+        self.assertEqual(m.shape, (4, 4))
+        numpy.testing.assert_array_equal(m[3], [0.0, 0.0, 0.0, 1.0])
+        numpy.testing.assert_array_equal(m[:3, 3], [0.1, 0.2, -0.3])
+        self.assertEqual(m[0, 1], -1.0)  # row-major
+
+
+class Predicting(unittest.TestCase):
+    def test_learns_period_and_phase(self):
+        p = ipc.Predictor(1_000_000)
+        t0 = 5_000_000
+        for seq in range(40):
+            p.observe(seq, t0 + seq * 1_000_000 + (30_000 if seq % 3 else 0))
+        self.assertTrue(p.ready())
+        self.assertTrue(math.isclose(p.period, 1_000_000, rel_tol=0.02), p.period)
+        now = t0 + 39 * 1_000_000 + 100_000
+        nxt = p.next_arrival_ns(now)
+        # the next cycle (seq 40) at its early phase
+        self.assertTrue(abs(nxt - (t0 + 40 * 1_000_000)) < 40_000, nxt - (t0 + 40 * 1_000_000))
+
+    def test_restarts_on_a_new_publisher(self):
+        p = ipc.Predictor(1_000_000)
+        for seq in range(20):
+            p.observe(seq, 1_000_000 * (seq + 1))
+        p.observe(0, 50_000_000)
+        self.assertFalse(p.ready())
+
+    def test_guard_is_bounded(self):
+        p = ipc.Predictor(1_000_000)
+        for _ in range(100):
+            p.graded(False)
+        self.assertLessEqual(p.guard, 250_000)
+        for _ in range(1000):
+            p.graded(True)
+        self.assertGreaterEqual(p.guard, 10_000)
+
+
+class Arguments(unittest.TestCase):
+    def test_bad_arm_arguments_are_named_before_any_iceoryx2_call(self):
+        for kw, what in (({"age": float("nan")}, "age nan"), ({"timeout": -1}, "timeout -1"), ({"period_s": 0}, "period_s 0")):
+            with self.assertRaisesRegex(ipc.ConfigError, what):
+                arm.Arm("PSM1", **kw)
+        with self.assertRaisesRegex(ipc.ConfigError, "arm name ''"):
+            arm.Arm("")
+
+    def test_unknown_wait_strategy_is_refused_before_any_iceoryx2_call(self):
+        with self.assertRaisesRegex(ipc.ConfigError, "wait 'sleepy'"):
+            ipc.Waiter(None, "PSM1", "sleepy")
+
+
+if __name__ == "__main__":
+    unittest.main()
