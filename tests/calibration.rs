@@ -216,10 +216,10 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
 
 #[test]
 fn the_real_2017_clamp_file_gives_the_published_stiffness() {
-    let data = repo().join("../shared/data/dvrk2017-clamp-joint1.csv");
+    let data = repo().join("data/2017/dvrk2017-clamp-joint1.csv");
     assert!(
         data.exists(),
-        "{} is missing: the shared data set must sit beside the repository",
+        "{} is missing: the repository ships it in data/2017",
         data.display()
     );
     let dir = scratch("real2017");

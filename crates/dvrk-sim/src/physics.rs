@@ -136,7 +136,7 @@ pub struct TorqueOffsetParams {
 
 impl TorqueOffsetParams {
     /// Magnitudes like the 2017 sweep of joint 1 (about 0.06 N·m at -0.1 rad rising to 0.17 N·m
-    /// at 0, ../shared/data/dvrk2017-torque-offset-joint1.csv) and a gentler joint 2.
+    /// at 0, data/2017/dvrk2017-torque-offset-joint1.csv) and a gentler joint 2.
     pub const CLASSIC: TorqueOffsetParams = TorqueOffsetParams {
         rotary: [
             RotaryOffset {
