@@ -210,7 +210,7 @@ fn analyse_with(recs: &[Rec], strict: bool) -> Report {
             let smooth = match prev {
                 Some(p) if p.valid && s.seq == p.seq + 1 => {
                     let dt = s.sample_t_ns.saturating_sub(p.sample_t_ns) as f64 * 1e-9;
-                    (0..7).all(|j| {
+                    (0..SMOOTH.len()).all(|j| {
                         let moved = (s.position[j] - p.position[j]).abs();
                         if strict {
                             moved <= SMOOTH[j] + SMOOTH_SPEED[j] * dt

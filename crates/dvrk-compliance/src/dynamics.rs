@@ -34,6 +34,9 @@ use serde::{Deserialize, Serialize};
 pub const WINDOW: usize = 48;
 /// Delay of the filter's estimate, in samples.
 pub const DELAY_SAMPLES: usize = 2;
+/// A longer gap between two samples restarts the filter (s). Shorter gaps (a few lost or
+/// invalid cycles) need no restart: the fit uses the samples' own times.
+pub const MAX_GAP_S: f64 = 0.02;
 
 fn default_stick_velocity() -> f64 {
     0.002
@@ -118,11 +121,19 @@ impl DerivativeFilter {
 
     /// Adds a sample at time `t_s` and returns `(velocity, acceleration)` at the sample
     /// [`DELAY_SAMPLES`] before it; zeros until the window holds enough samples for a cubic.
-    /// Non-finite inputs reset the filter.
+    /// Non-finite inputs reset the filter; a time that does not increase, or one more than
+    /// [`MAX_GAP_S`] after the last sample, restarts it at this sample.
     pub fn push(&mut self, t_s: f64, q: f64) -> (f64, f64) {
         if !(t_s.is_finite() && q.is_finite()) {
             self.reset();
             return (0.0, 0.0);
+        }
+        if self.len > 0 {
+            let last = self.t[(self.head + WINDOW - 1) % WINDOW];
+            let gap = t_s - last;
+            if gap.is_nan() || gap <= 0.0 || gap > MAX_GAP_S {
+                self.reset();
+            }
         }
         self.t[self.head] = t_s;
         self.q[self.head] = q;
@@ -268,6 +279,39 @@ mod tests {
         let a = -4.0 + 18.0 * t;
         assert!((out.0 - v).abs() < 1e-6, "{out:?} {v}");
         assert!((out.1 - a).abs() < 1e-3, "{out:?} {a}");
+    }
+
+    #[test]
+    fn short_gaps_keep_the_window_and_long_ones_restart_it() {
+        let mut f = DerivativeFilter::default();
+        let dt = 1.0 / 1500.0;
+        let q = |t: f64| 0.2 * t - 1.5 * t * t + 0.7 * t * t * t;
+        let mut out = (0.0, 0.0);
+        let mut last_t = 0.0;
+        for i in 0..200 {
+            // Three cycles lost at i = 120 (a few invalid samples).
+            if (120..123).contains(&i) {
+                continue;
+            }
+            last_t = 2.0 + f64::from(i) * dt;
+            out = f.push(last_t, q(last_t));
+            assert!(i < 60 || f.ready(), "{i}");
+        }
+        let t = last_t - 2.0 * dt;
+        assert!(
+            (out.0 - (0.2 - 3.0 * t + 2.1 * t * t)).abs() < 1e-6,
+            "{out:?}"
+        );
+        assert!((out.1 - (-3.0 + 4.2 * t)).abs() < 1e-3, "{out:?}");
+        // A gap longer than MAX_GAP_S, or time going back, starts over.
+        f.push(last_t + 0.05, 0.0);
+        assert!(!f.ready());
+        for i in 0..WINDOW {
+            f.push(10.0 + i as f64 * dt, 0.0);
+        }
+        assert!(f.ready());
+        f.push(9.0, 0.0);
+        assert!(!f.ready());
     }
 
     #[test]
@@ -419,7 +463,8 @@ pub fn fit_dynamics_segmented(
         }
         in_segment += 1;
         let (v, a) = filter.push(s.t_s, s.position[j]);
-        if in_segment <= WINDOW {
+        // A gap inside a segment (lost samples of a live recording) restarts the filter too.
+        if in_segment <= WINDOW || !filter.ready() {
             continue;
         }
         if v > stick {

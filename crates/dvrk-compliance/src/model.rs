@@ -276,8 +276,9 @@ impl Compensator {
         Self::default()
     }
 
-    /// Forgets the filter history (after invalid samples or a gap); keeps the friction's
-    /// direction memory.
+    /// Forgets the filter history; keeps the friction's direction memory. Not needed for a few
+    /// lost or invalid samples: [`Compensator::correct`] restarts the filter by itself after a
+    /// gap of more than [`crate::dynamics::MAX_GAP_S`] or a time that goes back.
     pub fn reset(&mut self) {
         for j in &mut self.joints {
             j.reset();

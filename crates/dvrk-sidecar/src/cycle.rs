@@ -88,9 +88,11 @@ pub fn compute(
 }
 
 /// [`compute`] with the internal-torque estimator (issue 10): friction and inertia are removed
-/// from `tau_ext` before the gate, using the sample's own time. Invalid samples reset the
-/// estimator's filter and are corrected without it. With a parameter file that has no
-/// `[joint.dynamics]` the result equals [`compute`]'s.
+/// from `tau_ext` before the gate, using the sample's own time. Invalid samples are corrected
+/// without it and do not enter its filter; the filter bridges the few cycles they leave out and
+/// restarts itself after a longer gap ([`dvrk_compliance::dynamics::MAX_GAP_S`]), so one lost
+/// read does not blank the correction for a whole filter window. With a parameter file that has
+/// no `[joint.dynamics]` the result equals [`compute`]'s.
 pub fn compute_dynamic(
     model: &ComplianceConfig,
     compensator: &mut Compensator,
@@ -103,7 +105,6 @@ pub fn compute_dynamic(
     let correction = if outcome == ReadOutcome::Ok && s.valid {
         compensator.correct(model, s.t_ns as f64 * 1e-9, &q3, &tau3)
     } else {
-        compensator.reset();
         model.correct(&q3, &tau3)
     };
     finish(kin, s, outcome, correction)
@@ -434,5 +435,42 @@ mod tests {
         let m = messages(&s, &r, &t, &Isometry3::identity());
         assert_eq!(m.measured.measured_cp, m.measured.local_measured_cp);
         assert_eq!(m.compensated.measured_cp, m.compensated.local_measured_cp);
+    }
+
+    #[test]
+    fn one_invalid_sample_does_not_restart_the_estimator() {
+        let model = crate::formats::compliance_from_toml(include_str!(
+            "../../../config/compliance/sim-psm.toml"
+        ))
+        .unwrap();
+        let kin = PsmKinematics::new(
+            dvrk_compliance::ArmKind::Classic,
+            dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
+        );
+        let mut comp = Compensator::new();
+        let mut s = ArmSample {
+            valid: true,
+            ..Default::default()
+        };
+        s.position[2] = 0.12;
+        let period_ns = 666_667;
+        let ready = |c: &Compensator| c.joint_state(0).is_some_and(|j| j.ready());
+        for i in 0..100u64 {
+            s.t_ns = 1_000_000_000 + i * period_ns;
+            s.position[0] = 0.1 * (i as f64 * 0.01).sin();
+            compute_dynamic(&model, &mut comp, &kin, &s, ReadOutcome::Ok);
+        }
+        assert!(ready(&comp), "a full window after 100 samples");
+        // One read times out...
+        s.t_ns += period_ns;
+        compute_dynamic(&model, &mut comp, &kin, &s, ReadOutcome::Timeout);
+        // ...and the next valid sample is estimated at once, not after another window.
+        s.t_ns += period_ns;
+        compute_dynamic(&model, &mut comp, &kin, &s, ReadOutcome::Ok);
+        assert!(ready(&comp), "one lost cycle restarted the estimator");
+        // A stall longer than the filter's gap restarts it (the motion is unknown across it).
+        s.t_ns += 50_000_000;
+        compute_dynamic(&model, &mut comp, &kin, &s, ReadOutcome::Ok);
+        assert!(!ready(&comp));
     }
 }

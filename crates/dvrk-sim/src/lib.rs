@@ -25,7 +25,8 @@ pub use emulator::{ActuatorMap, ActuatorSlot, Emulator, EmulatorCounters};
 pub use link::{SimLink, SimPort, sim_port};
 pub use measure::{ActuatorScales, NoiseParams};
 pub use physics::{
-    Environment, FrictionParams, JointState, PhysicsParams, ShaftParams, SimPsm, Truth,
+    DistalParams, Environment, FrictionParams, JointState, PhysicsParams, ShaftParams, SimPsm,
+    Truth,
 };
 pub use rng::SimRng;
 pub use scenario::{EthernetMode, Motion, MotionDriver, Scenario, ScenarioParams};

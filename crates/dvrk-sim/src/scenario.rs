@@ -2,7 +2,8 @@
 //!
 //! A scenario fixes the seed and step of the physics, the starting pose, the environment at the
 //! tip, a motion (the setpoints the stand-in console commands over time) and the measurement
-//! noise; optionally the shaft's true compliance and backlash. Files are parsed into
+//! noise; optionally the shaft's true compliance and backlash (`[shaft]`), the transmission's
+//! friction (`[transmission]`) and the distal part's inertia (`[distal]`). Files are parsed into
 //! [`ScenarioParams`] (`deny_unknown_fields`) and validated into a [`Scenario`]; every error names
 //! the field and the value.
 //!
@@ -33,7 +34,9 @@ use serde::Deserialize;
 
 use crate::SimError;
 use crate::measure::NoiseParams;
-use crate::physics::{Environment, FrictionParams, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm};
+use crate::physics::{
+    DistalParams, Environment, FrictionParams, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm,
+};
 
 /// Environment section, as written in the file.
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -73,6 +76,12 @@ pub enum MotionParams {
     Trajectory {
         amplitude: [f64; NUM_JOINTS],
         period_s: [f64; NUM_JOINTS],
+    },
+    /// The identification excitation of `calibrate dynamics` ([`Motion::MultiSine`]): per joint
+    /// 1 and 2 three sines around the initial pose (rad, rad/s), faded in over the first second.
+    MultiSine {
+        amplitude: [[f64; 3]; 2],
+        angular_frequency: [[f64; 3]; 2],
     },
 }
 
@@ -122,6 +131,40 @@ fn default_viscous() -> [f64; 2] {
     ]
 }
 
+/// Optional distal section (default: [`DistalParams::CLASSIC_8MM`], field by field): the inertia
+/// and damping of the shaft beyond the compliant element.
+///
+/// ```toml
+/// [distal]
+/// inertia_kg_m2 = 5.0e-5          # I_0 of I_d(L) = I_0 + m L^2
+/// mass_kg = 0.02                  # m
+/// damping_nm_s_per_rad = 0.007    # damper in parallel with the play and spring
+/// ```
+///
+/// All three 0 give the massless, quasi-static shaft of the paper.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DistalSection {
+    #[serde(default = "default_distal_inertia")]
+    pub inertia_kg_m2: f64,
+    #[serde(default = "default_distal_mass")]
+    pub mass_kg: f64,
+    #[serde(default = "default_distal_damping")]
+    pub damping_nm_s_per_rad: f64,
+}
+
+fn default_distal_inertia() -> f64 {
+    DistalParams::CLASSIC_8MM.inertia_kg_m2
+}
+
+fn default_distal_mass() -> f64 {
+    DistalParams::CLASSIC_8MM.mass_kg
+}
+
+fn default_distal_damping() -> f64 {
+    DistalParams::CLASSIC_8MM.damping_nm_s_per_rad
+}
+
 /// A scenario file as parsed.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -138,6 +181,8 @@ pub struct ScenarioParams {
     pub shaft: Option<ShaftSection>,
     #[serde(default)]
     pub transmission: Option<TransmissionSection>,
+    #[serde(default)]
+    pub distal: Option<DistalSection>,
     /// How the emulated boards present themselves on Ethernet (default `bridge`).
     #[serde(default)]
     pub ethernet: EthernetMode,
@@ -171,7 +216,8 @@ pub enum Motion {
     },
     /// Identification excitation of joints 1 and 2 (`calibrate dynamics`): per joint a sum of
     /// three sines around the anchor, faded in over the first second (`sin^2`) so the setpoint
-    /// starts still. Set programmatically; not a file kind.
+    /// starts still. File kind `multi_sine` (a live service on the simulator then runs the same
+    /// excitation, e.g. for `calibrate record --dynamics`).
     MultiSine {
         amplitude: [[f64; 3]; 2],
         angular_frequency: [[f64; 3]; 2],
@@ -345,6 +391,49 @@ impl Scenario {
                 physics.viscous[j] = v;
             }
         }
+        if let Some(d) = p.distal {
+            let i0 = check_non_negative("distal.inertia_kg_m2", d.inertia_kg_m2)?;
+            let m = check_non_negative("distal.mass_kg", d.mass_kg)?;
+            let c = check_non_negative("distal.damping_nm_s_per_rad", d.damping_nm_s_per_rad)?;
+            if i0 > 0.01 {
+                return Err(invalid(
+                    "distal.inertia_kg_m2",
+                    i0,
+                    "must be at most 0.01 kg·m² (an instrument, not an arm)",
+                ));
+            }
+            if m > 1.0 {
+                return Err(invalid("distal.mass_kg", m, "must be at most 1 kg"));
+            }
+            if c > 1.0 {
+                return Err(invalid(
+                    "distal.damping_nm_s_per_rad",
+                    c,
+                    "must be at most 1 N·m·s/rad",
+                ));
+            }
+            if i0 > 0.0 && c == 0.0 {
+                return Err(invalid(
+                    "distal.damping_nm_s_per_rad",
+                    c,
+                    "must be > 0 with a distal inertia (undamped, the shaft rattles in the play \
+                     forever)",
+                ));
+            }
+            if i0 == 0.0 && (m > 0.0 || c > 0.0) {
+                return Err(invalid(
+                    "distal.inertia_kg_m2",
+                    i0,
+                    "must be > 0 when mass_kg or damping_nm_s_per_rad is (the inertia at zero \
+                     insertion); set all three to 0 for a massless shaft",
+                ));
+            }
+            physics.distal = DistalParams {
+                inertia_kg_m2: i0,
+                mass_kg: m,
+                damping_nm_s_per_rad: c,
+            };
+        }
         for (j, v) in p.initial_position.iter().enumerate() {
             let field = format!("initial_position[{j}]");
             check_finite(&field, *v)?;
@@ -468,6 +557,39 @@ impl Scenario {
                 Motion::Trajectory {
                     amplitude,
                     period_s,
+                }
+            }
+            MotionParams::MultiSine {
+                amplitude,
+                angular_frequency,
+            } => {
+                for j in 0..2 {
+                    let mut reach = 0.0;
+                    for k in 0..3 {
+                        reach += check_non_negative(
+                            &format!("motion.amplitude[{j}][{k}]"),
+                            amplitude[j][k],
+                        )?;
+                        let w = angular_frequency[j][k];
+                        let field = format!("motion.angular_frequency[{j}][{k}]");
+                        check_positive(&field, w)?;
+                        if w > 100.0 {
+                            return Err(invalid(field, w, "must be at most 100 rad/s"));
+                        }
+                    }
+                    let (lo, hi) = (physics.position_min[j], physics.position_max[j]);
+                    let c = p.initial_position[j];
+                    if c - reach < lo || c + reach > hi {
+                        return Err(invalid(
+                            format!("motion.amplitude[{j}]"),
+                            format!("{:?}", amplitude[j]),
+                            "initial_position ± the sum of the amplitudes leaves the joint limits",
+                        ));
+                    }
+                }
+                Motion::MultiSine {
+                    amplitude,
+                    angular_frequency,
                 }
             }
         };
@@ -724,6 +846,47 @@ pot_noise_volts = 0.0
         let sc = from_toml_str(&format!("{BASE}{shaft}")).unwrap();
         assert_eq!(sc.physics.shaft.stiffness_nm_per_rad(0, 0.1), 20.0);
         assert_eq!(sc.physics.shaft.backlash_rad, [0.001, 0.002]);
+    }
+
+    #[test]
+    fn distal_section_defaults_field_by_field_and_is_checked() {
+        // Absent: the Classic 8 mm instrument.
+        assert_eq!(
+            from_toml_str(BASE).unwrap().physics.distal,
+            DistalParams::CLASSIC_8MM
+        );
+        let sc = from_toml_str(&format!("{BASE}\n[distal]\nmass_kg = 0.05\n")).unwrap();
+        assert_eq!(sc.physics.distal.mass_kg, 0.05);
+        assert_eq!(
+            sc.physics.distal.inertia_kg_m2,
+            DistalParams::CLASSIC_8MM.inertia_kg_m2
+        );
+        let massless =
+            "\n[distal]\ninertia_kg_m2 = 0.0\nmass_kg = 0.0\ndamping_nm_s_per_rad = 0.0\n";
+        let sc = from_toml_str(&format!("{BASE}{massless}")).unwrap();
+        assert_eq!(sc.physics.distal, DistalParams::MASSLESS);
+        let e = err_of(&format!("{BASE}\n[distal]\ninertia_kg_m2 = 0.0\n"));
+        assert!(
+            e.contains("distal.inertia_kg_m2") && e.contains("> 0"),
+            "{e}"
+        );
+        let e = err_of(&format!("{BASE}\n[distal]\nmass_kg = -1.0\n"));
+        assert!(e.contains("distal.mass_kg") && e.contains("-1"), "{e}");
+        let e = err_of(&format!("{BASE}\n[distal]\nmass = 0.1\n"));
+        assert!(e.contains("mass"), "{e}");
+    }
+
+    #[test]
+    fn multi_sine_is_a_file_kind_and_stays_in_the_limits() {
+        let ms = "kind = \"multi_sine\"\namplitude = [[0.25, 0.12, 0.05], [0.18, 0.09, 0.04]]\nangular_frequency = [[1.43, 3.1, 6.9], [1.67, 3.7, 6.1]]";
+        let sc = from_toml_str(&BASE.replace("kind = \"hold\"", ms)).unwrap();
+        assert!(matches!(sc.motion, Motion::MultiSine { .. }));
+        let wide = ms.replace("0.25, 0.12", "1.5, 0.12");
+        let e = err_of(&BASE.replace("kind = \"hold\"", &wide));
+        assert!(e.contains("motion.amplitude[0]"), "{e}");
+        let fast = ms.replace("6.9", "-6.9");
+        let e = err_of(&BASE.replace("kind = \"hold\"", &fast));
+        assert!(e.contains("motion.angular_frequency[0][2]"), "{e}");
     }
 
     #[test]

@@ -10,7 +10,9 @@
 //! `calibrate record` is for real robots, where the dVRK console owns the boards and its own tools
 //! move the arm: it subscribes to the running service's `<prefix>/measured_js` and turns every
 //! still period into an averaged row ([`dvrk_compliance::calibration::Recorder`]), in the same
-//! file layout, so `fit` applies unchanged.
+//! file layout, so `fit` applies unchanged. With `--dynamics` it records every valid sample
+//! instead, in the layout of `calibrate dynamics`, while the lab's own excitation moves joints 1
+//! and 2 in free space (`fit --dynamics` reads it unchanged).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -50,8 +52,15 @@ pub enum Procedure {
     /// Free-space multi-sine excitation of joints 1 and 2 at a few depths (about a minute): the
     /// rows `fit --dynamics` identifies the internal-torque model from (issue 10).
     Dynamics(super::dynamics_cmd::DynamicsArgs),
-    /// Real robot: record averaged rows from the running sidecar's measured_js while the dVRK's
-    /// own tools move the arm (one row per still step), for the same fitting.
+    /// Write the `calibrate dynamics` excitation as a trajectory file (time, joint positions and
+    /// velocities) for a lab to replay on a real arm with the console (e.g. a crtk servo_jp
+    /// script) while `calibrate record --dynamics` records it.
+    Trajectory(super::dynamics_cmd::TrajectoryArgs),
+    /// Real robot: record from the running sidecar's measured_js while the dVRK's own tools move
+    /// the arm. Without --dynamics: averaged rows, one per still step of --joint (clamp or sweep
+    /// data for `fit --clamp/--torque-offset`). With --dynamics: one row per valid sample, the
+    /// file of `calibrate dynamics`, while a free-space excitation of joints 1-2 runs (e.g. the
+    /// `calibrate trajectory` file replayed by a crtk script); for `fit --dynamics`.
     Record(RecordArgs),
 }
 
@@ -64,18 +73,32 @@ pub struct RecordArgs {
     /// Data file to write (CSV), rewritten after every new row.
     #[arg(long)]
     pub out: PathBuf,
-    /// Joint under test (1 = yaw, 2 = pitch).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
-    pub joint: u8,
+    /// Joint under test (1 = yaw, 2 = pitch); not with --dynamics, which records both.
+    #[arg(
+        long,
+        value_parser = clap::value_parser!(u8).range(1..=2),
+        required_unless_present = "dynamics",
+        conflicts_with = "dynamics"
+    )]
+    pub joint: Option<u8>,
     /// Torque-offset sweep file(s) whose fitted tau_0 fills the torque_offset_nm column.
-    #[arg(long = "torque-offset")]
+    #[arg(long = "torque-offset", conflicts_with = "dynamics")]
     pub torque_offset: Vec<PathBuf>,
     /// Stillness window before a row is averaged (s).
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, conflicts_with = "dynamics")]
     pub settle_s: f64,
-    /// Stop after this many rows (default: until Ctrl-C).
+    /// Stop after this many rows (default: until Ctrl-C or --seconds).
     #[arg(long)]
     pub rows: Option<usize>,
+    /// Record dynamics rows (`t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm`, one per valid
+    /// sample, time from the samples' own monotonic stamps) for `fit --dynamics`. Gaps of more
+    /// than 0.5 s (the arm stopped publishing valid samples) start a new segment of the fit.
+    #[arg(long)]
+    pub dynamics: bool,
+    /// With --dynamics: stop after this many seconds of samples (default: until Ctrl-C or
+    /// --rows). The file is written when the recording ends, Ctrl-C included.
+    #[arg(long)]
+    pub seconds: Option<f64>,
 }
 
 /// Options shared by the simulator procedures.
@@ -343,8 +366,17 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     use dvrk_ipc::iceoryx2::service::ipc::Service;
     use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
 
+    if a.dynamics {
+        return super::dynamics_cmd::record_live(a, &config_prefix(&a.config)?, stop);
+    }
+    if let Some(s) = a.seconds {
+        bail!("--seconds {s}: only with --dynamics (still-period rows stop with --rows or Ctrl-C)");
+    }
+    let Some(joint) = a.joint else {
+        bail!("--joint: give the joint under test (1 or 2), or --dynamics");
+    };
     let prefix = config_prefix(&a.config)?;
-    let offsets = sweep_offsets(&a.torque_offset, &[a.joint])?;
+    let offsets = sweep_offsets(&a.torque_offset, &[joint])?;
     let names = ServiceNames::new(&prefix).with_context(|| format!("prefix {prefix}"))?;
     let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
         .context("creating the iceoryx2 node")?;
@@ -356,7 +388,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     )
     .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
     let mut rec = Recorder::new(RecorderConfig {
-        joint: a.joint,
+        joint,
         settle_s: a.settle_s,
         ..RecorderConfig::default()
     });
@@ -365,7 +397,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut silence = crate::watch::SilenceReporter::default();
     eprintln!(
         "recording joint {} from {prefix}/measured_js; move the arm with the dVRK tools, Ctrl-C to stop",
-        a.joint
+        joint
     );
     while !stop.load(Ordering::Relaxed) && records.len() < limit {
         let before = records.len();
@@ -392,8 +424,8 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
                 records.len(),
                 r.depth_index,
                 r.direction,
-                r.averaged.position[usize::from(a.joint) - 1],
-                r.averaged.effort[usize::from(a.joint) - 1]
+                r.averaged.position[usize::from(joint) - 1],
+                r.averaged.effort[usize::from(joint) - 1]
             );
         }
     }
@@ -416,6 +448,7 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
         Procedure::Divot(a) => run_sim_procedure(SimKind::Divot, a, stop),
         Procedure::Record(r) => run_record(r, stop),
         Procedure::Dynamics(a) => super::dynamics_cmd::run(a, stop),
+        Procedure::Trajectory(a) => super::dynamics_cmd::run_trajectory(a),
     }
 }
 

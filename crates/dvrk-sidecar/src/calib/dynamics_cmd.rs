@@ -141,6 +141,255 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
         .context("writing to stdout")
 }
 
+/// `calibrate record --dynamics`: subscribes to `<prefix>/measured_js` of the running service
+/// and keeps every valid sample as a dynamics row until `--seconds` of samples, `--rows` rows or
+/// Ctrl-C; then writes the file atomically. The time of a row is the sample's own monotonic stamp
+/// (`sample_t_ns`) from the first kept sample, so the fit's filter sees the true spacing.
+pub fn record_live(
+    a: &super::calibrate::RecordArgs,
+    prefix: &str,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    use dvrk_ipc::iceoryx2::service::ipc::Service;
+    use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+
+    super::data::check_output_path(&a.out)?;
+    let seconds = a.seconds.unwrap_or(f64::INFINITY);
+    if seconds.is_nan() || seconds <= 0.0 {
+        bail!("--seconds {seconds}: must be a positive number of seconds");
+    }
+    let limit = a.rows.unwrap_or(usize::MAX);
+    let names = ServiceNames::new(prefix).with_context(|| format!("prefix {prefix}"))?;
+    let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
+        .context("creating the iceoryx2 node")?;
+    let mut sub = Subscription::<JointStateV2, Service>::new(
+        &node,
+        &names,
+        Topic::MeasuredJs,
+        NOMINAL_PERIOD,
+    )
+    .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
+    let service = names.topic(Topic::MeasuredJs);
+    eprintln!(
+        "recording dynamics rows from {}; run the excitation with the dVRK console (free space, \
+         joints 1 and 2), Ctrl-C to stop",
+        service.as_str()
+    );
+    let mut rows: Vec<DynamicsSample> = Vec::new();
+    let mut t0_ns: Option<u64> = None;
+    let mut invalid = 0u64;
+    let mut last_t = f64::NEG_INFINITY;
+    let mut next_report = 5.0;
+    let mut silence = crate::watch::SilenceReporter::default();
+    let mut done = false;
+    while !done && !stop.load(Ordering::Relaxed) {
+        let update = sub
+            .wait_with(|msg| {
+                if done {
+                    return;
+                }
+                let h = &msg.header;
+                let sample = [
+                    msg.position[0],
+                    msg.position[1],
+                    msg.position[2],
+                    msg.effort[0],
+                    msg.effort[1],
+                ];
+                if h.valid == 0 || !sample.iter().all(|v| v.is_finite()) {
+                    invalid += 1;
+                    return;
+                }
+                let t0 = *t0_ns.get_or_insert(h.sample_t_ns);
+                let t = h.sample_t_ns.saturating_sub(t0) as f64 * 1e-9;
+                // A repeated or older stamp (a restarted service) cannot go into one time axis.
+                if t <= last_t {
+                    return;
+                }
+                last_t = t;
+                rows.push(DynamicsSample {
+                    t_s: t,
+                    position: [sample[0], sample[1], sample[2]],
+                    effort_nm: [sample[3], sample[4]],
+                });
+                done = t >= seconds || rows.len() >= limit;
+            })
+            .context("waiting for samples")?;
+        silence.report(&update, service.as_str());
+        if last_t >= next_report {
+            eprintln!(
+                "{:.0} s recorded: {} rows, {invalid} invalid samples skipped",
+                last_t,
+                rows.len()
+            );
+            next_report += 5.0;
+        }
+    }
+    if rows.is_empty() {
+        bail!(
+            "no valid sample arrived on {}; nothing written to {}",
+            service.as_str(),
+            a.out.display()
+        );
+    }
+    super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+    let segments = segments(&rows).len();
+    eprintln!(
+        "wrote {} rows ({last_t:.1} s, {segments} segment(s), {invalid} invalid samples skipped) \
+         to {}",
+        rows.len(),
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// `calibrate trajectory --out traj.csv [--depths ..] [--seconds-per-depth N] [--rate-hz R]
+/// [--center q1,q2]`
+#[derive(Clone, Debug, clap::Args)]
+pub struct TrajectoryArgs {
+    /// Trajectory file to write (CSV: t_s,q1_rad,q2_rad,q3_m,v1_rad_per_s,v2_rad_per_s,v3_m_per_s).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Insertion depths (m), visited in this order.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.10, 0.15, 0.20])]
+    pub depths: Vec<f64>,
+    /// Excitation time per depth (s), fade-in and fade-out included.
+    #[arg(long, default_value_t = 20.0)]
+    pub seconds_per_depth: f64,
+    /// Rows per second.
+    #[arg(long, default_value_t = 1500.0)]
+    pub rate_hz: f64,
+    /// Joints 1 and 2 around which the excitation swings (rad).
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.0, 0.0])]
+    pub center: Vec<f64>,
+}
+
+/// The header of a trajectory file.
+pub const TRAJECTORY_HEADER: &str = "t_s,q1_rad,q2_rad,q3_m,v1_rad_per_s,v2_rad_per_s,v3_m_per_s";
+
+/// Time the insertion takes to go from one depth to the next (s).
+const DEPTH_MOVE_S: f64 = 2.0;
+
+/// `sin^2(pi x / 2)` on [0, 1] (0 before, 1 after) and its derivative.
+fn fade(x: f64) -> (f64, f64) {
+    use core::f64::consts::PI;
+    if x <= 0.0 {
+        (0.0, 0.0)
+    } else if x >= 1.0 {
+        (1.0, 0.0)
+    } else {
+        let s = (0.5 * PI * x).sin();
+        (s * s, 0.5 * PI * (PI * x).sin())
+    }
+}
+
+/// The excitation of `calibrate dynamics` as one continuous trajectory for a real arm: at each
+/// depth the same multi-sine about `center`, faded in over the first second and out over the
+/// last, then a smooth 2 s move of the insertion to the next depth with joints 1 and 2 at the
+/// centre. Rows `[t, q1, q2, q3, v1, v2, v3]`; it starts and ends still at the first and last
+/// depth.
+pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
+    let Motion::MultiSine {
+        amplitude,
+        angular_frequency,
+    } = EXCITATION
+    else {
+        bail!("the excitation is not a multi-sine");
+    };
+    if a.depths.is_empty() {
+        bail!("--depths: give at least one insertion depth");
+    }
+    for &d in &a.depths {
+        if !(0.05..=0.23).contains(&d) {
+            bail!("--depths {d}: each depth must lie within 0.05..=0.23 m");
+        }
+    }
+    if !(a.seconds_per_depth.is_finite() && (2.0..=600.0).contains(&a.seconds_per_depth)) {
+        bail!(
+            "--seconds-per-depth {}: must be within 2..=600 s",
+            a.seconds_per_depth
+        );
+    }
+    if !(a.rate_hz.is_finite() && (10.0..=20_000.0).contains(&a.rate_hz)) {
+        bail!("--rate-hz {}: must be within 10..=20000", a.rate_hz);
+    }
+    let limits = dvrk_sim::PhysicsParams::CLASSIC;
+    let [c1, c2] = a.center[..] else {
+        bail!("--center: give two angles, q1,q2 (rad)");
+    };
+    for (j, (c, amp)) in [c1, c2].into_iter().zip(amplitude.iter()).enumerate() {
+        let reach: f64 = amp.iter().sum();
+        let (lo, hi) = (limits.position_min[j], limits.position_max[j]);
+        if !(c.is_finite() && c - reach >= lo && c + reach <= hi) {
+            bail!(
+                "--center {c} (joint {}): the excitation swings ±{reach:.2} rad about it and must \
+                 stay within the joint's limits {lo:.3}..{hi:.3} rad",
+                j + 1
+            );
+        }
+    }
+    let center = [c1, c2];
+    let seg = a.seconds_per_depth;
+    let n_depths = a.depths.len();
+    let total = n_depths as f64 * seg + (n_depths - 1) as f64 * DEPTH_MOVE_S;
+    let n = (total * a.rate_hz).round() as usize;
+    let mut rows = Vec::with_capacity(n + 1);
+    for i in 0..=n {
+        let t = i as f64 / a.rate_hz;
+        // Which depth (or which move between two depths) the time falls in.
+        let k = ((t / (seg + DEPTH_MOVE_S)) as usize).min(n_depths - 1);
+        let local = t - k as f64 * (seg + DEPTH_MOVE_S);
+        let mut row = [t, center[0], center[1], a.depths[k], 0.0, 0.0, 0.0];
+        if local <= seg {
+            let (g, dg) = fade(seg - local);
+            for j in 0..2 {
+                let (q, v) =
+                    dvrk_sim::scenario::multi_sine(&amplitude[j], &angular_frequency[j], local);
+                row[1 + j] = center[j] + g * q;
+                row[4 + j] = g * v - dg * q;
+            }
+        } else if k + 1 < n_depths {
+            let x = (local - seg) / DEPTH_MOVE_S;
+            let (from, to) = (a.depths[k], a.depths[k + 1]);
+            // Half a cosine: still at both ends.
+            let s = 0.5 - 0.5 * (core::f64::consts::PI * x).cos();
+            let ds = 0.5 * core::f64::consts::PI * (core::f64::consts::PI * x).sin() / DEPTH_MOVE_S;
+            row[3] = from + (to - from) * s;
+            row[6] = (to - from) * ds;
+        }
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Runs `calibrate trajectory`: writes the file atomically.
+pub fn run_trajectory(a: &TrajectoryArgs) -> anyhow::Result<()> {
+    super::data::check_output_path(&a.out)?;
+    let rows = trajectory(a)?;
+    let mut s = String::with_capacity(rows.len() * 120);
+    s.push_str(TRAJECTORY_HEADER);
+    s.push('\n');
+    for r in &rows {
+        let _ = writeln!(
+            s,
+            "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+            r[0], r[1], r[2], r[3], r[4], r[5], r[6]
+        );
+    }
+    super::data::write_atomically(&a.out, s.as_bytes())?;
+    let text = format!(
+        "wrote {} rows ({:.1} s) to {}; move the arm to q1 = {}, q2 = {}, q3 = {} m first\n",
+        rows.len(),
+        rows.last().map_or(0.0, |r| r[0]),
+        a.out.display(),
+        rows[0][1],
+        rows[0][2],
+        rows[0][3]
+    );
+    std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
+        .context("writing to stdout")
+}
+
 /// Reads a dynamics file; every error names the file, line and column.
 pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
     let text =
@@ -247,6 +496,63 @@ mod tests {
         std::fs::write(&p, "t,q\n").unwrap();
         assert!(format!("{:#}", read(&p).unwrap_err()).contains("header"));
         let _ = std::fs::remove_file(&p);
+    }
+
+    fn traj_args() -> TrajectoryArgs {
+        TrajectoryArgs {
+            out: PathBuf::from("unused.csv"),
+            depths: vec![0.10, 0.15, 0.20],
+            seconds_per_depth: 20.0,
+            rate_hz: 1500.0,
+            center: vec![0.1, -0.05],
+        }
+    }
+
+    #[test]
+    fn trajectory_is_smooth_still_at_the_ends_and_the_excitation_inside() {
+        let a = traj_args();
+        let rows = trajectory(&a).unwrap();
+        let dt = 1.0 / a.rate_hz;
+        assert!((rows.last().unwrap()[0] - (3.0 * 20.0 + 2.0 * DEPTH_MOVE_S)).abs() < 1e-9);
+        for r in [rows[0], *rows.last().unwrap()] {
+            assert_eq!(&r[4..], &[0.0, 0.0, 0.0], "{r:?}");
+        }
+        assert_eq!(&rows[0][1..4], &[0.1, -0.05, 0.10]);
+        assert_eq!(rows.last().unwrap()[3], 0.20);
+        let lim = dvrk_sim::PhysicsParams::CLASSIC;
+        for w in rows.windows(3) {
+            let (a0, b, c) = (w[0], w[1], w[2]);
+            for k in 1..4 {
+                // The velocity column is the derivative of the position (central difference),
+                // so the positions never jump.
+                let d = (c[k] - a0[k]) / (2.0 * dt);
+                assert!(
+                    (d - b[k + 3]).abs() < 1e-3 * (1.0 + b[k + 3].abs()),
+                    "{b:?} {d}"
+                );
+            }
+            for j in 0..2 {
+                assert!(b[1 + j] > lim.position_min[j] && b[1 + j] < lim.position_max[j]);
+            }
+        }
+        // Inside a depth, after the fade-in and before the fade-out: the excitation itself.
+        let Motion::MultiSine {
+            amplitude,
+            angular_frequency,
+        } = EXCITATION
+        else {
+            panic!("not a multi-sine")
+        };
+        let i = (25.0 * a.rate_hz) as usize; // 3 s into the second depth
+        let local = rows[i][0] - 22.0;
+        let (q, _) = dvrk_sim::scenario::multi_sine(&amplitude[0], &angular_frequency[0], local);
+        assert!((rows[i][1] - 0.1 - q).abs() < 1e-12);
+        assert_eq!(rows[i][3], 0.15);
+        // A centre too close to a limit is refused, naming the joint.
+        let mut bad = traj_args();
+        bad.center = vec![1.5, 0.0];
+        let e = format!("{:#}", trajectory(&bad).unwrap_err());
+        assert!(e.contains("--center 1.5") && e.contains("joint 1"), "{e}");
     }
 
     #[test]

@@ -452,20 +452,18 @@ mod tests {
     use super::*;
     use std::path::Path;
 
-    /// The real 2017 recordings in `shared/data` beside the repository. Missing data fails the
+    /// The real 2017 recordings, shipped in the repository's `data/2017/`. Missing data fails the
     /// test: it is the acceptance data of the fit.
     pub(crate) fn shared_data(name: &str) -> PathBuf {
-        let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-        for dir in manifest.ancestors() {
-            let p = dir.join("shared").join("data").join(name);
-            if p.is_file() {
-                return p;
-            }
-        }
-        panic!(
-            "real calibration data {name} not found in shared/data above {}; CI must check out shared/ beside the repository",
-            manifest.display()
+        let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../data/2017")
+            .join(name);
+        assert!(
+            p.is_file(),
+            "real calibration data {} is missing",
+            p.display()
         );
+        p
     }
 
     fn args(clamp: Vec<PathBuf>, sweep: Vec<PathBuf>, joint: Vec<u8>, out: PathBuf) -> FitArgs {
