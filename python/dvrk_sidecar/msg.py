@@ -146,7 +146,8 @@ TOPICS = {
     "compensated/measured_cp": PoseV2,
     "compensated/status": CompensationStatusV3,
 }
-"""The pub-sub topics under an arm's prefix, in publishing order, and their payload types."""
+"""The pub-sub topics under an arm's prefix, in the order of the Rust `Topic::ALL` (each cycle
+sends the compensated ones first, see `dvrk_ipc::PUBLISH_ORDER`), and their payload types."""
 
 CYCLE_EVENT = "cycle"
 """Event service `<prefix>/cycle`, notified once per cycle after all nine messages."""

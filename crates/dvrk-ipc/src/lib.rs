@@ -71,7 +71,7 @@ pub use msg::{
     JointStateV2, Message, NUM_JOINTS, POSE_V2_SIZE, PoseV2,
 };
 pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames, Topic};
-pub use publisher::{ArmPublisher, ReapReport, SubscriberCounts};
+pub use publisher::{ArmPublisher, PUBLISH_ORDER, ReapReport, SubscriberCounts};
 pub use services::{
     ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, StateServices,
     create_node, domain_config, open_cycle_event, open_topic, qos,

@@ -49,7 +49,8 @@ pub enum Topic {
 }
 
 impl Topic {
-    /// All topics, in publishing order.
+    /// All topics, raw first (the order of the service names, subscriber counts and the C
+    /// header). The order in which a cycle sends them is [`crate::PUBLISH_ORDER`].
     pub const ALL: [Topic; NUM_TOPICS] = [
         Topic::MeasuredJs,
         Topic::JawMeasuredJs,

@@ -33,19 +33,11 @@ impl<S: Service> StatePublishers<S> {
         })
     }
 
+    /// Sends the four messages of one state, poses first: the tip pose is what a controller
+    /// waits for, so it leaves first.
     #[inline]
     fn send(&self, state: &ArmState, compensated: bool) -> Result<(), PublishError> {
         let pick = |raw: Topic, comp: Topic| if compensated { comp } else { raw };
-        send(
-            &self.measured_js,
-            pick(Topic::MeasuredJs, Topic::CompensatedMeasuredJs),
-            &state.measured_js,
-        )?;
-        send(
-            &self.jaw_measured_js,
-            pick(Topic::JawMeasuredJs, Topic::CompensatedJawMeasuredJs),
-            &state.jaw_measured_js,
-        )?;
         send(
             &self.local_measured_cp,
             pick(Topic::LocalMeasuredCp, Topic::CompensatedLocalMeasuredCp),
@@ -55,9 +47,33 @@ impl<S: Service> StatePublishers<S> {
             &self.measured_cp,
             pick(Topic::MeasuredCp, Topic::CompensatedMeasuredCp),
             &state.measured_cp,
+        )?;
+        send(
+            &self.measured_js,
+            pick(Topic::MeasuredJs, Topic::CompensatedMeasuredJs),
+            &state.measured_js,
+        )?;
+        send(
+            &self.jaw_measured_js,
+            pick(Topic::JawMeasuredJs, Topic::CompensatedJawMeasuredJs),
+            &state.jaw_measured_js,
         )
     }
 }
+
+/// The order in which [`ArmPublisher::publish_cycle`] sends the topics of a cycle: a subscriber
+/// of an earlier topic has its sample sooner (each send takes a fraction of a microsecond).
+pub const PUBLISH_ORDER: [Topic; NUM_TOPICS] = [
+    Topic::CompensatedLocalMeasuredCp,
+    Topic::CompensatedMeasuredCp,
+    Topic::CompensatedMeasuredJs,
+    Topic::CompensatedJawMeasuredJs,
+    Topic::LocalMeasuredCp,
+    Topic::MeasuredCp,
+    Topic::MeasuredJs,
+    Topic::JawMeasuredJs,
+    Topic::CompensatedStatus,
+];
 
 /// Publishes the nine messages of a cycle and notifies the cycle event.
 ///
@@ -134,9 +150,10 @@ impl<S: Service> ArmPublisher<S> {
         })
     }
 
-    /// Sends the nine messages of one cycle, in [`Topic::ALL`] order, then notifies the cycle
-    /// event once. The caller fills the headers (same `seq` in all nine, e.g. with
-    /// [`CycleMessages::set_header`]).
+    /// Sends the nine messages of one cycle in [`PUBLISH_ORDER`] (the compensated state first,
+    /// poses first, so the compensated tip pose that controllers wait for is the first message
+    /// of the cycle), then notifies the cycle event once. The caller fills the headers (same
+    /// `seq` in all nine, e.g. with [`CycleMessages::set_header`]).
     ///
     /// No lock, no logging, no allocation of its own; each message is copied once into its
     /// shared-memory slot. iceoryx2 0.10 allocates one small reference-counted handle per loaned
@@ -161,8 +178,8 @@ impl<S: Service> ArmPublisher<S> {
             .all(|s| *s == cycle.measured.measured_js.header.seq),
             "all messages of a cycle carry the same seq"
         );
-        self.measured.send(&cycle.measured, false)?;
         self.compensated.send(&cycle.compensated, true)?;
+        self.measured.send(&cycle.measured, false)?;
         send(
             &self.compensated_status,
             Topic::CompensatedStatus,
@@ -326,6 +343,15 @@ fn send<S: Service, T: Message>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_publish_order_sends_every_topic_once_compensated_pose_first() {
+        let mut seen = PUBLISH_ORDER.to_vec();
+        seen.sort_by_key(|t| t.index());
+        assert_eq!(seen, Topic::ALL);
+        assert_eq!(PUBLISH_ORDER[0], Topic::CompensatedLocalMeasuredCp);
+        assert!(PUBLISH_ORDER[..4].iter().all(|t| t.is_compensated()));
+    }
 
     #[test]
     fn counts_name_the_topics_with_most_and_fewest_subscribers() {
