@@ -439,6 +439,15 @@ class Waiter:
             woke_on_event = self._readable(min(until_ns, arrival - int(p.guard)))
             if woke_on_event:
                 self.listener.try_wait()
+                value = poll()
+                if value is None:
+                    # The notification of a cycle whose sample was already taken by polling
+                    # (the publisher notifies after its last message): back to sleep until the
+                    # next predicted arrival, not into polling for a whole period.
+                    continue
+                p.graded(False)
+                p.caught()
+                return value
             started = time.monotonic_ns()
             spin_until = min(until_ns, max(started, arrival + int(p.spin_after)))
             first = True
