@@ -298,6 +298,42 @@ fn cyclone_round(test: &str, reliable: bool) -> (Vec<u64>, u64, String) {
     (missing, window.len() as u64, bridge_log)
 }
 
+/// `dvrk-sidecar record --prefix PSM1 --shm-prefix PREFIX ARGS --out OUT`, stderr captured.
+fn record_proc(prefix: &str, args: &[&str], out: &Path) -> Proc {
+    Proc::spawn(
+        "record",
+        Command::new(sidecar_bin())
+            .args(["record", "--prefix", "PSM1", "--shm-prefix", prefix])
+            .args(args)
+            .arg("--out")
+            .arg(out)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    )
+}
+
+/// Every message of an MCAP file as tests/bridge/mcap_check.py decodes it (the mcap ROS 2
+/// decoder), one JSON object each.
+fn decode_mcap(out: &Path) -> Vec<Value> {
+    let dec = Command::new("python3")
+        .arg(repo().join("tests/bridge/mcap_check.py"))
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        dec.status.success(),
+        "the mcap ROS 2 decoder failed on {}: {}",
+        out.display(),
+        String::from_utf8_lossy(&dec.stderr)
+    );
+    String::from_utf8(dec.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
 /// The "N lost in shared memory" of a bridge or recorder's summary line.
 fn bridge_lost(log: &str) -> u64 {
     let line = log
@@ -389,16 +425,7 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     let echo_jaw = echo_in_background(format!("{prefix}/compensated/jaw/measured_js"), 3000);
     let echo_st = echo_in_background(format!("{prefix}/compensated/status"), 3000);
     let echo_raw = echo_in_background(format!("{prefix}/local/measured_cp"), 3000);
-    let mut rec = Proc::spawn(
-        "record",
-        Command::new(sidecar_bin())
-            .args(["record", "--prefix", "PSM1", "--shm-prefix", &prefix])
-            .args(["--seconds", "2", "--out"])
-            .arg(&out)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    );
+    let mut rec = record_proc(&prefix, &["--seconds", "2"], &out);
     let st = rec
         .wait_timeout(Duration::from_secs(60))
         .expect("record did not stop after --seconds 2");
@@ -418,22 +445,7 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     let (st, log) = serve.terminate();
     assert!(st.success(), "serve exited with {st}: {log}");
 
-    let dec = Command::new("python3")
-        .arg(repo().join("tests/bridge/mcap_check.py"))
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        dec.status.success(),
-        "the mcap ROS 2 decoder failed on {}: {}",
-        out.display(),
-        String::from_utf8_lossy(&dec.stderr)
-    );
-    let msgs: Vec<Value> = String::from_utf8(dec.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let msgs = decode_mcap(&out);
     let mut per_topic: BTreeMap<String, Vec<&Value>> = BTreeMap::new();
     for m in &msgs {
         assert_eq!(m["profile"], "ros2");
@@ -637,16 +649,7 @@ fn record_rate_keeps_one_cycle_per_period() {
     let cfg = write_config("record-rate", "sim", "shared", &prefix, "divot-push.toml");
     let mut serve = serve(&cfg);
     let out = scratch("record-rate").join("rate.mcap");
-    let mut rec = Proc::spawn(
-        "record",
-        Command::new(sidecar_bin())
-            .args(["record", "--prefix", "PSM1", "--shm-prefix", &prefix])
-            .args(["--rate", "100", "--seconds", "2", "--out"])
-            .arg(&out)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    );
+    let mut rec = record_proc(&prefix, &["--rate", "100", "--seconds", "2"], &out);
     let st = rec
         .wait_timeout(Duration::from_secs(60))
         .expect("record did not stop after --seconds 2");
@@ -654,20 +657,8 @@ fn record_rate_keeps_one_cycle_per_period() {
     assert!(st.success(), "record exited with {st}: {rec_log}");
     let (st, log) = serve.terminate();
     assert!(st.success(), "serve exited with {st}: {log}");
-    let dec = Command::new("python3")
-        .arg(repo().join("tests/bridge/mcap_check.py"))
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        dec.status.success(),
-        "{}",
-        String::from_utf8_lossy(&dec.stderr)
-    );
-    let stamps: Vec<i64> = String::from_utf8(dec.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+    let stamps: Vec<i64> = decode_mcap(&out)
+        .into_iter()
         .filter(|m| m["topic"] == "/PSM1/compensated/local/measured_cp")
         .map(|m| m["log_time"].as_i64().unwrap())
         .collect();
@@ -707,16 +698,7 @@ fn record_follows_a_restarted_serve() {
     );
     let out = scratch("record-restart").join("restart.mcap");
     let mut first = serve(&cfg);
-    let mut rec = Proc::spawn(
-        "record",
-        Command::new(sidecar_bin())
-            .args(["record", "--prefix", "PSM1", "--shm-prefix", &prefix])
-            .args(["--seconds", "8", "--out"])
-            .arg(&out)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    );
+    let mut rec = record_proc(&prefix, &["--seconds", "8"], &out);
     std::thread::sleep(Duration::from_secs(2));
     let (st, log) = first.terminate();
     assert!(st.success(), "serve exited with {st}: {log}");
@@ -728,19 +710,8 @@ fn record_follows_a_restarted_serve() {
     assert!(st.success(), "record exited with {st}: {rec_log}");
     let (st, log) = second.terminate();
     assert!(st.success(), "serve exited with {st}: {log}");
-    let dec = Command::new("python3")
-        .arg(repo().join("tests/bridge/mcap_check.py"))
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        dec.status.success(),
-        "{}",
-        String::from_utf8_lossy(&dec.stderr)
-    );
     let mut per_topic: BTreeMap<String, Vec<u64>> = BTreeMap::new();
-    for l in String::from_utf8(dec.stdout).unwrap().lines() {
-        let m: Value = serde_json::from_str(l).unwrap();
+    for m in decode_mcap(&out) {
         per_topic
             .entry(m["topic"].as_str().unwrap().to_owned())
             .or_default()
