@@ -56,22 +56,26 @@ const EXCITATION: Motion = Motion::MultiSine {
     angular_frequency: [[1.43, 3.1, 6.9], [1.67, 3.7, 6.1]],
 };
 
-/// Runs the excitation and returns the rows (no file written).
-pub fn record(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<Vec<DynamicsSample>> {
-    if a.depths.is_empty() {
+/// The depths and the time per depth of an excitation (`calibrate dynamics` and `calibrate
+/// trajectory` take the same options).
+fn check_schedule(depths: &[f64], seconds_per_depth: f64) -> anyhow::Result<()> {
+    if depths.is_empty() {
         bail!("--depths: give at least one insertion depth");
     }
-    for &d in &a.depths {
+    for &d in depths {
         if !(0.05..=0.23).contains(&d) {
             bail!("--depths {d}: each depth must lie within 0.05..=0.23 m");
         }
     }
-    if !(a.seconds_per_depth.is_finite() && (2.0..=600.0).contains(&a.seconds_per_depth)) {
-        bail!(
-            "--seconds-per-depth {}: must be within 2..=600 s",
-            a.seconds_per_depth
-        );
+    if !(seconds_per_depth.is_finite() && (2.0..=600.0).contains(&seconds_per_depth)) {
+        bail!("--seconds-per-depth {seconds_per_depth}: must be within 2..=600 s");
     }
+    Ok(())
+}
+
+/// Runs the excitation and returns the rows (no file written).
+pub fn record(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<Vec<DynamicsSample>> {
+    check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.rate_hz.is_finite() && (100.0..=20_000.0).contains(&a.rate_hz)) {
         bail!("--rate-hz {}: must be within 100..=20000", a.rate_hz);
     }
@@ -296,20 +300,7 @@ pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
     else {
         bail!("the excitation is not a multi-sine");
     };
-    if a.depths.is_empty() {
-        bail!("--depths: give at least one insertion depth");
-    }
-    for &d in &a.depths {
-        if !(0.05..=0.23).contains(&d) {
-            bail!("--depths {d}: each depth must lie within 0.05..=0.23 m");
-        }
-    }
-    if !(a.seconds_per_depth.is_finite() && (2.0..=600.0).contains(&a.seconds_per_depth)) {
-        bail!(
-            "--seconds-per-depth {}: must be within 2..=600 s",
-            a.seconds_per_depth
-        );
-    }
+    check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.rate_hz.is_finite() && (10.0..=20_000.0).contains(&a.rate_hz)) {
         bail!("--rate-hz {}: must be within 10..=20000", a.rate_hz);
     }
