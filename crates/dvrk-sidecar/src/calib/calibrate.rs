@@ -359,12 +359,35 @@ fn sweep_offsets(paths: &[PathBuf], joints: &[u8]) -> anyhow::Result<Vec<fit::To
     Ok(offsets)
 }
 
+/// A subscription to `<prefix>/measured_js` of the running service, for both `calibrate record`
+/// modes; the node is returned to be kept alive as long as the subscription.
+pub(super) fn subscribe_measured_js(
+    prefix: &str,
+) -> anyhow::Result<(
+    dvrk_ipc::Subscription<dvrk_ipc::JointStateV2, dvrk_ipc::iceoryx2::service::ipc::Service>,
+    dvrk_ipc::ServiceNames,
+    dvrk_ipc::iceoryx2::node::Node<dvrk_ipc::iceoryx2::service::ipc::Service>,
+)> {
+    use dvrk_ipc::iceoryx2::service::ipc::Service;
+    use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+    let names = ServiceNames::new(prefix).with_context(|| format!("prefix {prefix}"))?;
+    let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
+        .context("creating the iceoryx2 node")?;
+    let sub = Subscription::<JointStateV2, Service>::new(
+        &node,
+        &names,
+        Topic::MeasuredJs,
+        NOMINAL_PERIOD,
+    )
+    .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
+    Ok((sub, names, node))
+}
+
 /// `calibrate record`: subscribes to `<prefix>/measured_js` of the running service and turns
 /// still periods into rows ([`dvrk_compliance::calibration::Recorder`]).
 pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     use dvrk_compliance::calibration::{Recorder, RecorderConfig};
-    use dvrk_ipc::iceoryx2::service::ipc::Service;
-    use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+    use dvrk_ipc::Topic;
 
     if a.dynamics {
         return super::dynamics_cmd::record_live(a, &config_prefix(&a.config)?, stop);
@@ -377,16 +400,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     };
     let prefix = config_prefix(&a.config)?;
     let offsets = sweep_offsets(&a.torque_offset, &[joint])?;
-    let names = ServiceNames::new(&prefix).with_context(|| format!("prefix {prefix}"))?;
-    let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
-        .context("creating the iceoryx2 node")?;
-    let mut sub = Subscription::<JointStateV2, Service>::new(
-        &node,
-        &names,
-        Topic::MeasuredJs,
-        NOMINAL_PERIOD,
-    )
-    .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
+    let (mut sub, names, _node) = subscribe_measured_js(&prefix)?;
     let mut rec = Recorder::new(RecorderConfig {
         joint,
         settle_s: a.settle_s,

@@ -154,8 +154,7 @@ pub fn record_live(
     prefix: &str,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
-    use dvrk_ipc::iceoryx2::service::ipc::Service;
-    use dvrk_ipc::{JointStateV2, NOMINAL_PERIOD, ServiceNames, Subscription, Topic};
+    use dvrk_ipc::Topic;
 
     super::data::check_output_path(&a.out)?;
     let seconds = a.seconds.unwrap_or(f64::INFINITY);
@@ -163,16 +162,7 @@ pub fn record_live(
         bail!("--seconds {seconds}: must be a positive number of seconds");
     }
     let limit = a.rows.unwrap_or(usize::MAX);
-    let names = ServiceNames::new(prefix).with_context(|| format!("prefix {prefix}"))?;
-    let node = dvrk_ipc::create_node::<Service>("dvrk-sidecar-calibrate-record", None)
-        .context("creating the iceoryx2 node")?;
-    let mut sub = Subscription::<JointStateV2, Service>::new(
-        &node,
-        &names,
-        Topic::MeasuredJs,
-        NOMINAL_PERIOD,
-    )
-    .with_context(|| format!("subscribing to {prefix}/measured_js"))?;
+    let (mut sub, names, _node) = super::calibrate::subscribe_measured_js(prefix)?;
     let service = names.topic(Topic::MeasuredJs);
     eprintln!(
         "recording dynamics rows from {}; run the excitation with the dVRK console (free space, \
