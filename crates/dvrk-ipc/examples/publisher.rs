@@ -15,18 +15,8 @@ use std::time::Duration;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
     ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2,
-    PoseV2, ServiceNames, Topic, create_node, domain_config, flags,
+    PoseV2, ServiceNames, Topic, create_node, domain_config, flags, monotonic_ns,
 };
-
-fn monotonic_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: valid pointer to a timespec; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-}
 
 struct Args {
     prefix: String,

@@ -1,15 +1,29 @@
 //! The two clocks of a [`crate::Header`]: `CLOCK_MONOTONIC` (order, intervals) and
 //! `CLOCK_REALTIME` (ROS time).
 
-/// `CLOCK_REALTIME` in ns since the Unix epoch (0 if the clock is set before 1970). A vDSO call.
+/// One reading of `clock`. A vDSO call, no allocation.
 #[inline]
-pub fn realtime_ns() -> u64 {
+fn read(clock: libc::clockid_t) -> libc::timespec {
     let mut ts = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,
     };
-    // SAFETY: `ts` is a valid, writable timespec; CLOCK_REALTIME always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_REALTIME, &mut ts) };
+    // SAFETY: `ts` is a valid, writable timespec; both clocks used here always exist on Linux.
+    unsafe { libc::clock_gettime(clock, &mut ts) };
+    ts
+}
+
+/// `CLOCK_MONOTONIC` in ns (the clock the publisher stamps its headers with).
+#[inline]
+pub fn monotonic_ns() -> u64 {
+    let ts = read(libc::CLOCK_MONOTONIC);
+    (ts.tv_sec as u64) * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// `CLOCK_REALTIME` in ns since the Unix epoch (0 if the clock is set before 1970).
+#[inline]
+pub fn realtime_ns() -> u64 {
+    let ts = read(libc::CLOCK_REALTIME);
     if ts.tv_sec < 0 {
         return 0;
     }
@@ -18,14 +32,15 @@ pub fn realtime_ns() -> u64 {
         .saturating_add(ts.tv_nsec as u64)
 }
 
-/// The `CLOCK_REALTIME` time of the instant `monotonic_ns` (a `CLOCK_MONOTONIC` reading in the
+/// The `CLOCK_REALTIME` time of the instant `t_mono_ns` (a `CLOCK_MONOTONIC` reading in the
 /// recent past): the current realtime minus the monotonic time elapsed since. Two vDSO reads,
-/// no allocation; what the publisher puts in [`crate::Header::sample_realtime_ns`].
+/// no allocation. For a publisher that stamped its sample earlier; `serve` reads
+/// [`realtime_ns`] right after its monotonic sample stamp instead.
 #[inline]
-pub fn realtime_at(monotonic_ns: u64) -> u64 {
-    let now_mono = crate::monotonic_ns();
+pub fn realtime_at(t_mono_ns: u64) -> u64 {
+    let now_mono = monotonic_ns();
     let now_real = realtime_ns();
-    now_real.saturating_sub(now_mono.saturating_sub(monotonic_ns))
+    now_real.saturating_sub(now_mono.saturating_sub(t_mono_ns))
 }
 
 #[cfg(test)]
@@ -34,7 +49,7 @@ mod tests {
 
     #[test]
     fn realtime_at_matches_the_wall_clock() {
-        let mono = crate::monotonic_ns();
+        let mono = monotonic_ns();
         let real = realtime_at(mono);
         let wall = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)

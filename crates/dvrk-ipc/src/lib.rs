@@ -64,6 +64,7 @@ mod services;
 mod subscription;
 mod sys;
 
+pub use clock::monotonic_ns;
 pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
     ArmState, COMPENSATION_STATUS_V3_SIZE, CompensationStatusV3, CycleMessages, HEADER_SIZE,
@@ -81,7 +82,6 @@ pub use subscription::{
     Prediction, SubscribeOptions, Subscription, SubscriptionStats, UnknownWaitStrategy, Update,
     WaitStrategy,
 };
-pub use sys::monotonic_ns;
 
 /// The iceoryx2 crate this contract is built on (same version in every process).
 pub use iceoryx2;

@@ -4,17 +4,9 @@ use anyhow::{Result, bail};
 
 use crate::config::RealtimeParams;
 
-/// CLOCK_MONOTONIC in nanoseconds. One syscall-free vDSO call; never allocates.
-#[inline]
-pub fn monotonic_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    (ts.tv_sec as u64) * 1_000_000_000 + ts.tv_nsec as u64
-}
+/// CLOCK_MONOTONIC in nanoseconds, the clock of the message headers. One syscall-free vDSO
+/// call; never allocates.
+pub use dvrk_ipc::monotonic_ns;
 
 /// Sleeps until CLOCK_MONOTONIC reaches `t_ns` (absolute, so no drift accumulates).
 #[inline]
