@@ -145,13 +145,11 @@ pub fn base_frame_from_dvrk_json(
                 names.join(", ")
             )
         })?;
-    let Some(frame) = entry.get("base-frame").or_else(|| entry.get("base_frame")) else {
+    let Some((key, frame)) = ["base-frame", "base_frame"]
+        .into_iter()
+        .find_map(|k| entry.get(k).map(|f| (k, f)))
+    else {
         return Ok(None);
-    };
-    let key = if entry.get("base-frame").is_some() {
-        "base-frame"
-    } else {
-        "base_frame"
     };
     let t = frame
         .get("transform")
@@ -310,6 +308,8 @@ pub struct SidecarConfig {
     pub base_frame: Isometry3<f64>,
     /// Where the base frame came from, for the start-up log and `check-config`.
     pub base_frame_origin: String,
+    /// What `check-config` and `serve` warn about (see [`compliance_warnings`]).
+    pub warnings: Vec<String>,
     pub reply_timeout: std::time::Duration,
     pub scenario_path: Option<PathBuf>,
     pub scenario: Option<dvrk_sim::Scenario>,
@@ -333,9 +333,15 @@ pub fn load_io(path: &Path) -> Result<IoConfig> {
 
 /// Loads a compliance parameter file.
 pub fn load_compliance(path: &Path) -> Result<ComplianceConfig> {
+    load_compliance_text(path).map(|(c, _)| c)
+}
+
+/// [`load_compliance`], also returning the file's text (for [`compliance_warnings`]).
+fn load_compliance_text(path: &Path) -> Result<(ComplianceConfig, String)> {
     let text = read_file(path)?;
-    crate::formats::compliance_from_toml(&text)
-        .with_context(|| format!("{}: invalid compliance parameters", path.display()))
+    let c = crate::formats::compliance_from_toml(&text)
+        .with_context(|| format!("{}: invalid compliance parameters", path.display()))?;
+    Ok((c, text))
 }
 
 /// Loads a simulator scenario file.
@@ -453,8 +459,13 @@ impl SidecarConfig {
         }
         let kinematics = PsmKinematics::new(p.arm, instrument);
         let compliance_path = resolve(&p.compliance);
-        let compliance = load_compliance(&compliance_path)
+        let (compliance, compliance_text) = load_compliance_text(&compliance_path)
             .with_context(|| format!("{here}: field `compliance`"))?;
+        let warnings = compliance_warnings(
+            &source,
+            &compliance_text,
+            &compliance_path.display().to_string(),
+        );
 
         let (base_frame, base_frame_origin) = match &p.base_frame {
             None => (
@@ -526,6 +537,7 @@ impl SidecarConfig {
             prefix: p.prefix,
             base_frame,
             base_frame_origin,
+            warnings,
             reply_timeout: std::time::Duration::from_secs_f64(p.reply_timeout_ms * 1e-3),
             scenario_path,
             scenario,

@@ -55,20 +55,10 @@ pub fn check_config(path: &Path) -> Result<()> {
     if let Some(p) = &cfg.scenario_path {
         println!("  scenario    {}", p.display());
     }
-    for w in compliance_warnings(&cfg) {
+    for w in &cfg.warnings {
         eprintln!("warning: {w}");
     }
     Ok(())
-}
-
-/// [`crate::config::compliance_warnings`] for the loaded configuration.
-fn compliance_warnings(cfg: &SidecarConfig) -> Vec<String> {
-    let text = std::fs::read_to_string(&cfg.compliance_path).unwrap_or_default();
-    crate::config::compliance_warnings(
-        &cfg.source,
-        &text,
-        &cfg.compliance_path.display().to_string(),
-    )
 }
 
 /// Every check `serve` makes before its loop, without starting anything: the real-time
@@ -217,7 +207,7 @@ impl SampleSource for SimSource {
 pub fn run(path: &Path) -> Result<()> {
     let cfg = SidecarConfig::load(path)?;
     preflight(&cfg).with_context(|| format!("{}", path.display()))?;
-    for w in compliance_warnings(&cfg) {
+    for w in &cfg.warnings {
         warn!("{w}");
     }
     info!(base_frame = %cfg.base_frame_origin, "measured_cp = base frame x local/measured_cp");
