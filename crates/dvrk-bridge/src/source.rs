@@ -352,68 +352,33 @@ impl ShmSource {
             }
             let upto = self.upto_seq;
             let mut err = None;
-            release(&mut self.base_pose.items, upto, |p| {
-                if err.is_some() || !dec[1].accept(p.header.sample_t_ns) {
-                    return;
-                }
-                if p.header.valid != 0 {
-                    err = sink.pose(OutTopic::MeasuredCp, p).err();
-                } else {
-                    stats.invalid_skipped += 1;
-                }
+            let mut out = Outlet {
+                upto,
+                stats: &mut stats,
+                err: &mut err,
+            };
+            let [_, d1, d2, d3, _, d5, d6, d7, d8] = &mut dec;
+            out.pass(&mut self.base_pose.items, d1, |p| {
+                sink.pose(OutTopic::MeasuredCp, p)
             });
-            release(&mut self.joints.items, upto, |js| {
-                if err.is_some() || !dec[2].accept(js.header.sample_t_ns) {
-                    return;
-                }
-                if js.header.valid != 0 {
-                    err = sink.joints(OutTopic::MeasuredJs, js).err();
-                } else {
-                    stats.invalid_skipped += 1;
-                }
+            out.pass(&mut self.joints.items, d2, |js| {
+                sink.joints(OutTopic::MeasuredJs, js)
             });
-            release(&mut self.jaw.items, upto, |jaw| {
-                if err.is_some() || !dec[3].accept(jaw.header.sample_t_ns) {
-                    return;
-                }
-                if jaw.header.valid != 0 {
-                    err = sink.jaw(OutTopic::JawMeasuredJs, jaw).err();
-                } else {
-                    stats.invalid_skipped += 1;
-                }
+            out.pass(&mut self.jaw.items, d3, |jaw| {
+                sink.jaw(OutTopic::JawMeasuredJs, jaw)
             });
             if let Some(r) = &mut self.raw {
-                let mut valid = |h: &dvrk_ipc::Header, d: &mut Decimator| {
-                    if !d.accept(h.sample_t_ns) {
-                        return false;
-                    }
-                    if h.valid == 0 {
-                        stats.invalid_skipped += 1;
-                    }
-                    h.valid != 0
-                };
-                let [d5, d6, d7, d8] = &mut dec[5..9] else {
-                    unreachable!("nine decimators")
-                };
-                release(&mut r.local.items, upto, |p| {
-                    if err.is_none() && valid(&p.header, d5) {
-                        err = sink.pose(OutTopic::RawLocalMeasuredCp, p).err();
-                    }
+                out.pass(&mut r.local.items, d5, |p| {
+                    sink.pose(OutTopic::RawLocalMeasuredCp, p)
                 });
-                release(&mut r.base.items, upto, |p| {
-                    if err.is_none() && valid(&p.header, d6) {
-                        err = sink.pose(OutTopic::RawMeasuredCp, p).err();
-                    }
+                out.pass(&mut r.base.items, d6, |p| {
+                    sink.pose(OutTopic::RawMeasuredCp, p)
                 });
-                release(&mut r.joints.items, upto, |js| {
-                    if err.is_none() && valid(&js.header, d7) {
-                        err = sink.joints(OutTopic::RawMeasuredJs, js).err();
-                    }
+                out.pass(&mut r.joints.items, d7, |js| {
+                    sink.joints(OutTopic::RawMeasuredJs, js)
                 });
-                release(&mut r.jaw.items, upto, |jaw| {
-                    if err.is_none() && valid(&jaw.header, d8) {
-                        err = sink.jaw(OutTopic::RawJawMeasuredJs, jaw).err();
-                    }
+                out.pass(&mut r.jaw.items, d8, |jaw| {
+                    sink.jaw(OutTopic::RawJawMeasuredJs, jaw)
                 });
             }
             release(&mut self.status.items, upto, |st| {
@@ -443,6 +408,37 @@ impl ShmSource {
             .unwrap_or(0);
         }
         Ok(stats)
+    }
+}
+
+/// Where the samples of one wake go once their cycle's local pose was taken: the cycle limit,
+/// the run's counters and the first sink error (after which nothing more is passed on).
+struct Outlet<'a> {
+    upto: Option<u64>,
+    stats: &'a mut RunStats,
+    err: &'a mut Option<BridgeError>,
+}
+
+impl Outlet<'_> {
+    /// Passes the released samples of `pending` that `dec` keeps to `f` if they are valid;
+    /// counts the invalid ones (not published: the status says why).
+    fn pass<T: Message>(
+        &mut self,
+        pending: &mut Vec<T>,
+        dec: &mut Decimator,
+        mut f: impl FnMut(&T) -> Result<(), BridgeError>,
+    ) {
+        release(pending, self.upto, |m| {
+            let h = m.header();
+            if self.err.is_some() || !dec.accept(h.sample_t_ns) {
+                return;
+            }
+            if h.valid != 0 {
+                *self.err = f(m).err();
+            } else {
+                self.stats.invalid_skipped += 1;
+            }
+        });
     }
 }
 
