@@ -161,8 +161,12 @@ pub struct ShmSource {
     jaw: Pending<JawStateV1>,
     status: Pending<CompensationStatusV3>,
     raw: Option<RawSubs>,
+    /// Poses waiting for the rest of their cycle.
     poses: Vec<PoseV2>,
-    upto_seq: Option<u64>,
+    /// Seq of the newest pose taken.
+    last_pose_seq: Option<u64>,
+    /// Poses dropped because the other topics stopped bringing their cycles.
+    poses_dropped: u64,
     /// First cycle passed on (see [`ShmSource::run`]).
     start_seq: Option<u64>,
     // Kept last: the ports above borrow nothing from it, but are dropped before it.
@@ -215,8 +219,9 @@ impl ShmSource {
             },
             names,
             pose,
-            poses: Vec::with_capacity(dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
-            upto_seq: None,
+            poses: Vec::with_capacity(PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            last_pose_seq: None,
+            poses_dropped: 0,
             start_seq: None,
             _node: node,
         })
@@ -233,6 +238,25 @@ impl ShmSource {
         }
     }
 
+    /// The newest cycle that every topic has brought or gone past (the least of their newest
+    /// seqs), if each has brought one.
+    fn complete_upto(&self) -> Option<u64> {
+        let raw = self
+            .raw
+            .as_ref()
+            .map(|r| [r.local.gaps.0, r.base.gaps.0, r.joints.gaps.0, r.jaw.gaps.0]);
+        [
+            self.last_pose_seq,
+            self.base_pose.gaps.0,
+            self.joints.gaps.0,
+            self.jaw.gaps.0,
+            self.status.gaps.0,
+        ]
+        .into_iter()
+        .chain(raw.into_iter().flatten())
+        .try_fold(u64::MAX, |m, s| s.map(|s| m.min(s)))
+    }
+
     /// Passes every cycle to `sink` until `stop` is raised or `until` passes. `rate_period_ns`
     /// decimates (see [`Decimator`]).
     pub fn run<K: Sink>(
@@ -246,7 +270,7 @@ impl ShmSource {
         let mut dec = [Decimator::new(rate_period_ns); 9];
         let mut silent_since: Option<Instant> = None;
         while !stop.load(Ordering::Relaxed) && until.is_none_or(|u| Instant::now() < u) {
-            self.poses.clear();
+            let before = self.poses.len();
             let poses = &mut self.poses;
             let update =
                 self.pose
@@ -274,7 +298,7 @@ impl ShmSource {
                     if update == Update::Terminated {
                         // A new serve starts its seq at 1 again: align anew.
                         self.start_seq = None;
-                        self.upto_seq = None;
+                        self.last_pose_seq = None;
                     }
                     if silent_since.is_none() {
                         tracing::warn!(
@@ -297,13 +321,16 @@ impl ShmSource {
             }
             // A serve that restarted before the subscription noticed starts its seq at 1 again:
             // drop this wake's samples (they may mix both runs) and align anew.
-            if let (Some(p), Some(u)) = (self.poses.first(), self.upto_seq)
-                && p.header.seq <= u
+            if let (Some(p), Some(last)) = (self.poses.get(before), self.last_pose_seq)
+                && p.header.seq <= last
             {
                 self.start_seq = None;
-                self.upto_seq = None;
                 self.clear_pending();
             }
+            if let Some(p) = self.poses.last() {
+                self.last_pose_seq = Some(p.header.seq);
+            }
+            cap_pending(&mut self.poses, &mut self.poses_dropped);
             // The subscribers connect one after the other, so the first samples of the pose may
             // be older than those of the others: start at the first cycle all of them have.
             if self.start_seq.is_none() {
@@ -328,6 +355,7 @@ impl ShmSource {
                 }
             }
             let start = self.start_seq.unwrap_or(u64::MAX);
+            self.poses.retain(|p| p.header.seq >= start);
             self.base_pose.keep_from(start);
             self.joints.keep_from(start);
             self.jaw.keep_from(start);
@@ -335,29 +363,20 @@ impl ShmSource {
             if let Some(r) = &mut self.raw {
                 r.keep_from(start);
             }
-            for p in self.poses.iter().filter(|p| p.header.seq >= start) {
-                if !dec[0].accept(p.header.sample_t_ns) {
-                    continue;
-                }
-                if p.header.valid != 0 {
-                    sink.pose(OutTopic::LocalMeasuredCp, p)?;
-                } else {
-                    stats.invalid_skipped += 1;
-                }
-            }
-            // The other topics of a cycle are passed on once its local pose was taken, so that a
-            // run that stops between two drains writes whole cycles only.
-            if let Some(p) = self.poses.last().filter(|p| p.header.seq >= start) {
-                self.upto_seq = Some(p.header.seq);
-            }
-            let upto = self.upto_seq;
+            // A cycle is passed on once every topic has brought its message (or gone past it,
+            // when shared memory lost it): a wake can come while the publisher is still sending
+            // the cycle, and a run that stops between two wakes must write whole cycles only.
+            let upto = self.complete_upto();
             let mut err = None;
             let mut out = Outlet {
                 upto,
                 stats: &mut stats,
                 err: &mut err,
             };
-            let [_, d1, d2, d3, _, d5, d6, d7, d8] = &mut dec;
+            let [d0, d1, d2, d3, _, d5, d6, d7, d8] = &mut dec;
+            out.pass(&mut self.poses, d0, |p| {
+                sink.pose(OutTopic::LocalMeasuredCp, p)
+            });
             out.pass(&mut self.base_pose.items, d1, |p| {
                 sink.pose(OutTopic::MeasuredCp, p)
             });
@@ -396,7 +415,7 @@ impl ShmSource {
                 return Err(e);
             }
             stats.shm_seq_gaps = [
-                self.pose.stats().seq_gaps_total,
+                self.pose.stats().seq_gaps_total + self.poses_dropped,
                 self.base_pose.gaps.1,
                 self.joints.gaps.1,
                 self.jaw.gaps.1,
@@ -411,7 +430,7 @@ impl ShmSource {
     }
 }
 
-/// Where the samples of one wake go once their cycle's local pose was taken: the cycle limit,
+/// Where the samples of one wake go once their cycle is complete: the cycle limit,
 /// the run's counters and the first sink error (after which nothing more is passed on).
 struct Outlet<'a> {
     upto: Option<u64>,
@@ -470,19 +489,23 @@ fn take_into<T: Message>(
         *last = Some(seq);
         pending.push(v);
     }
-    // Normally only the samples of the few cycles newer than the last pose wait here; the cap
-    // only matters if the pose topic stops while this one goes on. Dropped samples count as lost.
-    let cap = PENDING_CAP;
-    if pending.len() > cap {
-        let excess = pending.len() - cap;
-        pending.drain(..excess);
-        *gaps += excess as u64;
-    }
+    cap_pending(pending, gaps);
     Ok(())
 }
 
-/// Calls `f` for the samples of `pending` whose cycle's pose was taken (`seq <= upto`), oldest
-/// first, and keeps the others.
+/// Keeps at most [`PENDING_CAP`] of `pending`, dropping the oldest and counting them in
+/// `dropped`. Normally only the samples of the cycle being published wait; the cap only matters
+/// if one topic stops while the others go on. Dropped samples count as lost.
+fn cap_pending<T>(pending: &mut Vec<T>, dropped: &mut u64) {
+    if pending.len() > PENDING_CAP {
+        let excess = pending.len() - PENDING_CAP;
+        pending.drain(..excess);
+        *dropped += excess as u64;
+    }
+}
+
+/// Calls `f` for the samples of `pending` whose cycle is complete (`seq <= upto`), oldest first,
+/// and keeps the others.
 fn release<T: Message>(pending: &mut Vec<T>, upto: Option<u64>, mut f: impl FnMut(&T)) {
     let Some(upto) = upto else { return };
     pending.retain(|m| {
@@ -493,4 +516,163 @@ fn release<T: Message>(pending: &mut Vec<T>, upto: Option<u64>, mut f: impl FnMu
             true
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::{BTreeMap, HashMap};
+    use std::time::Duration;
+
+    use dvrk_ipc::iceoryx2::port::notifier::Notifier;
+    use dvrk_ipc::iceoryx2::port::publisher::Publisher;
+    use dvrk_ipc::{PUBLISH_ORDER, Topic};
+
+    use super::*;
+
+    /// The seqs each topic reached the sink with.
+    #[derive(Default)]
+    struct Seen(BTreeMap<String, Vec<u64>>);
+
+    impl Seen {
+        fn add(&mut self, topic: OutTopic, seq: u64) -> Result<(), BridgeError> {
+            self.0.entry(format!("{topic:?}")).or_default().push(seq);
+            Ok(())
+        }
+    }
+
+    impl Sink for Seen {
+        fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
+            self.add(topic, p.header.seq)
+        }
+        fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
+            self.add(topic, js.header.seq)
+        }
+        fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError> {
+            self.add(topic, jaw.header.seq)
+        }
+        fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
+            self.add(OutTopic::Status, s.header.seq)
+        }
+    }
+
+    fn publisher<T: Message>(
+        node: &Node<Service>,
+        names: &ServiceNames,
+        topic: Topic,
+    ) -> Publisher<Service, T, ()> {
+        dvrk_ipc::open_topic::<T, Service>(node, names, topic)
+            .unwrap()
+            .publisher_builder()
+            .create()
+            .unwrap()
+    }
+
+    fn send<T: Message>(p: &Publisher<Service, T, ()>, seq: u64) {
+        let mut m = T::default();
+        let h = m.header_mut();
+        h.seq = seq;
+        h.valid = 1;
+        h.sample_t_ns = seq * 666_667;
+        p.send_copy(m).unwrap();
+    }
+
+    /// A publisher that can stop in the middle of a cycle, as `serve` can be seen doing by a
+    /// consumer woken by the previous cycle's event.
+    struct HalfPublisher {
+        poses: HashMap<Topic, Publisher<Service, PoseV2, ()>>,
+        joints: HashMap<Topic, Publisher<Service, JointStateV2, ()>>,
+        jaws: HashMap<Topic, Publisher<Service, JawStateV1, ()>>,
+        status: Publisher<Service, CompensationStatusV3, ()>,
+        cycle: Notifier<Service>,
+        _node: Node<Service>,
+    }
+
+    impl HalfPublisher {
+        fn new(names: &ServiceNames) -> Self {
+            let node = dvrk_ipc::create_node::<Service>("bridge-source-test-pub", None).unwrap();
+            let mut p = HalfPublisher {
+                poses: Default::default(),
+                joints: Default::default(),
+                jaws: Default::default(),
+                status: publisher(&node, names, Topic::CompensatedStatus),
+                cycle: dvrk_ipc::open_cycle_event::<Service>(&node, names)
+                    .unwrap()
+                    .notifier_builder()
+                    .create()
+                    .unwrap(),
+                _node: node,
+            };
+            for t in PUBLISH_ORDER {
+                if t.carries::<PoseV2>() {
+                    p.poses.insert(t, publisher(&p._node, names, t));
+                } else if t.carries::<JointStateV2>() {
+                    p.joints.insert(t, publisher(&p._node, names, t));
+                } else if t.carries::<JawStateV1>() {
+                    p.jaws.insert(t, publisher(&p._node, names, t));
+                }
+            }
+            p
+        }
+
+        /// Sends the topics `PUBLISH_ORDER[from..to]` of cycle `seq`, and the cycle event if
+        /// `notify`.
+        fn send(&self, seq: u64, from: usize, to: usize, notify: bool) {
+            for t in &PUBLISH_ORDER[from..to] {
+                if let Some(p) = self.poses.get(t) {
+                    send(p, seq);
+                } else if let Some(p) = self.joints.get(t) {
+                    send(p, seq);
+                } else if let Some(p) = self.jaws.get(t) {
+                    send(p, seq);
+                } else {
+                    send(&self.status, seq);
+                }
+            }
+            if notify {
+                self.cycle.notify().unwrap();
+            }
+        }
+    }
+
+    #[test]
+    fn a_cycle_is_passed_on_only_once_all_its_topics_arrived() {
+        let prefix = format!("BRIDGETEST{}", std::process::id());
+        let names = ServiceNames::new(&prefix).unwrap();
+        let mut source = ShmSource::new(&prefix, "bridge-source-test", true).unwrap();
+        let publisher = HalfPublisher::new(&names);
+        let n = PUBLISH_ORDER.len();
+        for seq in 1..=3 {
+            publisher.send(seq, 0, n, true);
+        }
+        // Cycle 4 stops after its first message (the compensated local pose), as a consumer
+        // woken by cycle 3's event can find it; then the run ends.
+        publisher.send(4, 0, 1, false);
+        let stop = AtomicBool::new(false);
+        let mut seen = Seen::default();
+        let run = |source: &mut ShmSource, seen: &mut Seen| {
+            let until = Instant::now() + Duration::from_millis(300);
+            source.run(seen, None, &stop, Some(until)).unwrap()
+        };
+        let stats = run(&mut source, &mut seen);
+        assert_eq!(
+            seen.0.len(),
+            n,
+            "every topic reached the sink: {:?}",
+            seen.0
+        );
+        for (topic, seqs) in &seen.0 {
+            assert_eq!(seqs, &[1, 2, 3], "{topic}: whole cycles only");
+        }
+        assert_eq!(stats.cycles, 3);
+        assert_eq!(stats.shm_seq_gaps, 0);
+
+        // The rest of cycle 4 arrives: the next run passes it on, its pose included, on every
+        // topic.
+        publisher.send(4, 1, n, true);
+        let stats = run(&mut source, &mut seen);
+        for (topic, seqs) in &seen.0 {
+            assert_eq!(seqs, &[1, 2, 3, 4], "{topic}");
+        }
+        assert_eq!(stats.cycles, 1);
+    }
 }
