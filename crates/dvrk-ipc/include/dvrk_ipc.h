@@ -18,6 +18,10 @@
  *   <prefix>/compensated/measured_cp        dvrk_PoseV2
  *   <prefix>/compensated/status             dvrk_CompensationStatusV3 "dvrk::CompensationStatusV3"
  *   <prefix>/cycle                          event, notified once per cycle after the nine messages
+ *   <prefix>/cycle/first                    event, notified once per cycle right after its first
+ *                                           message, compensated/local/measured_cp (the other
+ *                                           eight are written after it): a consumer of that
+ *                                           topic alone waits on this one to be woken sooner
  *
  * Open or create every service with the DVRK_IPC_QOS_* values below: whichever process creates
  * a service first fixes its QoS, and an opener that asks for more fails.
@@ -51,6 +55,7 @@ extern "C" {
 #define DVRK_IPC_SUFFIX_COMPENSATED_MEASURED_CP "compensated/measured_cp"
 #define DVRK_IPC_SUFFIX_COMPENSATED_STATUS "compensated/status"
 #define DVRK_IPC_SUFFIX_CYCLE "cycle"
+#define DVRK_IPC_SUFFIX_CYCLE_FIRST "cycle/first"
 
 #define DVRK_IPC_QOS_MAX_PUBLISHERS 1
 #define DVRK_IPC_QOS_MAX_SUBSCRIBERS 32

@@ -71,11 +71,14 @@ pub use msg::{
     Header, JAW_NAME, JAW_STATE_V1_SIZE, JOINT_NAMES, JOINT_STATE_V2_SIZE, JawStateV1,
     JointStateV2, Message, NUM_JOINTS, POSE_V2_SIZE, PoseV2,
 };
-pub use names::{CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames, Topic};
-pub use publisher::{ArmPublisher, PUBLISH_ORDER, ReapReport, SubscriberCounts};
+pub use names::{
+    CYCLE_FIRST_SUFFIX, CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames,
+    Topic,
+};
+pub use publisher::{ArmPublisher, CycleStarted, PUBLISH_ORDER, ReapReport, SubscriberCounts};
 pub use services::{
     ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, StateServices,
-    create_node, domain_config, open_cycle_event, open_topic, qos,
+    create_node, domain_config, open_cycle_event, open_event, open_topic, qos,
 };
 pub use subscription::{
     DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, MIN_DEFAULT_DEADLINE, NOMINAL_PERIOD,

@@ -15,6 +15,9 @@ pub const DEFAULT_PREFIX: &str = "PSM1";
 
 /// Suffix of the event service, notified once per cycle after all nine messages are sent.
 pub const CYCLE_SUFFIX: &str = "cycle";
+/// Suffix of the event service notified once per cycle as soon as its first message,
+/// `compensated/local/measured_cp`, is sent (before the other eight are written).
+pub const CYCLE_FIRST_SUFFIX: &str = "cycle/first";
 
 /// Longest accepted prefix in bytes. iceoryx2 service names are limited to 255 bytes; the longest
 /// suffix is `/compensated/local/measured_cp` (30 bytes).
@@ -131,6 +134,7 @@ pub struct ServiceNames {
     prefix: String,
     topics: [ServiceName; NUM_TOPICS],
     cycle: ServiceName,
+    cycle_first: ServiceName,
 }
 
 impl ServiceNames {
@@ -164,6 +168,7 @@ impl ServiceNames {
             prefix: prefix.to_owned(),
             topics,
             cycle: make(CYCLE_SUFFIX)?,
+            cycle_first: make(CYCLE_FIRST_SUFFIX)?,
         })
     }
 
@@ -177,9 +182,25 @@ impl ServiceNames {
         &self.topics[topic.index()]
     }
 
-    /// The event service notified once per cycle.
+    /// The event service notified once per cycle, after its last message.
     pub fn cycle(&self) -> &ServiceName {
         &self.cycle
+    }
+
+    /// The event service notified once per cycle, after its first message
+    /// ([`crate::PUBLISH_ORDER`]`[0]`).
+    pub fn cycle_first(&self) -> &ServiceName {
+        &self.cycle_first
+    }
+
+    /// The event service that announces `topic`'s message of a cycle: [`Self::cycle_first`]
+    /// for the first message of the publishing order, [`Self::cycle`] for the others.
+    pub fn event_for(&self, topic: Topic) -> &ServiceName {
+        if topic == crate::PUBLISH_ORDER[0] {
+            &self.cycle_first
+        } else {
+            &self.cycle
+        }
     }
 
     /// Splits a full service name such as `PSM1/compensated/local/measured_cp` into its prefix
@@ -260,6 +281,14 @@ mod tests {
             ]
         );
         assert_eq!(n.cycle().as_str(), "PSM1/cycle");
+        assert_eq!(n.cycle_first().as_str(), "PSM1/cycle/first");
+        assert_eq!(
+            n.event_for(Topic::CompensatedLocalMeasuredCp).as_str(),
+            "PSM1/cycle/first"
+        );
+        for t in &crate::PUBLISH_ORDER[1..] {
+            assert_eq!(n.event_for(*t).as_str(), "PSM1/cycle", "{t}");
+        }
         assert_eq!(Topic::ALL.iter().filter(|t| t.is_compensated()).count(), 5);
     }
 
@@ -323,6 +352,7 @@ mod tests {
         assert_eq!(ServiceNames::split("measured_js"), None);
         assert_eq!(ServiceNames::split("/measured_js"), None);
         assert_eq!(ServiceNames::split("PSM1/cycle"), None);
+        assert_eq!(ServiceNames::split("PSM1/cycle/first"), None);
         assert_eq!(ServiceNames::split("PSM1measured_js"), None);
         // A bare suffix with a slash reads as prefix + topic: `echo` handles bare topics first.
         assert_eq!(

@@ -5,7 +5,9 @@ use iceoryx2::port::notifier::{Notifier, NotifierCreateError};
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::service::Service;
 use iceoryx2::service::port_factory::PortFactory as _;
+use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use iceoryx2::service::service_name::ServiceName;
 
 use crate::error::{IpcError, PublishError};
 use crate::msg::{
@@ -37,12 +39,22 @@ impl<S: Service> StatePublishers<S> {
     /// waits for, so it leaves first.
     #[inline]
     fn send(&self, state: &ArmState, compensated: bool) -> Result<(), PublishError> {
-        let pick = |raw: Topic, comp: Topic| if compensated { comp } else { raw };
         send(
             &self.local_measured_cp,
-            pick(Topic::LocalMeasuredCp, Topic::CompensatedLocalMeasuredCp),
+            if compensated {
+                Topic::CompensatedLocalMeasuredCp
+            } else {
+                Topic::LocalMeasuredCp
+            },
             &state.local_measured_cp,
         )?;
+        self.send_after_local(state, compensated)
+    }
+
+    /// Sends the three messages of one state that follow `local/measured_cp`.
+    #[inline]
+    fn send_after_local(&self, state: &ArmState, compensated: bool) -> Result<(), PublishError> {
+        let pick = |raw: Topic, comp: Topic| if compensated { comp } else { raw };
         send(
             &self.measured_cp,
             pick(Topic::MeasuredCp, Topic::CompensatedMeasuredCp),
@@ -58,6 +70,53 @@ impl<S: Service> StatePublishers<S> {
             pick(Topic::JawMeasuredJs, Topic::CompensatedJawMeasuredJs),
             &state.jaw_measured_js,
         )
+    }
+}
+
+/// A cycle whose first message [`ArmPublisher::start_cycle`] has sent.
+#[derive(Debug)]
+#[must_use = "a started cycle sends its other eight messages and the cycle event only when finished"]
+pub struct CycleStarted<'a, S: Service> {
+    publisher: &'a ArmPublisher<S>,
+    seq: u64,
+}
+
+impl<S: Service> CycleStarted<'_, S> {
+    /// Sends the other eight messages of the cycle in [`PUBLISH_ORDER`] and notifies the cycle
+    /// event once. `cycle.compensated.local_measured_cp` is not sent again: it is the message
+    /// the cycle was started with. Every message carries the started cycle's `seq`.
+    ///
+    /// On error, the messages sent before the failing one are delivered and the event is not
+    /// notified.
+    pub fn finish(self, cycle: &CycleMessages) -> Result<(), PublishError> {
+        debug_assert!(
+            [
+                cycle.measured.measured_js.header.seq,
+                cycle.measured.jaw_measured_js.header.seq,
+                cycle.measured.local_measured_cp.header.seq,
+                cycle.measured.measured_cp.header.seq,
+                cycle.compensated.measured_js.header.seq,
+                cycle.compensated.jaw_measured_js.header.seq,
+                cycle.compensated.local_measured_cp.header.seq,
+                cycle.compensated.measured_cp.header.seq,
+                cycle.status.header.seq,
+            ]
+            .iter()
+            .all(|s| *s == self.seq),
+            "all messages of a cycle carry the seq it was started with"
+        );
+        let p = self.publisher;
+        p.compensated.send_after_local(&cycle.compensated, true)?;
+        p.measured.send(&cycle.measured, false)?;
+        send(
+            &p.compensated_status,
+            Topic::CompensatedStatus,
+            &cycle.status,
+        )?;
+        p.cycle
+            .notify()
+            .map_err(|error| PublishError::Notify { error })?;
+        Ok(())
     }
 }
 
@@ -90,6 +149,33 @@ pub struct ArmPublisher<S: Service = iceoryx2::service::ipc::Service> {
     compensated: StatePublishers<S>,
     compensated_status: Publisher<S, CompensationStatusV3, ()>,
     cycle: Notifier<S>,
+    cycle_first: Notifier<S>,
+}
+
+/// The notifier of the event `name` (the only one: a second publisher of the arm is refused).
+fn create_notifier<S: Service>(
+    factory: &EventFactory<S>,
+    names: &ServiceNames,
+    name: &ServiceName,
+) -> Result<Notifier<S>, IpcError> {
+    let attempt = || factory.notifier_builder().create();
+    match attempt() {
+        // The slot may belong to a publisher whose process died: reap it and try once more.
+        Err(NotifierCreateError::ExceedsMaxSupportedNotifiers) => {
+            factory.try_cleanup_dead_nodes();
+            attempt()
+        }
+        other => other,
+    }
+    .map_err(|source| match source {
+        NotifierCreateError::ExceedsMaxSupportedNotifiers => IpcError::AlreadyPublishing {
+            prefix: names.prefix().to_owned(),
+        },
+        source => IpcError::CreateNotifier {
+            service: name.as_str().to_owned(),
+            source,
+        },
+    })
 }
 
 fn create_publisher<S: Service, T: Message>(
@@ -124,36 +210,25 @@ impl<S: Service> ArmPublisher<S> {
         let measured = StatePublishers::create(&services.measured, names)?;
         let compensated = StatePublishers::create(&services.compensated, names)?;
         let compensated_status = create_publisher(&services.compensated_status, names)?;
-        let attempt = || services.cycle.notifier_builder().create();
-        let cycle = match attempt() {
-            Err(NotifierCreateError::ExceedsMaxSupportedNotifiers) => {
-                services.cycle.try_cleanup_dead_nodes();
-                attempt()
-            }
-            other => other,
-        }
-        .map_err(|source| match source {
-            NotifierCreateError::ExceedsMaxSupportedNotifiers => IpcError::AlreadyPublishing {
-                prefix: names.prefix().to_owned(),
-            },
-            source => IpcError::CreateNotifier {
-                service: names.cycle().as_str().to_owned(),
-                source,
-            },
-        })?;
+        let cycle = create_notifier(&services.cycle, names, names.cycle())?;
+        let cycle_first = create_notifier(&services.cycle_first, names, names.cycle_first())?;
         Ok(Self {
             services,
             measured,
             compensated,
             compensated_status,
             cycle,
+            cycle_first,
         })
     }
 
     /// Sends the nine messages of one cycle in [`PUBLISH_ORDER`] (the compensated state first,
     /// poses first, so the compensated tip pose that controllers wait for is the first message
-    /// of the cycle), then notifies the cycle event once. The caller fills the headers (same
-    /// `seq` in all nine, e.g. with [`CycleMessages::set_header`]).
+    /// of the cycle; the event [`ServiceNames::cycle_first`] is notified right after it), then
+    /// notifies the cycle event once. The caller fills the headers (same
+    /// `seq` in all nine, e.g. with [`CycleMessages::set_header`]). The same as
+    /// [`ArmPublisher::start_cycle`] with the cycle's first message, then
+    /// [`CycleStarted::finish`].
     ///
     /// No lock, no logging, no allocation of its own; each message is copied once into its
     /// shared-memory slot. iceoryx2 0.10 allocates one small reference-counted handle per loaned
@@ -163,32 +238,30 @@ impl<S: Service> ArmPublisher<S> {
     /// On error, the messages sent before the failing one are delivered and the event is not
     /// notified.
     pub fn publish_cycle(&self, cycle: &CycleMessages) -> Result<(), PublishError> {
-        debug_assert!(
-            [
-                cycle.measured.jaw_measured_js.header.seq,
-                cycle.measured.local_measured_cp.header.seq,
-                cycle.measured.measured_cp.header.seq,
-                cycle.compensated.measured_js.header.seq,
-                cycle.compensated.jaw_measured_js.header.seq,
-                cycle.compensated.local_measured_cp.header.seq,
-                cycle.compensated.measured_cp.header.seq,
-                cycle.status.header.seq,
-            ]
-            .iter()
-            .all(|s| *s == cycle.measured.measured_js.header.seq),
-            "all messages of a cycle carry the same seq"
-        );
-        self.compensated.send(&cycle.compensated, true)?;
-        self.measured.send(&cycle.measured, false)?;
+        self.start_cycle(&cycle.compensated.local_measured_cp)?
+            .finish(cycle)
+    }
+
+    /// Sends the first message of a cycle, `compensated/local/measured_cp`, as soon as it is
+    /// known, and notifies the event [`ServiceNames::cycle_first`], on which the subscriptions
+    /// of that topic wait: a publisher that still has the other eight to compute (the
+    /// uncompensated pose, the base-frame poses, the status) hands the controllers their pose,
+    /// and wakes them, before it does. [`CycleStarted::finish`] sends the rest and notifies the
+    /// cycle event ([`ServiceNames::cycle`]); a cycle that is never finished delivers only this
+    /// message.
+    pub fn start_cycle(&self, first: &PoseV2) -> Result<CycleStarted<'_, S>, PublishError> {
         send(
-            &self.compensated_status,
-            Topic::CompensatedStatus,
-            &cycle.status,
+            &self.compensated.local_measured_cp,
+            Topic::CompensatedLocalMeasuredCp,
+            first,
         )?;
-        self.cycle
+        self.cycle_first
             .notify()
             .map_err(|error| PublishError::Notify { error })?;
-        Ok(())
+        Ok(CycleStarted {
+            publisher: self,
+            seq: first.header.seq,
+        })
     }
 
     /// The names this publisher publishes under.
@@ -211,12 +284,17 @@ impl<S: Service> ArmPublisher<S> {
         }
         SubscriberCounts {
             per_topic,
-            cycle_listeners: self.services.cycle.dynamic_config().number_of_listeners(),
+            cycle_listeners: self.services.cycle.dynamic_config().number_of_listeners()
+                + self
+                    .services
+                    .cycle_first
+                    .dynamic_config()
+                    .number_of_listeners(),
         }
     }
 
     /// Removes the resources of dead nodes (processes that died without cleaning up, e.g. by
-    /// SIGKILL) from all ten services, so they no longer count as subscribers nor cost the
+    /// SIGKILL) from all eleven services, so they no longer count as subscribers nor cost the
     /// publisher a notification per cycle. Lists the nodes on the file system: call it every few
     /// seconds from outside the cycle, never on the per-cycle path.
     pub fn reap_dead_nodes(&self) -> ReapReport {
@@ -232,6 +310,7 @@ impl<S: Service> ArmPublisher<S> {
             s.compensated.measured_cp.try_cleanup_dead_nodes(),
             s.compensated_status.try_cleanup_dead_nodes(),
             s.cycle.try_cleanup_dead_nodes(),
+            s.cycle_first.try_cleanup_dead_nodes(),
         ];
         ReapReport {
             reaped: states.iter().map(|c| c.cleanups).sum(),
@@ -275,8 +354,8 @@ impl<S: Service> ArmPublisher<S> {
 pub struct SubscriberCounts {
     /// Subscribers per topic, in [`Topic::ALL`] order.
     pub per_topic: [usize; NUM_TOPICS],
-    /// Listeners of the cycle event (event and predictive subscriptions; spinning ones have
-    /// none). Each costs the publisher one notification per cycle.
+    /// Listeners of the two cycle events (event and predictive subscriptions; spinning ones
+    /// have none). Each costs the publisher one notification per cycle.
     pub cycle_listeners: usize,
 }
 
@@ -318,7 +397,7 @@ impl SubscriberCounts {
 /// What [`ArmPublisher::reap_dead_nodes`] did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ReapReport {
-    /// Dead nodes whose resources were removed (summed over the ten services).
+    /// Dead nodes whose resources were removed (summed over the eleven services).
     pub reaped: u64,
     /// Dead nodes whose removal failed (e.g. resources owned by another user).
     pub failed: u64,

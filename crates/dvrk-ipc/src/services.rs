@@ -10,6 +10,7 @@ use iceoryx2::prelude::{FileName, NodeName, Path, SemanticString as _, SignalHan
 use iceoryx2::service::Service;
 use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use iceoryx2::service::service_name::ServiceName;
 
 use crate::IpcError;
 use crate::msg::{CompensationStatusV3, JawStateV1, JointStateV2, Message, PoseV2};
@@ -170,7 +171,15 @@ pub fn open_cycle_event<S: Service>(
     node: &Node<S>,
     names: &ServiceNames,
 ) -> Result<EventFactory<S>, IpcError> {
-    let name = names.cycle();
+    open_event(node, names.cycle())
+}
+
+/// Opens or creates the event service `name` (one of [`ServiceNames::cycle`],
+/// [`ServiceNames::cycle_first`]) with the project's QoS.
+pub fn open_event<S: Service>(
+    node: &Node<S>,
+    name: &ServiceName,
+) -> Result<EventFactory<S>, IpcError> {
     node.service_builder(name)
         .event()
         .max_notifiers(qos::EVENT_MAX_NOTIFIERS)
@@ -225,8 +234,8 @@ impl<S: Service> StateServices<S> {
     }
 }
 
-/// All ten services of one arm (nine pub-sub and the cycle event), opened or created with the
-/// project's QoS.
+/// All eleven services of one arm (nine pub-sub and the two cycle events), opened or created
+/// with the project's QoS.
 ///
 /// Ports keep their service alive, so dropping this after creating ports is fine.
 #[derive(Debug)]
@@ -237,7 +246,10 @@ pub struct ArmServices<S: Service = iceoryx2::service::ipc::Service> {
     /// `<prefix>/compensated/...`.
     pub compensated: StateServices<S>,
     pub compensated_status: PubSubFactory<S, CompensationStatusV3, ()>,
+    /// Notified after the last message of a cycle.
     pub cycle: EventFactory<S>,
+    /// Notified after the first message of a cycle.
+    pub cycle_first: EventFactory<S>,
 }
 
 impl<S: Service> ArmServices<S> {
@@ -249,6 +261,7 @@ impl<S: Service> ArmServices<S> {
             compensated: StateServices::open_or_create(node, names, true)?,
             compensated_status: open_topic(node, names, Topic::CompensatedStatus)?,
             cycle: open_cycle_event(node, names)?,
+            cycle_first: open_event(node, names.cycle_first())?,
         })
     }
 

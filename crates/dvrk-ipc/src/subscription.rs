@@ -16,7 +16,7 @@ use crate::error::{IpcError, SubscriptionError};
 use crate::msg::Message;
 use crate::names::{ServiceNames, Topic};
 use crate::predict::Predictor;
-use crate::services::{open_cycle_event, open_topic};
+use crate::services::{open_event, open_topic};
 use crate::sys::{self, Ready, TimerFd};
 
 /// Periods without a sample after which [`Subscription::wait`] reports staleness, unless that is
@@ -40,7 +40,10 @@ pub const NOMINAL_PERIOD: Duration = Duration::from_nanos(666_667);
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub enum WaitStrategy {
     /// Sleep until the publisher's cycle event wakes the process (one unix datagram per cycle
-    /// and listener). Least CPU; latency is one cross-process wake-up.
+    /// and listener). Least CPU; latency is one cross-process wake-up. A subscription of the
+    /// cycle's first message, `compensated/local/measured_cp`, waits on the event notified right
+    /// after that message ([`ServiceNames::cycle_first`]); the others on the event notified after
+    /// the cycle's last message ([`ServiceNames::cycle`]).
     #[default]
     Event,
     /// Poll the shared memory without sleeping. Lowest latency, one whole CPU core per
@@ -278,10 +281,13 @@ where
                 })?;
         let (listener, event) =
             if options.wait.uses_event() {
-                let event = open_cycle_event(node, names)?;
+                // The first message of a cycle has an event of its own, notified right after
+                // it is sent; the other topics wait for the end of the cycle.
+                let event_name = names.event_for(topic);
+                let event = open_event(node, event_name)?;
                 let listener = event.listener_builder().create().map_err(|source| {
                     IpcError::CreateListener {
-                        service: names.cycle().as_str().to_owned(),
+                        service: event_name.as_str().to_owned(),
                         source,
                     }
                 })?;
@@ -539,9 +545,9 @@ where
         Ok(None)
     }
 
-    /// Whether the cycle event has at least as many listeners (event and predictive
-    /// subscribers, of every process) as this process has CPUs: then polling must yield. Reads
-    /// shared memory; no system call.
+    /// Whether this subscription's cycle event has at least as many listeners (event and
+    /// predictive subscribers of the same event, of every process) as this process has CPUs:
+    /// then polling must yield. Reads shared memory; no system call.
     fn crowded(&self) -> bool {
         self.event
             .as_ref()

@@ -161,6 +161,10 @@ fn string_constants() -> Vec<(&'static str, String)> {
         ),
         ("DVRK_IPC_SUFFIX_CYCLE", dvrk_ipc::CYCLE_SUFFIX.into()),
         (
+            "DVRK_IPC_SUFFIX_CYCLE_FIRST",
+            dvrk_ipc::CYCLE_FIRST_SUFFIX.into(),
+        ),
+        (
             "DVRK_IPC_TYPE_NAME_JOINT_STATE_V2",
             JointStateV2::TYPE_NAME.into(),
         ),

@@ -178,6 +178,55 @@ fn round_trip_of_all_nine_topics() {
 }
 
 #[test]
+fn a_started_cycle_delivers_its_first_message_at_once_and_the_rest_when_finished() {
+    let d = Domain::new("start_cycle");
+    let node = node(&d, "sc");
+    let mut first =
+        Subscription::<PoseV2>::new(&node, &d.names, Topic::CompensatedLocalMeasuredCp, PERIOD)
+            .expect("sub first");
+    let mut base =
+        Subscription::<PoseV2>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD)
+            .expect("sub base");
+    let mut status = Subscription::<CompensationStatusV3>::new(
+        &node,
+        &d.names,
+        Topic::CompensatedStatus,
+        PERIOD,
+    )
+    .expect("sub status");
+    let publisher = ArmPublisher::create(&node, &d.names).expect("publisher");
+    let want = cycle(7);
+    let started = publisher
+        .start_cycle(&want.compensated.local_measured_cp)
+        .expect("start");
+    // The first message is there before the cycle is finished; the others are not, and no
+    // cycle event was sent.
+    assert_eq!(
+        first.try_latest().unwrap(),
+        Some(want.compensated.local_measured_cp)
+    );
+    assert_eq!(base.try_latest().unwrap(), None);
+    assert_eq!(status.try_latest().unwrap(), None);
+    let listener = status.listener().expect("an event subscription listens");
+    let mut events = 0;
+    listener.try_wait(|_| events += 1).unwrap();
+    assert_eq!(
+        events, 0,
+        "the cycle event came before the cycle was finished"
+    );
+
+    started.finish(&want).expect("finish");
+    assert_eq!(expect_fresh(status.wait().unwrap()), want.status);
+    assert_eq!(
+        expect_fresh(base.wait().unwrap()),
+        want.compensated.measured_cp
+    );
+    // The first message was sent once.
+    assert_eq!(first.try_latest().unwrap(), None);
+    assert_eq!(first.stats().received_total, 1);
+}
+
+#[test]
 fn subscriber_that_fell_behind_gets_the_newest_and_counts_the_rest() {
     let d = Domain::new("behind");
     let node = node(&d, "behind");

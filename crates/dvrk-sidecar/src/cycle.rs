@@ -293,6 +293,25 @@ fn arm_state(
     }
 }
 
+/// The header every message of a cycle carries.
+fn header(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Header {
+    Header {
+        seq: t.seq,
+        sample_t_ns: t.sample_t_ns,
+        sample_realtime_ns: t.sample_realtime_ns,
+        board_timestamp: Header::pack_board_timestamps(s.board_timestamp),
+        publish_t_ns: t.publish_t_ns,
+        valid: u32::from(r.valid),
+        flags: r.flags,
+    }
+}
+
+/// The first message of a cycle, `compensated/local/measured_cp`, as [`messages`] writes it:
+/// `serve` sends it before it writes the other eight.
+pub fn compensated_local_measured_cp(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> PoseV2 {
+    pose_msg(header(s, r, t), &r.compensated_pose)
+}
+
 /// Writes a cycle into its nine messages; every message carries the same header.
 /// `base_frame` is the arm's base frame (the pose of its RCM frame in the frame the lab chose,
 /// as the dVRK console's `base-frame`): `measured_cp = base_frame × local/measured_cp`.
@@ -302,15 +321,7 @@ pub fn messages(
     t: &CycleTiming,
     base_frame: &Isometry3<f64>,
 ) -> CycleMessages {
-    let header = Header {
-        seq: t.seq,
-        sample_t_ns: t.sample_t_ns,
-        sample_realtime_ns: t.sample_realtime_ns,
-        board_timestamp: Header::pack_board_timestamps(s.board_timestamp),
-        publish_t_ns: t.publish_t_ns,
-        valid: u32::from(r.valid),
-        flags: r.flags,
-    };
+    let header = header(s, r, t);
     let status = CompensationStatusV3 {
         header,
         tau_ext_nm: r.correction.tau_ext_nm,
@@ -409,6 +420,11 @@ mod tests {
             ..Default::default()
         };
         let m = messages(&s, &r, &t, &base);
+        // What serve sends first is the message `messages` writes for that topic.
+        assert_eq!(
+            compensated_local_measured_cp(&s, &r, &t),
+            m.compensated.local_measured_cp
+        );
         assert_eq!(
             m.measured.measured_js.position,
             [0.1, -0.2, 0.12, 0.3, 0.05, -0.05]

@@ -480,8 +480,17 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             publish_late_ns: self.late_ns,
             implausible_total: c.implausible,
         };
-        let msgs = cycle::messages(&sample, &result, &timing, &self.base_frame);
-        let sent = self.publisher.publish_cycle(&msgs);
+        // The compensated tip pose leaves as soon as it is known; the other eight messages
+        // (the uncompensated and base-frame poses, joints, status) are written after it.
+        let first = cycle::compensated_local_measured_cp(&sample, &result, &timing);
+        let sent = self.publisher.start_cycle(&first).and_then(|started| {
+            started.finish(&cycle::messages(
+                &sample,
+                &result,
+                &timing,
+                &self.base_frame,
+            ))
+        });
         if sent.is_err() {
             c.publish_failures += 1;
         }
@@ -692,7 +701,7 @@ fn summary(s: &Summary) {
     let (most_topic, most) = counts.max();
     let (fewest_topic, fewest) = counts.min();
     let subscribers = format_args!(
-        "{most} (most, {}), {fewest} (fewest, {}), {} listening to the cycle event",
+        "{most} (most, {}), {fewest} (fewest, {}), {} listening to the cycle events",
         most_topic.suffix(),
         fewest_topic.suffix(),
         counts.cycle_listeners
