@@ -149,24 +149,25 @@ impl RawSubs {
     }
 }
 
-/// Subscriptions to the sidecar's topics of one arm: `compensated/local/measured_cp` (woken by
-/// the cycle event) and, taken at the same wake, `compensated/measured_cp`,
-/// `compensated/measured_js`, `compensated/jaw/measured_js`, `compensated/status` and, when
-/// asked for, the four uncompensated topics.
+/// Subscriptions to the sidecar's topics of one arm: `compensated/status`, the last message of
+/// a cycle (woken by the event notified after it, so a wake normally finds whole cycles) and,
+/// taken at the same wake, `compensated/local/measured_cp`, `compensated/measured_cp`,
+/// `compensated/measured_js`, `compensated/jaw/measured_js` and, when asked for, the four
+/// uncompensated topics.
 pub struct ShmSource {
     names: ServiceNames,
-    pose: Subscription<PoseV2, Service>,
+    pose: Pending<PoseV2>,
     base_pose: Pending<PoseV2>,
     joints: Pending<JointStateV2>,
     jaw: Pending<JawStateV1>,
-    status: Pending<CompensationStatusV3>,
+    status: Subscription<CompensationStatusV3, Service>,
     raw: Option<RawSubs>,
-    /// Poses waiting for the rest of their cycle.
-    poses: Vec<PoseV2>,
-    /// Seq of the newest pose taken.
-    last_pose_seq: Option<u64>,
-    /// Poses dropped because the other topics stopped bringing their cycles.
-    poses_dropped: u64,
+    /// Statuses waiting for the rest of their cycle.
+    statuses: Vec<CompensationStatusV3>,
+    /// Seq of the newest status taken.
+    last_status_seq: Option<u64>,
+    /// Statuses dropped because the other topics stopped bringing their cycles.
+    statuses_dropped: u64,
     /// First cycle passed on (see [`ShmSource::run`]).
     start_seq: Option<u64>,
     // Kept last: the ports above borrow nothing from it, but are dropped before it.
@@ -201,38 +202,38 @@ impl ShmSource {
     pub fn new(shm_prefix: &str, node_name: &str, raw: bool) -> Result<Self, BridgeError> {
         let names = ServiceNames::new(shm_prefix)?;
         let node = dvrk_ipc::create_node::<Service>(node_name, None)?;
-        let pose = Subscription::<PoseV2, Service>::new(
+        let status = Subscription::<CompensationStatusV3, Service>::new(
             &node,
             &names,
-            Topic::CompensatedLocalMeasuredCp,
+            Topic::CompensatedStatus,
             NOMINAL_PERIOD,
         )?;
         Ok(ShmSource {
+            pose: Pending::new(&node, &names, Topic::CompensatedLocalMeasuredCp)?,
             base_pose: Pending::new(&node, &names, Topic::CompensatedMeasuredCp)?,
             joints: Pending::new(&node, &names, Topic::CompensatedMeasuredJs)?,
             jaw: Pending::new(&node, &names, Topic::CompensatedJawMeasuredJs)?,
-            status: Pending::new(&node, &names, Topic::CompensatedStatus)?,
             raw: if raw {
                 Some(RawSubs::new(&node, &names)?)
             } else {
                 None
             },
             names,
-            pose,
-            poses: Vec::with_capacity(PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
-            last_pose_seq: None,
-            poses_dropped: 0,
+            status,
+            statuses: Vec::with_capacity(PENDING_CAP + dvrk_ipc::qos::SUBSCRIBER_MAX_BUFFER_SIZE),
+            last_status_seq: None,
+            statuses_dropped: 0,
             start_seq: None,
             _node: node,
         })
     }
 
     fn clear_pending(&mut self) {
-        self.poses.clear();
+        self.statuses.clear();
+        self.pose.items.clear();
         self.base_pose.items.clear();
         self.joints.items.clear();
         self.jaw.items.clear();
-        self.status.items.clear();
         if let Some(r) = &mut self.raw {
             r.clear();
         }
@@ -246,11 +247,11 @@ impl ShmSource {
             .as_ref()
             .map(|r| [r.local.gaps.0, r.base.gaps.0, r.joints.gaps.0, r.jaw.gaps.0]);
         [
-            self.last_pose_seq,
+            self.pose.gaps.0,
             self.base_pose.gaps.0,
             self.joints.gaps.0,
             self.jaw.gaps.0,
-            self.status.gaps.0,
+            self.last_status_seq,
         ]
         .into_iter()
         .chain(raw.into_iter().flatten())
@@ -270,19 +271,19 @@ impl ShmSource {
         let mut dec = [Decimator::new(rate_period_ns); 9];
         let mut silent_since: Option<Instant> = None;
         while !stop.load(Ordering::Relaxed) && until.is_none_or(|u| Instant::now() < u) {
-            let before = self.poses.len();
-            let poses = &mut self.poses;
-            let update =
-                self.pose
-                    .wait_with(|p| poses.push(*p))
-                    .map_err(|source| BridgeError::Wait {
-                        service: self
-                            .names
-                            .topic(Topic::CompensatedLocalMeasuredCp)
-                            .as_str()
-                            .to_owned(),
-                        source,
-                    })?;
+            let before = self.statuses.len();
+            let statuses = &mut self.statuses;
+            let update = self
+                .status
+                .wait_with(|st| statuses.push(*st))
+                .map_err(|source| BridgeError::Wait {
+                    service: self
+                        .names
+                        .topic(Topic::CompensatedStatus)
+                        .as_str()
+                        .to_owned(),
+                    source,
+                })?;
             match update {
                 Update::Fresh(_) => {
                     if let Some(t) = silent_since.take() {
@@ -298,7 +299,7 @@ impl ShmSource {
                     if update == Update::Terminated {
                         // A new serve starts its seq at 1 again: align anew.
                         self.start_seq = None;
-                        self.last_pose_seq = None;
+                        self.last_status_seq = None;
                     }
                     if silent_since.is_none() {
                         tracing::warn!(
@@ -312,34 +313,34 @@ impl ShmSource {
             }
             // Take all topics together, before any (slow) sink call, so that a bridge that falls
             // behind loses the same cycles on all of them.
+            self.pose.take(&self.names)?;
             self.base_pose.take(&self.names)?;
             self.joints.take(&self.names)?;
             self.jaw.take(&self.names)?;
-            self.status.take(&self.names)?;
             if let Some(r) = &mut self.raw {
                 r.take(&self.names)?;
             }
             // A serve that restarted before the subscription noticed starts its seq at 1 again:
             // drop this wake's samples (they may mix both runs) and align anew.
-            if let (Some(p), Some(last)) = (self.poses.get(before), self.last_pose_seq)
-                && p.header.seq <= last
+            if let (Some(st), Some(last)) = (self.statuses.get(before), self.last_status_seq)
+                && st.header.seq <= last
             {
                 self.start_seq = None;
                 self.clear_pending();
             }
-            if let Some(p) = self.poses.last() {
-                self.last_pose_seq = Some(p.header.seq);
+            if let Some(st) = self.statuses.last() {
+                self.last_status_seq = Some(st.header.seq);
             }
-            cap_pending(&mut self.poses, &mut self.poses_dropped);
-            // The subscribers connect one after the other, so the first samples of the pose may
-            // be older than those of the others: start at the first cycle all of them have.
+            cap_pending(&mut self.statuses, &mut self.statuses_dropped);
+            // The subscribers connect one after the other, so the first samples of one topic
+            // may be older than those of the others: start at the first cycle all of them have.
             if self.start_seq.is_none() {
                 let firsts = [
-                    self.poses.first().map(|p| p.header.seq),
+                    self.pose.first_seq(),
                     self.base_pose.first_seq(),
                     self.joints.first_seq(),
                     self.jaw.first_seq(),
-                    self.status.first_seq(),
+                    self.statuses.first().map(|st| st.header.seq),
                 ];
                 let raw_firsts = self.raw.as_ref().map(RawSubs::first_seqs);
                 let raw_ok = raw_firsts.is_none_or(|f| f.iter().all(Option::is_some));
@@ -355,11 +356,11 @@ impl ShmSource {
                 }
             }
             let start = self.start_seq.unwrap_or(u64::MAX);
-            self.poses.retain(|p| p.header.seq >= start);
+            self.statuses.retain(|st| st.header.seq >= start);
+            self.pose.keep_from(start);
             self.base_pose.keep_from(start);
             self.joints.keep_from(start);
             self.jaw.keep_from(start);
-            self.status.keep_from(start);
             if let Some(r) = &mut self.raw {
                 r.keep_from(start);
             }
@@ -374,7 +375,7 @@ impl ShmSource {
                 err: &mut err,
             };
             let [d0, d1, d2, d3, _, d5, d6, d7, d8] = &mut dec;
-            out.pass(&mut self.poses, d0, |p| {
+            out.pass(&mut self.pose.items, d0, |p| {
                 sink.pose(OutTopic::LocalMeasuredCp, p)
             });
             out.pass(&mut self.base_pose.items, d1, |p| {
@@ -400,7 +401,7 @@ impl ShmSource {
                     sink.jaw(OutTopic::RawJawMeasuredJs, jaw)
                 });
             }
-            release(&mut self.status.items, upto, |st| {
+            release(&mut self.statuses, upto, |st| {
                 if err.is_some() {
                     return;
                 }
@@ -415,11 +416,11 @@ impl ShmSource {
                 return Err(e);
             }
             stats.shm_seq_gaps = [
-                self.pose.stats().seq_gaps_total + self.poses_dropped,
+                self.pose.gaps.1,
                 self.base_pose.gaps.1,
                 self.joints.gaps.1,
                 self.jaw.gaps.1,
-                self.status.gaps.1,
+                self.status.stats().seq_gaps_total + self.statuses_dropped,
                 self.raw.as_ref().map_or(0, RawSubs::gaps),
             ]
             .into_iter()

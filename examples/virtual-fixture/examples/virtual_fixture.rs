@@ -77,12 +77,10 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
                     stale_reported = false;
                 }
                 let d = signed_distance(args, &p.position_m);
-                let raw_d = raw
-                    .try_latest()?
-                    .filter(|r| r.header.seq == p.header.seq)
-                    .map(|r| signed_distance(args, &r.position_m));
                 let now_inside = d < args.margin;
                 if now_inside != inside_margin {
+                    let raw_d = raw_of_cycle(&mut raw, p.header.seq)?
+                        .map(|r| signed_distance(args, &r.position_m));
                     let raw_txt = raw_d.map_or(String::new(), |r| {
                         format!(" (uncompensated says {:+.3} mm)", r * 1e3)
                     });
@@ -127,4 +125,22 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     }
     println!("{seen} compensated poses received");
     Ok(())
+}
+
+/// The uncompensated pose of cycle `seq`. The sidecar wakes the tip pose's subscribers right
+/// after that first message of the cycle and writes the uncompensated pose a few microseconds
+/// later, so this polls for it (`raw` spins); only called when the fixture engages or clears.
+/// `None` if that cycle's pose was not published (an invalid cycle, a stopped sidecar).
+fn raw_of_cycle(
+    raw: &mut Subscription<PoseV2, Service>,
+    seq: u64,
+) -> Result<Option<PoseV2>, Box<dyn std::error::Error>> {
+    raw.try_latest()?;
+    if raw.latest().is_none_or(|r| r.header.seq < seq) {
+        match raw.wait()? {
+            Update::Fresh(_) => {}
+            _ => return Ok(None),
+        }
+    }
+    Ok(raw.latest().filter(|r| r.header.seq == seq).copied())
 }
