@@ -42,6 +42,21 @@ pub struct ActuatorBounds {
 }
 
 /// Limits of one arm, actuator order as in the I/O configuration.
+/// Soft limits of joints 1-3 of a Classic PSM, `[lower, upper]`: yaw ±91°, pitch ±53° (rad),
+/// insertion 0-0.24 m (board protocol reference §5.2).
+pub const CLASSIC_PSM_SOFT_LIMITS: [[f64; 2]; 3] = [
+    [-f64::to_radians(91.0), f64::to_radians(91.0)],
+    [-f64::to_radians(53.0), f64::to_radians(53.0)],
+    [0.0, 0.24],
+];
+
+/// Soft limits of joints 1-3 of an Si PSM: yaw ±2.964, pitch −1.265…+1.301 rad, insertion
+/// 0-0.29 m (psm-kinematics reference §1.2).
+pub const SI_PSM_SOFT_LIMITS: [[f64; 2]; 3] = [[-2.964, 2.964], [-1.265, 1.301], [0.0, 0.29]];
+
+/// Soft limit of the wrist actuators 4-7 of a PSM, ±174° (board protocol reference §5.2).
+pub const WRIST_ACTUATOR_SOFT_LIMIT_RAD: f64 = f64::to_radians(174.0);
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlausibilityLimits {
     pub actuators: [ActuatorBounds; NUM_JOINTS],
@@ -51,29 +66,27 @@ impl PlausibilityLimits {
     /// Limits of a Classic PSM (reference §5.2: soft limits ±91°, ±53°, 0–0.24 m, ±174° for
     /// actuators 4–7; pot tolerance 5° or 5 mm), with current limits from `cfg`.
     pub fn classic_psm(cfg: &IoConfig) -> Self {
-        Self::psm(
-            cfg,
-            [-91f64.to_radians(), 91f64.to_radians()],
-            [-53f64.to_radians(), 53f64.to_radians()],
-            0.24,
-        )
+        Self::psm(cfg, CLASSIC_PSM_SOFT_LIMITS)
     }
 
     /// Limits of an Si PSM (reference psm-kinematics §1.2: yaw ±2.964, pitch −1.265…+1.301,
     /// insertion 0–0.29 m), with current limits from `cfg`.
     pub fn si_psm(cfg: &IoConfig) -> Self {
-        Self::psm(cfg, [-2.964, 2.964], [-1.265, 1.301], 0.29)
+        Self::psm(cfg, SI_PSM_SOFT_LIMITS)
     }
 
-    fn psm(cfg: &IoConfig, yaw: [f64; 2], pitch: [f64; 2], insertion_max: f64) -> Self {
-        let wrist = [-174f64.to_radians(), 174f64.to_radians()];
+    fn psm(cfg: &IoConfig, [yaw, pitch, insertion]: [[f64; 2]; 3]) -> Self {
+        let wrist = [
+            -WRIST_ACTUATOR_SOFT_LIMIT_RAD,
+            WRIST_ACTUATOR_SOFT_LIMIT_RAD,
+        ];
         let actuators = core::array::from_fn(|i| {
             let a = &cfg.actuators()[i];
             let prismatic = a.joint_type == JointType::Prismatic;
             let position = match i {
                 0 => yaw,
                 1 => pitch,
-                2 => [0.0, insertion_max],
+                2 => insertion,
                 _ => wrist,
             };
             ActuatorBounds {

@@ -104,16 +104,15 @@ pub fn fk(args: &FkArgs) -> Result<()> {
 /// actuator soft limits through the 400006 coupling (roll 1.5632, wrist 1.0186) and ±180° for
 /// the wrist yaw, generous bounds for any instrument.
 pub fn joint_limits(arm: ArmKind) -> [[f64; 2]; 6] {
-    let (yaw, pitch, insertion) = match arm {
-        ArmKind::Classic => (
-            [-91f64.to_radians(), 91f64.to_radians()],
-            [-53f64.to_radians(), 53f64.to_radians()],
-            [0.0, 0.24],
-        ),
-        ArmKind::Si => ([-2.964, 2.964], [-1.265, 1.301], [0.0, 0.29]),
+    use dvrk_io::plausibility::{
+        CLASSIC_PSM_SOFT_LIMITS, SI_PSM_SOFT_LIMITS, WRIST_ACTUATOR_SOFT_LIMIT_RAD,
     };
-    let roll = 174f64.to_radians() * 1.5632;
-    let wrist = 174f64.to_radians() * 1.0186;
+    let [yaw, pitch, insertion] = match arm {
+        ArmKind::Classic => CLASSIC_PSM_SOFT_LIMITS,
+        ArmKind::Si => SI_PSM_SOFT_LIMITS,
+    };
+    let roll = WRIST_ACTUATOR_SOFT_LIMIT_RAD * 1.5632;
+    let wrist = WRIST_ACTUATOR_SOFT_LIMIT_RAD * 1.0186;
     let pi = std::f64::consts::PI;
     [
         yaw,
