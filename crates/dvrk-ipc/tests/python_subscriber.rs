@@ -56,7 +56,7 @@ fn pose(seq: u64) -> PoseV2 {
 #[test]
 fn python_subscriber_decodes_the_compensated_pose() {
     if let Err(reason) = python_with_iceoryx2() {
-        println!("skipped: {reason}");
+        common::skip_unless_ci(&reason);
         return;
     }
     let d = Domain::new("python");
@@ -149,7 +149,7 @@ fn python_subscriber_decodes_the_compensated_pose() {
 #[test]
 fn python_subscriber_waits_every_way() {
     if let Err(reason) = python_with_iceoryx2() {
-        println!("skipped: {reason}");
+        common::skip_unless_ci(&reason);
         return;
     }
     for wait in ["event", "spin", "predictive"] {
