@@ -79,6 +79,8 @@ impl<S: Service> StatePublishers<S> {
 pub struct CycleStarted<'a, S: Service> {
     publisher: &'a ArmPublisher<S>,
     seq: u64,
+    /// The notification of [`ServiceNames::cycle_first`] failed (reported by `finish`).
+    first_notify: Option<PublishError>,
 }
 
 impl<S: Service> CycleStarted<'_, S> {
@@ -87,7 +89,8 @@ impl<S: Service> CycleStarted<'_, S> {
     /// the cycle was started with. Every message carries the started cycle's `seq`.
     ///
     /// On error, the messages sent before the failing one are delivered and the event is not
-    /// notified.
+    /// notified. A failed notification of the first message's event is reported here, after
+    /// the rest of the cycle was sent.
     pub fn finish(self, cycle: &CycleMessages) -> Result<(), PublishError> {
         debug_assert!(
             [
@@ -116,7 +119,7 @@ impl<S: Service> CycleStarted<'_, S> {
         p.cycle
             .notify()
             .map_err(|error| PublishError::Notify { error })?;
-        Ok(())
+        self.first_notify.map_or(Ok(()), Err)
     }
 }
 
@@ -255,12 +258,17 @@ impl<S: Service> ArmPublisher<S> {
             Topic::CompensatedLocalMeasuredCp,
             first,
         )?;
-        self.cycle_first
+        // A failed notification of the first event does not cost the cycle its other eight
+        // messages: finish sends them and then reports it.
+        let first_notify = self
+            .cycle_first
             .notify()
-            .map_err(|error| PublishError::Notify { error })?;
+            .err()
+            .map(|error| PublishError::Notify { error });
         Ok(CycleStarted {
             publisher: self,
             seq: first.header.seq,
+            first_notify,
         })
     }
 
