@@ -23,9 +23,10 @@
 //!   | `<prefix>/compensated/measured_cp` | [`PoseV2`] |
 //!   | `<prefix>/compensated/status` | [`CompensationStatusV3`] |
 //!   | `<prefix>/cycle` | event, notified once per cycle after the nine messages |
+//!   | `<prefix>/cycle/first` | event, notified once per cycle right after its first message, `compensated/local/measured_cp` ([`PUBLISH_ORDER`]) |
 //!
-//! - the QoS ([`qos`]) applied by the one function that opens or creates services
-//!   ([`open_topic`], [`open_cycle_event`], [`ArmServices::open_or_create`]);
+//! - the QoS ([`qos`]) applied by the functions that open or create services
+//!   ([`open_topic`], [`open_event`], [`open_cycle_event`], [`ArmServices::open_or_create`]);
 //! - [`ArmPublisher`] (used by the sidecar; also counts subscribers of every topic and reaps dead
 //!   nodes) and [`Subscription`] (for consumers), which waits as the consumer chooses
 //!   ([`WaitStrategy`]): `Event` (sleep until notified), `Spin` (poll, a core of its own, no
