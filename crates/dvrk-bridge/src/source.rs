@@ -49,8 +49,8 @@ pub struct RunStats {
     pub shm_seq_gaps: u64,
 }
 
-/// One topic taken without waking: its subscriber and the samples waiting for their cycle's
-/// `local/measured_cp`.
+/// One topic taken without waking: its subscriber and the samples waiting for the rest of their
+/// cycle.
 struct Pending<T: Message> {
     topic: Topic,
     sub: Subscriber<Service, T, ()>,
@@ -88,21 +88,59 @@ impl<T: Message> Pending<T> {
     }
 }
 
-/// The four uncompensated topics, when they are passed on too.
-struct RawSubs {
+/// The four topics of one arm state (compensated or uncompensated), taken without waking.
+struct StateSubs {
     local: Pending<PoseV2>,
     base: Pending<PoseV2>,
     joints: Pending<JointStateV2>,
     jaw: Pending<JawStateV1>,
+    /// Where each of the four goes, in the order above.
+    out: [OutTopic; 4],
 }
 
-impl RawSubs {
-    fn new(node: &Node<Service>, names: &ServiceNames) -> Result<Self, BridgeError> {
-        Ok(RawSubs {
-            local: Pending::new(node, names, Topic::LocalMeasuredCp)?,
-            base: Pending::new(node, names, Topic::MeasuredCp)?,
-            joints: Pending::new(node, names, Topic::MeasuredJs)?,
-            jaw: Pending::new(node, names, Topic::JawMeasuredJs)?,
+impl StateSubs {
+    fn new(
+        node: &Node<Service>,
+        names: &ServiceNames,
+        compensated: bool,
+    ) -> Result<Self, BridgeError> {
+        let pick = |raw: Topic, comp: Topic| if compensated { comp } else { raw };
+        Ok(StateSubs {
+            local: Pending::new(
+                node,
+                names,
+                pick(Topic::LocalMeasuredCp, Topic::CompensatedLocalMeasuredCp),
+            )?,
+            base: Pending::new(
+                node,
+                names,
+                pick(Topic::MeasuredCp, Topic::CompensatedMeasuredCp),
+            )?,
+            joints: Pending::new(
+                node,
+                names,
+                pick(Topic::MeasuredJs, Topic::CompensatedMeasuredJs),
+            )?,
+            jaw: Pending::new(
+                node,
+                names,
+                pick(Topic::JawMeasuredJs, Topic::CompensatedJawMeasuredJs),
+            )?,
+            out: if compensated {
+                [
+                    OutTopic::LocalMeasuredCp,
+                    OutTopic::MeasuredCp,
+                    OutTopic::MeasuredJs,
+                    OutTopic::JawMeasuredJs,
+                ]
+            } else {
+                [
+                    OutTopic::RawLocalMeasuredCp,
+                    OutTopic::RawMeasuredCp,
+                    OutTopic::RawMeasuredJs,
+                    OutTopic::RawJawMeasuredJs,
+                ]
+            },
         })
     }
 
@@ -119,6 +157,16 @@ impl RawSubs {
             self.base.first_seq(),
             self.joints.first_seq(),
             self.jaw.first_seq(),
+        ]
+    }
+
+    /// The newest seq each topic brought.
+    fn last_seqs(&self) -> [Option<u64>; 4] {
+        [
+            self.local.gaps.0,
+            self.base.gaps.0,
+            self.joints.gaps.0,
+            self.jaw.gaps.0,
         ]
     }
 
@@ -147,6 +195,17 @@ impl RawSubs {
         .max()
         .unwrap_or(0)
     }
+
+    /// Passes the released samples of the four topics to `sink`, poses first, through their
+    /// decimators `dec` (same order).
+    fn pass<K: Sink>(&mut self, out: &mut Outlet<'_>, dec: &mut [Decimator; 4], sink: &mut K) {
+        let [t0, t1, t2, t3] = self.out;
+        let [d0, d1, d2, d3] = dec;
+        out.pass(&mut self.local.items, d0, |p| sink.pose(t0, p));
+        out.pass(&mut self.base.items, d1, |p| sink.pose(t1, p));
+        out.pass(&mut self.joints.items, d2, |js| sink.joints(t2, js));
+        out.pass(&mut self.jaw.items, d3, |jaw| sink.jaw(t3, jaw));
+    }
 }
 
 /// Subscriptions to the sidecar's topics of one arm: `compensated/status`, the last message of
@@ -156,12 +215,9 @@ impl RawSubs {
 /// uncompensated topics.
 pub struct ShmSource {
     names: ServiceNames,
-    pose: Pending<PoseV2>,
-    base_pose: Pending<PoseV2>,
-    joints: Pending<JointStateV2>,
-    jaw: Pending<JawStateV1>,
+    compensated: StateSubs,
     status: Subscription<CompensationStatusV3, Service>,
-    raw: Option<RawSubs>,
+    raw: Option<StateSubs>,
     /// Statuses waiting for the rest of their cycle.
     statuses: Vec<CompensationStatusV3>,
     /// Seq of the newest status taken.
@@ -209,12 +265,9 @@ impl ShmSource {
             NOMINAL_PERIOD,
         )?;
         Ok(ShmSource {
-            pose: Pending::new(&node, &names, Topic::CompensatedLocalMeasuredCp)?,
-            base_pose: Pending::new(&node, &names, Topic::CompensatedMeasuredCp)?,
-            joints: Pending::new(&node, &names, Topic::CompensatedMeasuredJs)?,
-            jaw: Pending::new(&node, &names, Topic::CompensatedJawMeasuredJs)?,
+            compensated: StateSubs::new(&node, &names, true)?,
             raw: if raw {
-                Some(RawSubs::new(&node, &names)?)
+                Some(StateSubs::new(&node, &names, false)?)
             } else {
                 None
             },
@@ -230,10 +283,7 @@ impl ShmSource {
 
     fn clear_pending(&mut self) {
         self.statuses.clear();
-        self.pose.items.clear();
-        self.base_pose.items.clear();
-        self.joints.items.clear();
-        self.jaw.items.clear();
+        self.compensated.clear();
         if let Some(r) = &mut self.raw {
             r.clear();
         }
@@ -242,20 +292,13 @@ impl ShmSource {
     /// The newest cycle that every topic has brought or gone past (the least of their newest
     /// seqs), if each has brought one.
     fn complete_upto(&self) -> Option<u64> {
-        let raw = self
-            .raw
-            .as_ref()
-            .map(|r| [r.local.gaps.0, r.base.gaps.0, r.joints.gaps.0, r.jaw.gaps.0]);
-        [
-            self.pose.gaps.0,
-            self.base_pose.gaps.0,
-            self.joints.gaps.0,
-            self.jaw.gaps.0,
-            self.last_status_seq,
-        ]
-        .into_iter()
-        .chain(raw.into_iter().flatten())
-        .try_fold(u64::MAX, |m, s| s.map(|s| m.min(s)))
+        let raw = self.raw.as_ref().map(StateSubs::last_seqs);
+        self.compensated
+            .last_seqs()
+            .into_iter()
+            .chain([self.last_status_seq])
+            .chain(raw.into_iter().flatten())
+            .try_fold(u64::MAX, |m, s| s.map(|s| m.min(s)))
     }
 
     /// Passes every cycle to `sink` until `stop` is raised or `until` passes. `rate_period_ns`
@@ -268,7 +311,10 @@ impl ShmSource {
         until: Option<Instant>,
     ) -> Result<RunStats, BridgeError> {
         let mut stats = RunStats::default();
-        let mut dec = [Decimator::new(rate_period_ns); 9];
+        // One decimator per published topic.
+        let mut dec_compensated = [Decimator::new(rate_period_ns); 4];
+        let mut dec_raw = dec_compensated;
+        let mut dec_status = Decimator::new(rate_period_ns);
         let mut silent_since: Option<Instant> = None;
         while !stop.load(Ordering::Relaxed) && until.is_none_or(|u| Instant::now() < u) {
             let before = self.statuses.len();
@@ -313,10 +359,7 @@ impl ShmSource {
             }
             // Take all topics together, before any (slow) sink call, so that a bridge that falls
             // behind loses the same cycles on all of them.
-            self.pose.take(&self.names)?;
-            self.base_pose.take(&self.names)?;
-            self.joints.take(&self.names)?;
-            self.jaw.take(&self.names)?;
+            self.compensated.take(&self.names)?;
             if let Some(r) = &mut self.raw {
                 r.take(&self.names)?;
             }
@@ -335,14 +378,15 @@ impl ShmSource {
             // The subscribers connect one after the other, so the first samples of one topic
             // may be older than those of the others: start at the first cycle all of them have.
             if self.start_seq.is_none() {
+                let [f0, f1, f2, f3] = self.compensated.first_seqs();
                 let firsts = [
-                    self.pose.first_seq(),
-                    self.base_pose.first_seq(),
-                    self.joints.first_seq(),
-                    self.jaw.first_seq(),
+                    f0,
+                    f1,
+                    f2,
+                    f3,
                     self.statuses.first().map(|st| st.header.seq),
                 ];
-                let raw_firsts = self.raw.as_ref().map(RawSubs::first_seqs);
+                let raw_firsts = self.raw.as_ref().map(StateSubs::first_seqs);
                 let raw_ok = raw_firsts.is_none_or(|f| f.iter().all(Option::is_some));
                 if firsts.iter().all(Option::is_some) && raw_ok {
                     self.start_seq = firsts
@@ -357,10 +401,7 @@ impl ShmSource {
             }
             let start = self.start_seq.unwrap_or(u64::MAX);
             self.statuses.retain(|st| st.header.seq >= start);
-            self.pose.keep_from(start);
-            self.base_pose.keep_from(start);
-            self.joints.keep_from(start);
-            self.jaw.keep_from(start);
+            self.compensated.keep_from(start);
             if let Some(r) = &mut self.raw {
                 r.keep_from(start);
             }
@@ -374,38 +415,15 @@ impl ShmSource {
                 stats: &mut stats,
                 err: &mut err,
             };
-            let [d0, d1, d2, d3, _, d5, d6, d7, d8] = &mut dec;
-            out.pass(&mut self.pose.items, d0, |p| {
-                sink.pose(OutTopic::LocalMeasuredCp, p)
-            });
-            out.pass(&mut self.base_pose.items, d1, |p| {
-                sink.pose(OutTopic::MeasuredCp, p)
-            });
-            out.pass(&mut self.joints.items, d2, |js| {
-                sink.joints(OutTopic::MeasuredJs, js)
-            });
-            out.pass(&mut self.jaw.items, d3, |jaw| {
-                sink.jaw(OutTopic::JawMeasuredJs, jaw)
-            });
+            self.compensated.pass(&mut out, &mut dec_compensated, sink);
             if let Some(r) = &mut self.raw {
-                out.pass(&mut r.local.items, d5, |p| {
-                    sink.pose(OutTopic::RawLocalMeasuredCp, p)
-                });
-                out.pass(&mut r.base.items, d6, |p| {
-                    sink.pose(OutTopic::RawMeasuredCp, p)
-                });
-                out.pass(&mut r.joints.items, d7, |js| {
-                    sink.joints(OutTopic::RawMeasuredJs, js)
-                });
-                out.pass(&mut r.jaw.items, d8, |jaw| {
-                    sink.jaw(OutTopic::RawJawMeasuredJs, jaw)
-                });
+                r.pass(&mut out, &mut dec_raw, sink);
             }
             release(&mut self.statuses, upto, |st| {
                 if err.is_some() {
                     return;
                 }
-                if !dec[4].accept(st.header.sample_t_ns) {
+                if !dec_status.accept(st.header.sample_t_ns) {
                     stats.decimated += 1;
                     return;
                 }
@@ -416,12 +434,9 @@ impl ShmSource {
                 return Err(e);
             }
             stats.shm_seq_gaps = [
-                self.pose.gaps.1,
-                self.base_pose.gaps.1,
-                self.joints.gaps.1,
-                self.jaw.gaps.1,
+                self.compensated.gaps(),
                 self.status.stats().seq_gaps_total + self.statuses_dropped,
-                self.raw.as_ref().map_or(0, RawSubs::gaps),
+                self.raw.as_ref().map_or(0, StateSubs::gaps),
             ]
             .into_iter()
             .max()
