@@ -111,7 +111,6 @@ impl Drop for Domain {
 /// A prerequisite of a test is missing here: says so and lets the test return, except under CI
 /// (`CI` set and not `0`/`false`, as .ci/run sets it), where .ci/run installs every
 /// prerequisite and a missing one must fail instead of hiding as a pass.
-#[allow(dead_code)] // used by the test binaries that have prerequisites
 pub fn skip_unless_ci(reason: &str) {
     let ci = std::env::var("CI").is_ok_and(|v| !v.is_empty() && v != "0" && v != "false");
     assert!(
