@@ -130,17 +130,25 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
 /// The uncompensated pose of cycle `seq`. The sidecar wakes the tip pose's subscribers right
 /// after that first message of the cycle and writes the uncompensated pose a few microseconds
 /// later, so this polls for it (`raw` spins); only called when the fixture engages or clears.
-/// `None` if that cycle's pose was not published (an invalid cycle, a stopped sidecar).
+/// Every sample drained on the way is looked at, not only the newest: a subscription that just
+/// connected gets the previous cycle's sample and the next one together. `None` if that cycle's
+/// pose was not published (an invalid cycle, a stopped sidecar) or was drained by an earlier call.
 fn raw_of_cycle(
     raw: &mut Subscription<PoseV2, Service>,
     seq: u64,
 ) -> Result<Option<PoseV2>, Box<dyn std::error::Error>> {
-    raw.try_latest()?;
-    if raw.latest().is_none_or(|r| r.header.seq < seq) {
-        match raw.wait()? {
-            Update::Fresh(_) => {}
-            _ => return Ok(None),
+    let mut found = raw.latest().filter(|r| r.header.seq == seq).copied();
+    let mut newest = raw.latest().map_or(0, |r| r.header.seq);
+    while newest < seq {
+        let update = raw.wait_with(|r| {
+            if r.header.seq == seq {
+                found = Some(*r);
+            }
+        })?;
+        match update {
+            Update::Fresh(r) => newest = r.header.seq,
+            _ => break,
         }
     }
-    Ok(raw.latest().filter(|r| r.header.seq == seq).copied())
+    Ok(found)
 }
