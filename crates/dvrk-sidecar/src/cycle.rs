@@ -267,14 +267,16 @@ fn pose_msg(header: Header, p: &Isometry3<f64>) -> PoseV2 {
     }
 }
 
-/// The four states of one arm from a joint vector (6 joints + jaw) and its RCM-frame pose.
+/// The four states of one arm from a joint vector (6 joints + jaw), its RCM-frame pose `local`
+/// and that pose's message `local_msg` (whose header all four carry).
 fn arm_state(
-    header: Header,
+    local_msg: PoseV2,
     position: &[f64; 7],
     s: &ArmSample,
     local: &Isometry3<f64>,
     base_frame: &Isometry3<f64>,
 ) -> ArmState {
+    let header = local_msg.header;
     ArmState {
         measured_js: JointStateV2 {
             header,
@@ -288,7 +290,7 @@ fn arm_state(
             velocity: s.velocity[6],
             effort: s.effort[6],
         },
-        local_measured_cp: pose_msg(header, local),
+        local_measured_cp: local_msg,
         measured_cp: pose_msg(header, &(base_frame * local)),
     }
 }
@@ -321,7 +323,20 @@ pub fn messages(
     t: &CycleTiming,
     base_frame: &Isometry3<f64>,
 ) -> CycleMessages {
-    let header = header(s, r, t);
+    messages_from_first(compensated_local_measured_cp(s, r, t), s, r, t, base_frame)
+}
+
+/// [`messages`] for a cycle whose first message, `first` (from
+/// [`compensated_local_measured_cp`] with the same arguments), is already written: reuses it
+/// and its header instead of computing them again.
+pub fn messages_from_first(
+    first: PoseV2,
+    s: &ArmSample,
+    r: &CycleResult,
+    t: &CycleTiming,
+    base_frame: &Isometry3<f64>,
+) -> CycleMessages {
+    let header = first.header;
     let status = CompensationStatusV3 {
         header,
         tau_ext_nm: r.correction.tau_ext_nm,
@@ -340,9 +355,15 @@ pub fn messages(
         ..Default::default()
     };
     CycleMessages {
-        measured: arm_state(header, &s.position, s, &r.raw_pose, base_frame),
+        measured: arm_state(
+            pose_msg(header, &r.raw_pose),
+            &s.position,
+            s,
+            &r.raw_pose,
+            base_frame,
+        ),
         compensated: arm_state(
-            header,
+            first,
             &r.compensated_position,
             s,
             &r.compensated_pose,
@@ -424,6 +445,11 @@ mod tests {
         assert_eq!(
             compensated_local_measured_cp(&s, &r, &t),
             m.compensated.local_measured_cp
+        );
+        // What serve writes after it, reusing that first message, is the same cycle.
+        assert_eq!(
+            messages_from_first(compensated_local_measured_cp(&s, &r, &t), &s, &r, &t, &base),
+            m
         );
         assert_eq!(
             m.measured.measured_js.position,

@@ -484,7 +484,8 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         // (the uncompensated and base-frame poses, joints, status) are written after it.
         let first = cycle::compensated_local_measured_cp(&sample, &result, &timing);
         let sent = self.publisher.start_cycle(&first).and_then(|started| {
-            started.finish(&cycle::messages(
+            started.finish(&cycle::messages_from_first(
+                first,
                 &sample,
                 &result,
                 &timing,
