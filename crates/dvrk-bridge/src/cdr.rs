@@ -103,6 +103,10 @@ impl CdrWriter {
         self.buf.push(u8::from(v));
     }
 
+    pub fn u8(&mut self, v: u8) {
+        self.buf.push(v);
+    }
+
     /// A string: length including the NUL, the bytes, the NUL. The caller's strings are ours
     /// (frame ids, joint names) and far below `u32::MAX`; longer input is cut to fit.
     pub fn string(&mut self, s: &str) {

@@ -22,7 +22,9 @@
 //! joints of invalid cycles (`valid = 0`) are not published; the status of every cycle is.
 
 pub mod cdr;
+pub mod console;
 pub mod convert;
+pub mod crtk;
 pub mod dds;
 mod error;
 pub mod msgdefs;

@@ -168,6 +168,11 @@ pub struct RunnerConfig {
     pub still_tolerance: f64,
     /// Samples averaged per step. Default 20.
     pub samples_per_step: u32,
+    /// The mean effort of joints 1-2 over the second half of the stillness window differs
+    /// from the first half's by less than this: the effort has settled too (N·m). A real
+    /// controller creeps after a step, and its integrator keeps changing the effort while the
+    /// position looks still. Default: infinite (position only).
+    pub still_effort_nm: f64,
 }
 
 impl Default for RunnerConfig {
@@ -180,6 +185,7 @@ impl Default for RunnerConfig {
             settle_s: 0.2,
             still_tolerance: 2e-4,
             samples_per_step: 20,
+            still_effort_nm: f64::INFINITY,
         }
     }
 }
@@ -226,11 +232,39 @@ enum Phase {
         q_ref: [f64; 3],
         moved: f64,
         t0: u64,
+        /// Effort sums of joints 1-2 over the window's first and second halves, and counts.
+        effort: EffortHalves,
     },
     Average {
         t0: u64,
     },
     Finished(Status),
+}
+
+/// Effort sums of joints 1-2 over the two halves of a stillness window.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct EffortHalves {
+    sum: [[f64; 2]; 2],
+    n: [u32; 2],
+}
+
+impl EffortHalves {
+    fn add(&mut self, half: usize, effort: &[f64; 3]) {
+        self.sum[half][0] += effort[0];
+        self.sum[half][1] += effort[1];
+        self.n[half] += 1;
+    }
+
+    /// Largest change of the mean effort from the first half to the second.
+    fn drift(&self) -> f64 {
+        if self.n[0] == 0 || self.n[1] == 0 {
+            return 0.0;
+        }
+        let (a, b) = (f64::from(self.n[0]), f64::from(self.n[1]));
+        (0..2)
+            .map(|j| (self.sum[1][j] / b - self.sum[0][j] / a).abs())
+            .fold(0.0, f64::max)
+    }
 }
 
 /// Runs a [`Plan`] one sample at a time. Allocates nothing.
@@ -268,6 +302,25 @@ impl<P: Plan> Runner<P> {
 
     pub fn plan(&self) -> &P {
         &self.plan
+    }
+
+    /// The target of the current step; the setpoint ramps to it at `max_speed`.
+    pub fn target(&self) -> [f64; 3] {
+        self.target
+    }
+
+    /// The setpoint is still ramping to the target.
+    pub fn ramping(&self) -> bool {
+        self.phase == Phase::Ramp
+    }
+
+    /// The robot reached the current target by a trajectory of its own (a real arm's console
+    /// plans large moves itself, `move_jp`): the setpoint jumps to the target, and the step
+    /// goes on with settling on the next sample. No effect unless ramping.
+    pub fn target_reached_by_robot(&mut self) {
+        if self.phase == Phase::Ramp {
+            self.setpoint = self.target;
+        }
     }
 
     pub fn progress(&self) -> Progress {
@@ -416,6 +469,7 @@ impl<P: Plan> Runner<P> {
                         q_ref: s.position,
                         moved: 0.0,
                         t0: s.t_ns,
+                        effort: EffortHalves::default(),
                     };
                 }
             }
@@ -424,6 +478,7 @@ impl<P: Plan> Runner<P> {
                 q_ref,
                 moved,
                 t0,
+                mut effort,
             } => {
                 if let Some(r) = self.timed_out(s.t_ns, t0) {
                     self.abort(r);
@@ -432,14 +487,19 @@ impl<P: Plan> Runner<P> {
                     let moved = (0..3)
                         .map(|j| (s.position[j] - q_ref[j]).abs())
                         .fold(moved, f64::max);
-                    if s.t_ns.saturating_sub(t_ref) as f64 * 1e-9 < self.cfg.settle_s {
+                    let elapsed_s = s.t_ns.saturating_sub(t_ref) as f64 * 1e-9;
+                    if elapsed_s < self.cfg.settle_s {
+                        effort.add(usize::from(elapsed_s >= 0.5 * self.cfg.settle_s), &s.effort);
                         self.phase = Phase::Settle {
                             t_ref,
                             q_ref,
                             moved,
                             t0,
+                            effort,
                         };
-                    } else if moved <= self.cfg.still_tolerance {
+                    } else if moved <= self.cfg.still_tolerance
+                        && effort.drift() <= self.cfg.still_effort_nm
+                    {
                         self.acc = Averaged {
                             setpoint: self.setpoint,
                             ..Averaged::default()
@@ -451,6 +511,7 @@ impl<P: Plan> Runner<P> {
                             q_ref: s.position,
                             moved: 0.0,
                             t0,
+                            effort: EffortHalves::default(),
                         };
                     }
                 }
@@ -1224,6 +1285,89 @@ mod tests {
     }
 
     const HOME: [f64; 3] = [0.1, -0.05, 0.12];
+
+    /// A robot that plans its own large moves: the caller jumps the plant and tells the runner.
+    #[test]
+    fn a_target_reached_by_the_robot_skips_the_ramp() {
+        let cfg = SweepConfig {
+            joints: vec![1],
+            range_rad: [[-0.2, 0.2], [-0.05, 0.05]],
+            step_rad: 0.1,
+            depths_m: vec![0.12],
+        };
+        let ramped = drive(
+            &mut Runner::new(SweepPlan::new(cfg.clone()), RunnerConfig::default()),
+            &mut Plant::new(HOME),
+            2_000_000,
+        );
+        let mut r = Runner::new(SweepPlan::new(cfg), RunnerConfig::default());
+        let mut plant = Plant::new(HOME);
+        let mut moves = 0;
+        let mut records = Vec::new();
+        for _ in 0..200_000 {
+            let out = r.update(&plant.sample());
+            records.extend(out.record);
+            match out.status {
+                Status::Done => break,
+                Status::Aborted(a) => panic!("{a}"),
+                Status::AwaitFixture(_) => r.fixture_ready(),
+                Status::Running => {}
+            }
+            if r.ramping() {
+                // the robot's own trajectory: arrive at once
+                plant.q = r.target();
+                plant.sp = r.target();
+                r.target_reached_by_robot();
+                moves += 1;
+            }
+            plant.step(r.target());
+        }
+        assert_eq!(records.len(), ramped.records.len());
+        assert!(records.len() >= 8, "{} rows", records.len());
+        assert!(moves > records.len(), "{moves} moves");
+        for (a, b) in records.iter().zip(&ramped.records) {
+            assert!((a.averaged.position[0] - b.averaged.position[0]).abs() < 1e-3);
+        }
+    }
+
+    /// With an effort tolerance, a creeping effort (a controller's integrator) delays the row
+    /// until it has settled; without it, the row is taken as soon as the position is still.
+    #[test]
+    fn a_creeping_effort_delays_the_row_until_it_settles() {
+        let cfg = SweepConfig {
+            joints: vec![1],
+            range_rad: [[0.1, 0.1], [-0.05, 0.05]],
+            step_rad: 0.1,
+            depths_m: vec![0.12],
+        };
+        let first_row_t = |still_effort_nm: f64| {
+            let rc = RunnerConfig {
+                still_effort_nm,
+                ..RunnerConfig::default()
+            };
+            let mut r = Runner::new(SweepPlan::new(cfg.clone()), rc);
+            let mut plant = Plant::new(HOME);
+            let t_start = plant.t_ns;
+            for _ in 0..100_000 {
+                // the effort decays towards tau0 with a 1 s time constant
+                let age_s = (plant.t_ns - t_start) as f64 * 1e-9;
+                plant.tau0 = 0.1 + 0.5 * (-age_s).exp();
+                let out = r.update(&plant.sample());
+                if let Some(rec) = out.record {
+                    return (rec.averaged.t_ns - t_start) as f64 * 1e-9;
+                }
+                if let Status::AwaitFixture(_) = out.status {
+                    r.fixture_ready();
+                }
+                plant.step(out.setpoint);
+            }
+            panic!("no row");
+        };
+        let loose = first_row_t(f64::INFINITY);
+        let strict = first_row_t(0.005);
+        assert!(loose < 0.5, "{loose}");
+        assert!(strict > loose + 1.0, "strict {strict} loose {loose}");
+    }
 
     #[test]
     fn sweep_visits_every_angle_both_ways() {

@@ -1,0 +1,740 @@
+//! The dVRK 2.x console's CRTK interface over DDS, both ways:
+//!
+//! - [`ConsoleClient`]: what a program that watches and moves an arm through the console uses
+//!   (the calibration procedures on a real arm): it reads `measured_js`, `operating_state`,
+//!   `goal_reached`, `warning`, `error` and `tool_type`, and writes `move_jp`, `servo_jp`,
+//!   `hold`, `state_command` and `trajectory_j/set_ratio`.
+//! - [`ConsoleServer`]: the other side of the same topics, for a console stand-in (the simulated
+//!   PSM of `dvrk-sidecar sim --crtk PSM1`) that tests run the procedures against.
+//!
+//! QoS is the console's (reference/dvrk-crtk-ros2.md, cisst-ros): periodic state RELIABLE,
+//! KEEP_LAST 100, VOLATILE; events RELIABLE, KEEP_LAST 100, TRANSIENT_LOCAL, so a reader that
+//! joins late still learns the current operating state and instrument; commands RELIABLE,
+//! depth 1 (a BEST_EFFORT writer would not match the console's readers).
+//!
+//! Both sides are polled: [`ConsoleClient::poll`] drains every reader without blocking and
+//! returns what arrived, in arrival order per topic. Events of all topics carry one sequence
+//! number, so a caller can tell what happened after its own command.
+
+use std::collections::VecDeque;
+use std::convert::Infallible;
+use std::net::IpAddr;
+use std::time::{Duration, Instant};
+
+use rustdds::bytes::Bytes;
+use rustdds::no_key::{DataReader, DataWriter, DefaultDecoder, DeserializerAdapter};
+use rustdds::policy::{Durability, History, Reliability};
+use rustdds::{
+    DomainParticipant, DomainParticipantBuilder, QosPolicies, QosPolicyBuilder,
+    RepresentationIdentifier, TopicKind,
+};
+
+use crate::cdr::{CdrWriter, RosTime};
+use crate::crtk::{self, JointStateMsg, OperatingStateMsg, dds_type};
+use crate::dds::{CdrBody, CdrBodyAdapter, MAX_DOMAIN_ID};
+use crate::error::BridgeError;
+
+/// A received CDR body and its byte order.
+#[derive(Debug, Clone)]
+pub struct RawBody {
+    pub big_endian: bool,
+    pub bytes: Vec<u8>,
+}
+
+/// Hands the received body over undecoded; [`crate::crtk`] decodes it with checks.
+#[derive(Debug)]
+pub struct RawAdapter;
+
+const RAW_ENCODINGS: [RepresentationIdentifier; 2] = [
+    RepresentationIdentifier::CDR_LE,
+    RepresentationIdentifier::CDR_BE,
+];
+
+impl DeserializerAdapter<RawBody> for RawAdapter {
+    type Error = Infallible;
+    type Decoded = RawBody;
+    fn supported_encodings() -> &'static [RepresentationIdentifier] {
+        &RAW_ENCODINGS
+    }
+    fn transform_decoded(decoded: RawBody) -> RawBody {
+        decoded
+    }
+}
+
+/// The decoder of [`RawAdapter`]: copies the bytes.
+#[derive(Debug, Clone, Copy)]
+pub struct RawDecoder;
+
+impl<'de> rustdds::no_key::Decode<'de, RawBody> for RawDecoder {
+    type Error = Infallible;
+    fn decode_bytes(
+        self,
+        input_bytes: &'de [u8],
+        encoding: RepresentationIdentifier,
+    ) -> Result<RawBody, Infallible> {
+        Ok(RawBody {
+            big_endian: encoding == RepresentationIdentifier::CDR_BE,
+            bytes: input_bytes.to_vec(),
+        })
+    }
+}
+
+impl DefaultDecoder<RawBody> for RawAdapter {
+    type Decoder = RawDecoder;
+    const DECODER: RawDecoder = RawDecoder;
+}
+
+/// The three QoS of the console's topics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConsoleQos {
+    /// Periodic state (`measured_js`): RELIABLE, KEEP_LAST 100, VOLATILE.
+    State,
+    /// Events (`operating_state`, `goal_reached`, `tool_type`, ...): RELIABLE, KEEP_LAST 100,
+    /// TRANSIENT_LOCAL.
+    Event,
+    /// Commands (`move_jp`, `servo_jp`, `state_command`, ...): RELIABLE, KEEP_LAST 1, VOLATILE.
+    Command,
+}
+
+impl ConsoleQos {
+    pub fn policies(self) -> QosPolicies {
+        let reliable = Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(100),
+        };
+        let (depth, durability) = match self {
+            ConsoleQos::State => (100, Durability::Volatile),
+            ConsoleQos::Event => (100, Durability::TransientLocal),
+            ConsoleQos::Command => (1, Durability::Volatile),
+        };
+        QosPolicyBuilder::new()
+            .reliability(reliable)
+            .history(History::KeepLast { depth })
+            .durability(durability)
+            .build()
+    }
+}
+
+/// The DDS domain from `ROS_DOMAIN_ID` as ROS 2 reads it: unset or empty is 0.
+pub fn ros_domain_id() -> Result<u16, BridgeError> {
+    match std::env::var("ROS_DOMAIN_ID") {
+        Err(_) => Ok(0),
+        Ok(s) if s.trim().is_empty() => Ok(0),
+        Ok(s) => match s.trim().parse::<u16>() {
+            Ok(d) if d <= MAX_DOMAIN_ID => Ok(d),
+            _ => Err(BridgeError::InvalidArgument {
+                what: "ROS_DOMAIN_ID",
+                value: s,
+                reason: "must be an integer 0..=232",
+            }),
+        },
+    }
+}
+
+/// One participant with a publisher and a subscriber, and helpers to make the console's
+/// writers and readers under an arm's name.
+struct Endpoints {
+    arm: String,
+    publisher: rustdds::Publisher,
+    subscriber: rustdds::Subscriber,
+    participant: DomainParticipant,
+}
+
+type Writer = DataWriter<CdrBody, CdrBodyAdapter>;
+type Reader = DataReader<RawBody, RawAdapter>;
+
+fn setup(step: &'static str, name: &str, e: &dyn std::fmt::Display) -> BridgeError {
+    BridgeError::DdsSetup {
+        step,
+        name: name.to_owned(),
+        reason: e.to_string(),
+    }
+}
+
+impl Endpoints {
+    fn new(arm: &str, domain: u16, interfaces: &[IpAddr]) -> Result<Self, BridgeError> {
+        crate::validate_arm(arm)?;
+        if domain > MAX_DOMAIN_ID {
+            return Err(BridgeError::InvalidArgument {
+                what: "DDS domain id",
+                value: domain.to_string(),
+                reason: "must be 0..=232 (the RTPS port numbers must fit in 16 bits)",
+            });
+        }
+        let mut builder = DomainParticipantBuilder::new(domain);
+        if !interfaces.is_empty() {
+            builder = builder.with_only_networks(interfaces.iter().copied());
+        }
+        let participant = builder
+            .build()
+            .map_err(|e| setup("participant of domain", &domain.to_string(), &e))?;
+        let qos = ConsoleQos::State.policies();
+        let publisher = participant
+            .create_publisher(&qos)
+            .map_err(|e| setup("publisher", "", &e))?;
+        let subscriber = participant
+            .create_subscriber(&qos)
+            .map_err(|e| setup("subscriber", "", &e))?;
+        Ok(Self {
+            arm: arm.to_owned(),
+            publisher,
+            subscriber,
+            participant,
+        })
+    }
+
+    fn topic(
+        &self,
+        suffix: &str,
+        ty: &str,
+        qos: ConsoleQos,
+    ) -> Result<(String, rustdds::Topic), BridgeError> {
+        let name = format!("rt/{}/{suffix}", self.arm);
+        let topic = self
+            .participant
+            .create_topic(
+                name.clone(),
+                ty.to_owned(),
+                &qos.policies(),
+                TopicKind::NoKey,
+            )
+            .map_err(|e| setup("topic", &name, &e))?;
+        Ok((name, topic))
+    }
+
+    fn writer(
+        &self,
+        suffix: &str,
+        ty: &str,
+        qos: ConsoleQos,
+    ) -> Result<Named<Writer>, BridgeError> {
+        let (name, topic) = self.topic(suffix, ty, qos)?;
+        let w = self
+            .publisher
+            .create_datawriter_no_key::<CdrBody, CdrBodyAdapter>(&topic, Some(qos.policies()))
+            .map_err(|e| setup("writer", &name, &e))?;
+        Ok(Named {
+            name,
+            inner: w,
+            matched: 0,
+        })
+    }
+
+    fn reader(
+        &self,
+        suffix: &str,
+        ty: &str,
+        qos: ConsoleQos,
+    ) -> Result<Named<Reader>, BridgeError> {
+        let (name, topic) = self.topic(suffix, ty, qos)?;
+        let r = self
+            .subscriber
+            .create_datareader_no_key::<RawBody, RawAdapter>(&topic, Some(qos.policies()))
+            .map_err(|e| setup("reader", &name, &e))?;
+        Ok(Named {
+            name,
+            inner: r,
+            matched: 0,
+        })
+    }
+}
+
+struct Named<T> {
+    name: String,
+    inner: T,
+    /// Readers matched (writers only), from the writer's status events.
+    matched: i32,
+}
+
+impl Named<Writer> {
+    fn send(&self, w: &CdrWriter) -> Result<(), BridgeError> {
+        self.inner
+            .write(CdrBody(Bytes::copy_from_slice(w.body())), None)
+            .map_err(|e| BridgeError::DdsWrite {
+                topic: self.name.clone(),
+                source: Box::new(e),
+            })
+    }
+
+    fn matched(&mut self) -> bool {
+        use rustdds::StatusEvented;
+        while let Some(status) = self.inner.try_recv_status() {
+            if let rustdds::DataWriterStatus::PublicationMatched { current, .. } = status {
+                self.matched = current.count();
+            }
+        }
+        self.matched > 0
+    }
+}
+
+impl Named<Reader> {
+    /// Every sample waiting, oldest first. A reader error ends the drain (the next poll tries
+    /// again); undecodable samples are counted by the caller.
+    fn drain(&mut self, out: &mut Vec<RawBody>) {
+        while let Ok(Some(s)) = self.inner.take_next_sample() {
+            out.push(s.into_value());
+        }
+    }
+}
+
+fn now_stamp() -> RosTime {
+    let ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos().min(i64::MAX as u128) as i64);
+    RosTime::from_unix_ns(ns)
+}
+
+/// What the console said, in the order it was polled.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ConsoleEvent {
+    OperatingState(OperatingStateMsg),
+    GoalReached(bool),
+    Warning(String),
+    Error(String),
+    ToolType(String),
+}
+
+/// A console event with its arrival sequence number and time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stamped<T> {
+    pub seq: u64,
+    pub at: Instant,
+    pub value: T,
+}
+
+/// What a [`ConsoleClient::poll`] brought.
+#[derive(Debug, Default)]
+pub struct Polled {
+    /// New `measured_js` messages, oldest first (valid or not: see `is_valid`).
+    pub measured_js: Vec<JointStateMsg>,
+    /// New events, oldest first per topic.
+    pub events: Vec<Stamped<ConsoleEvent>>,
+    /// Samples that did not decode (counted, never fatal).
+    pub undecodable: u64,
+}
+
+/// A client of one arm of the console.
+pub struct ConsoleClient {
+    // Field order is drop order: readers and writers before the endpoints' participant.
+    move_jp: Named<Writer>,
+    servo_jp: Named<Writer>,
+    hold: Named<Writer>,
+    state_command: Named<Writer>,
+    set_ratio: Named<Writer>,
+    measured_js: Named<Reader>,
+    operating_state: Named<Reader>,
+    goal_reached: Named<Reader>,
+    warning: Named<Reader>,
+    error: Named<Reader>,
+    tool_type: Named<Reader>,
+    ep: Endpoints,
+    domain: u16,
+    seq: u64,
+    buf: Vec<RawBody>,
+    w: CdrWriter,
+    /// Last values, for callers that only want the current state.
+    pub last_operating_state: Option<OperatingStateMsg>,
+    pub last_tool_type: Option<String>,
+    pub recent_warnings: VecDeque<String>,
+}
+
+impl core::fmt::Debug for ConsoleClient {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ConsoleClient")
+            .field("arm", &self.ep.arm)
+            .field("domain", &self.domain)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Names of the joints the console's PSM `move_jp` takes (6 joints with an instrument).
+pub const PSM_JOINT_NAMES: [&str; 6] = [
+    "yaw",
+    "pitch",
+    "insertion",
+    "roll",
+    "wrist_pitch",
+    "wrist_yaw",
+];
+
+impl ConsoleClient {
+    /// Joins `domain` and creates the endpoints of `arm` (e.g. `PSM1`).
+    pub fn new(arm: &str, domain: u16, interfaces: &[IpAddr]) -> Result<Self, BridgeError> {
+        let ep = Endpoints::new(arm, domain, interfaces)?;
+        use ConsoleQos::{Command, Event, State};
+        Ok(Self {
+            move_jp: ep.writer("move_jp", dds_type::JOINT_STATE, Command)?,
+            servo_jp: ep.writer("servo_jp", dds_type::JOINT_STATE, Command)?,
+            hold: ep.writer("hold", dds_type::EMPTY, Command)?,
+            state_command: ep.writer("state_command", dds_type::STRING_STAMPED, Command)?,
+            set_ratio: ep.writer("trajectory_j/set_ratio", dds_type::FLOAT64, Command)?,
+            measured_js: ep.reader("measured_js", dds_type::JOINT_STATE, State)?,
+            operating_state: ep.reader("operating_state", dds_type::OPERATING_STATE, Event)?,
+            goal_reached: ep.reader("goal_reached", dds_type::BOOL, Event)?,
+            warning: ep.reader("warning", dds_type::STRING, Event)?,
+            error: ep.reader("error", dds_type::STRING, Event)?,
+            tool_type: ep.reader("tool_type", dds_type::STRING, Event)?,
+            ep,
+            domain,
+            seq: 0,
+            buf: Vec::new(),
+            w: CdrWriter::new(),
+            last_operating_state: None,
+            last_tool_type: None,
+            recent_warnings: VecDeque::new(),
+        })
+    }
+
+    pub fn arm(&self) -> &str {
+        &self.ep.arm
+    }
+
+    pub fn domain(&self) -> u16 {
+        self.domain
+    }
+
+    /// The console's command readers have matched our writers (a command written before that
+    /// would be lost: the readers are VOLATILE).
+    pub fn commands_matched(&mut self) -> bool {
+        self.move_jp.matched()
+            && self.servo_jp.matched()
+            && self.state_command.matched()
+            && self.hold.matched()
+    }
+
+    /// The console's `trajectory_j/set_ratio` reader has matched.
+    pub fn ratio_matched(&mut self) -> bool {
+        self.set_ratio.matched()
+    }
+
+    /// Drains every reader without blocking.
+    pub fn poll(&mut self, out: &mut Polled) {
+        let now = Instant::now();
+        let mut buf = std::mem::take(&mut self.buf);
+
+        buf.clear();
+        self.measured_js.drain(&mut buf);
+        for b in &buf {
+            match JointStateMsg::decode(&b.bytes, b.big_endian) {
+                Ok(m) => out.measured_js.push(m),
+                Err(_) => out.undecodable += 1,
+            }
+        }
+
+        buf.clear();
+        self.operating_state.drain(&mut buf);
+        for b in &buf {
+            match OperatingStateMsg::decode(&b.bytes, b.big_endian) {
+                Ok(m) => {
+                    self.last_operating_state = Some(m.clone());
+                    self.push(out, now, ConsoleEvent::OperatingState(m));
+                }
+                Err(_) => out.undecodable += 1,
+            }
+        }
+
+        buf.clear();
+        self.goal_reached.drain(&mut buf);
+        for b in &buf {
+            match crtk::decode_bool(&b.bytes, b.big_endian) {
+                Ok(v) => self.push(out, now, ConsoleEvent::GoalReached(v)),
+                Err(_) => out.undecodable += 1,
+            }
+        }
+
+        for (which, kind) in [(0, "warning"), (1, "error"), (2, "tool_type")] {
+            buf.clear();
+            match which {
+                0 => self.warning.drain(&mut buf),
+                1 => self.error.drain(&mut buf),
+                _ => self.tool_type.drain(&mut buf),
+            }
+            for b in &buf {
+                match crtk::decode_string(&b.bytes, b.big_endian) {
+                    Ok(s) => {
+                        let ev = match kind {
+                            "warning" => {
+                                if self.recent_warnings.len() >= 16 {
+                                    self.recent_warnings.pop_front();
+                                }
+                                self.recent_warnings.push_back(s.clone());
+                                ConsoleEvent::Warning(s)
+                            }
+                            "error" => ConsoleEvent::Error(s),
+                            _ => {
+                                self.last_tool_type = Some(s.clone());
+                                ConsoleEvent::ToolType(s)
+                            }
+                        };
+                        self.push(out, now, ev);
+                    }
+                    Err(_) => out.undecodable += 1,
+                }
+            }
+        }
+        self.buf = buf;
+    }
+
+    fn push(&mut self, out: &mut Polled, at: Instant, value: ConsoleEvent) {
+        self.seq += 1;
+        out.events.push(Stamped {
+            seq: self.seq,
+            at,
+            value,
+        });
+    }
+
+    /// Sequence number of the last event received: events after a command have a larger one.
+    pub fn last_seq(&self) -> u64 {
+        self.seq
+    }
+
+    fn joints(&mut self, position: &[f64]) {
+        self.w.clear();
+        let n = position.len().min(PSM_JOINT_NAMES.len());
+        JointStateMsg {
+            stamp: now_stamp(),
+            frame_id: String::new(),
+            name: PSM_JOINT_NAMES[..n]
+                .iter()
+                .map(|s| (*s).to_owned())
+                .collect(),
+            position: position.to_vec(),
+            velocity: Vec::new(),
+            effort: Vec::new(),
+        }
+        .encode(&mut self.w);
+    }
+
+    /// `move_jp` to `position` (all the arm's joints, SI units).
+    pub fn move_jp(&mut self, position: &[f64]) -> Result<(), BridgeError> {
+        self.joints(position);
+        self.move_jp.send(&self.w)
+    }
+
+    /// `servo_jp` to `position` (a step the console's controller reaches in one cycle).
+    pub fn servo_jp(&mut self, position: &[f64]) -> Result<(), BridgeError> {
+        self.joints(position);
+        self.servo_jp.send(&self.w)
+    }
+
+    /// `hold`: the arm stays where it is.
+    pub fn hold(&mut self) -> Result<(), BridgeError> {
+        self.w.clear();
+        crtk::encode_empty(&mut self.w);
+        self.hold.send(&self.w)
+    }
+
+    /// `state_command` (`enable`, `disable`, `home`, `unhome`, `pause`, `resume`).
+    pub fn state_command(&mut self, command: &str) -> Result<(), BridgeError> {
+        self.w.clear();
+        crtk::encode_string_stamped(&mut self.w, now_stamp(), command);
+        self.state_command.send(&self.w)
+    }
+
+    /// `trajectory_j/set_ratio` in ]0, 1].
+    pub fn set_ratio(&mut self, ratio: f64) -> Result<(), BridgeError> {
+        if !(ratio > 0.0 && ratio <= 1.0) {
+            return Err(BridgeError::InvalidArgument {
+                what: "trajectory_j/set_ratio",
+                value: ratio.to_string(),
+                reason: "must be in ]0, 1]",
+            });
+        }
+        self.w.clear();
+        self.w.f64(ratio);
+        self.set_ratio.send(&self.w)
+    }
+}
+
+/// A command the console stand-in received.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ConsoleCommand {
+    MoveJp(JointStateMsg),
+    ServoJp(JointStateMsg),
+    Hold,
+    Free,
+    StateCommand(String),
+    SetRatio(f64),
+    SetRatioV(f64),
+    SetRatioA(f64),
+}
+
+impl ConsoleCommand {
+    /// A command that moves the arm (what a fault test counts).
+    pub fn is_motion(&self) -> bool {
+        matches!(
+            self,
+            ConsoleCommand::MoveJp(_) | ConsoleCommand::ServoJp(_) | ConsoleCommand::Free
+        )
+    }
+}
+
+/// The console's side of one arm, for a stand-in.
+pub struct ConsoleServer {
+    measured_js: Named<Writer>,
+    setpoint_js: Named<Writer>,
+    operating_state: Named<Writer>,
+    goal_reached: Named<Writer>,
+    warning: Named<Writer>,
+    error: Named<Writer>,
+    status: Named<Writer>,
+    tool_type: Named<Writer>,
+    readers: Vec<(usize, Named<Reader>)>,
+    ep: Endpoints,
+    buf: Vec<RawBody>,
+    w: CdrWriter,
+}
+
+impl core::fmt::Debug for ConsoleServer {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ConsoleServer")
+            .field("arm", &self.ep.arm)
+            .finish_non_exhaustive()
+    }
+}
+
+const CMD_TOPICS: [(&str, &str); 8] = [
+    ("move_jp", dds_type::JOINT_STATE),
+    ("servo_jp", dds_type::JOINT_STATE),
+    ("hold", dds_type::EMPTY),
+    ("free", dds_type::EMPTY),
+    ("state_command", dds_type::STRING_STAMPED),
+    ("trajectory_j/set_ratio", dds_type::FLOAT64),
+    ("trajectory_j/set_ratio_v", dds_type::FLOAT64),
+    ("trajectory_j/set_ratio_a", dds_type::FLOAT64),
+];
+
+impl ConsoleServer {
+    pub fn new(arm: &str, domain: u16, interfaces: &[IpAddr]) -> Result<Self, BridgeError> {
+        let ep = Endpoints::new(arm, domain, interfaces)?;
+        use ConsoleQos::{Command, Event, State};
+        let mut readers = Vec::new();
+        for (i, (suffix, ty)) in CMD_TOPICS.iter().enumerate() {
+            readers.push((i, ep.reader(suffix, ty, Command)?));
+        }
+        Ok(Self {
+            measured_js: ep.writer("measured_js", dds_type::JOINT_STATE, State)?,
+            setpoint_js: ep.writer("setpoint_js", dds_type::JOINT_STATE, State)?,
+            operating_state: ep.writer("operating_state", dds_type::OPERATING_STATE, Event)?,
+            goal_reached: ep.writer("goal_reached", dds_type::BOOL, Event)?,
+            warning: ep.writer("warning", dds_type::STRING, Event)?,
+            error: ep.writer("error", dds_type::STRING, Event)?,
+            status: ep.writer("status", dds_type::STRING, Event)?,
+            tool_type: ep.writer("tool_type", dds_type::STRING, Event)?,
+            readers,
+            ep,
+            buf: Vec::new(),
+            w: CdrWriter::new(),
+        })
+    }
+
+    /// Every command received since the last poll, per topic in arrival order; undecodable
+    /// ones are counted in the return value.
+    pub fn poll(&mut self, out: &mut Vec<ConsoleCommand>) -> u64 {
+        let mut bad = 0;
+        let mut buf = std::mem::take(&mut self.buf);
+        for (i, r) in &mut self.readers {
+            buf.clear();
+            r.drain(&mut buf);
+            for b in &buf {
+                let (bytes, be) = (&b.bytes[..], b.big_endian);
+                let cmd = match *i {
+                    0 => JointStateMsg::decode(bytes, be).map(ConsoleCommand::MoveJp),
+                    1 => JointStateMsg::decode(bytes, be).map(ConsoleCommand::ServoJp),
+                    2 => Ok(ConsoleCommand::Hold),
+                    3 => Ok(ConsoleCommand::Free),
+                    4 => crtk::decode_string_stamped(bytes, be).map(ConsoleCommand::StateCommand),
+                    5 => crtk::decode_f64(bytes, be).map(ConsoleCommand::SetRatio),
+                    6 => crtk::decode_f64(bytes, be).map(ConsoleCommand::SetRatioV),
+                    _ => crtk::decode_f64(bytes, be).map(ConsoleCommand::SetRatioA),
+                };
+                match cmd {
+                    Ok(c) => out.push(c),
+                    Err(_) => bad += 1,
+                }
+            }
+        }
+        self.buf = buf;
+        bad
+    }
+
+    /// Publishes `measured_js` (and `setpoint_js` when given).
+    pub fn publish_js(
+        &mut self,
+        measured: &JointStateMsg,
+        setpoint: Option<&JointStateMsg>,
+    ) -> Result<(), BridgeError> {
+        self.w.clear();
+        measured.encode(&mut self.w);
+        self.measured_js.send(&self.w)?;
+        if let Some(sp) = setpoint {
+            self.w.clear();
+            sp.encode(&mut self.w);
+            self.setpoint_js.send(&self.w)?;
+        }
+        Ok(())
+    }
+
+    pub fn publish_operating_state(&mut self, s: &OperatingStateMsg) -> Result<(), BridgeError> {
+        self.w.clear();
+        s.encode(&mut self.w);
+        self.operating_state.send(&self.w)
+    }
+
+    pub fn publish_goal_reached(&mut self, v: bool) -> Result<(), BridgeError> {
+        self.w.clear();
+        self.w.bool(v);
+        self.goal_reached.send(&self.w)
+    }
+
+    fn string(&mut self, which: u8, s: &str) -> Result<(), BridgeError> {
+        self.w.clear();
+        self.w.string(s);
+        match which {
+            0 => self.warning.send(&self.w),
+            1 => self.error.send(&self.w),
+            2 => self.status.send(&self.w),
+            _ => self.tool_type.send(&self.w),
+        }
+    }
+
+    pub fn publish_warning(&mut self, s: &str) -> Result<(), BridgeError> {
+        self.string(0, s)
+    }
+
+    pub fn publish_error(&mut self, s: &str) -> Result<(), BridgeError> {
+        self.string(1, s)
+    }
+
+    pub fn publish_status(&mut self, s: &str) -> Result<(), BridgeError> {
+        self.string(2, s)
+    }
+
+    pub fn publish_tool_type(&mut self, s: &str) -> Result<(), BridgeError> {
+        self.string(3, s)
+    }
+
+    /// A reader of `measured_js` has matched (the console publishes state only then).
+    pub fn has_state_reader(&mut self) -> bool {
+        self.measured_js.matched()
+    }
+}
+
+/// Waits up to `timeout` for `f` to hold, polling every `step`.
+pub fn wait_until(timeout: Duration, step: Duration, mut f: impl FnMut() -> bool) -> bool {
+    let end = Instant::now() + timeout;
+    loop {
+        if f() {
+            return true;
+        }
+        if Instant::now() >= end {
+            return false;
+        }
+        std::thread::sleep(step);
+    }
+}
+
+/// The current time as a ROS stamp (CLOCK_REALTIME).
+pub fn ros_now() -> RosTime {
+    now_stamp()
+}
