@@ -44,10 +44,15 @@ pub struct SimArgs {
     /// listening on 0.0.0.0 (127.0.0.1 = lo).
     #[arg(long, default_value = "127.0.0.1")]
     multicast_if: Ipv4Addr,
+    #[command(flatten)]
+    crtk: crate::crtk_standin::CrtkArgs,
 }
 
 pub fn run(args: &SimArgs) -> Result<()> {
     let scenario = config::load_scenario(&args.scenario)?;
+    if let Some(arm) = &args.crtk.arm {
+        return crate::crtk_standin::run(&args.crtk, arm, &scenario);
+    }
     let io = config::load_io(&args.io)?;
     let mut emulator = dvrk_sim::Emulator::new(&scenario, &io)
         .with_context(|| format!("{}: cannot start the emulator", args.scenario.display()))?;
