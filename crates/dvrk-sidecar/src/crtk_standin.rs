@@ -373,8 +373,12 @@ impl ConsoleSim {
                     self.hold_here();
                 }
             }
-            ConsoleCommand::Free => out.push(Out::Warning("free: not supported by the stand-in".into())),
-            ConsoleCommand::SetRatio(r) | ConsoleCommand::SetRatioV(r) | ConsoleCommand::SetRatioA(r) => {
+            ConsoleCommand::Free => {
+                out.push(Out::Warning("free: not supported by the stand-in".into()))
+            }
+            ConsoleCommand::SetRatio(r)
+            | ConsoleCommand::SetRatioV(r)
+            | ConsoleCommand::SetRatioA(r) => {
                 if *r > 0.0 && *r <= 1.0 {
                     self.ratio = *r;
                 } else {
@@ -441,7 +445,11 @@ impl ConsoleSim {
                 let mut done = true;
                 let mut vel = [0.0; 6];
                 for (j, a) in axes.iter_mut().enumerate() {
-                    done &= a.step(dt, PSM_MAX_SPEED[j] * self.ratio, PSM_MAX_ACCEL[j] * self.ratio);
+                    done &= a.step(
+                        dt,
+                        PSM_MAX_SPEED[j] * self.ratio,
+                        PSM_MAX_ACCEL[j] * self.ratio,
+                    );
                     self.setpoint[j] = a.pos;
                     vel[j] = a.vel;
                 }
@@ -559,7 +567,10 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario) -> Result<()> {
         bail!("--crtk-rate {}: must be in ]0, 2000] Hz", args.rate_hz);
     }
     if !(args.effort_noise_nm >= 0.0 && args.effort_noise_nm < 1.0) {
-        bail!("--effort-noise-nm {}: must be in [0, 1)", args.effort_noise_nm);
+        bail!(
+            "--effort-noise-nm {}: must be in [0, 1)",
+            args.effort_noise_nm
+        );
     }
     let mut faults: Vec<(Fault, f64)> = args
         .fault
@@ -568,9 +579,9 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario) -> Result<()> {
         .collect::<Result<_>>()?;
     faults.sort_by(|a, b| a.1.total_cmp(&b.1));
     let mut log = match &args.command_log {
-        Some(p) => Some(
-            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
-        ),
+        Some(p) => {
+            Some(std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?)
+        }
         None => None,
     };
     let domain = dvrk_bridge::console::ros_domain_id()?;
@@ -681,7 +692,8 @@ mod tests {
     use super::*;
 
     fn scenario() -> Scenario {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sim/clamp.toml");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sim/clamp.toml");
         crate::config::load_scenario(&path).unwrap()
     }
 
@@ -716,7 +728,10 @@ mod tests {
             let mut sim = ConsoleSim::new(&scenario(), start, "none");
             let mut out = Vec::new();
             sim.command(&ConsoleCommand::MoveJp(js(sim.setpoint)), &mut out);
-            assert!(matches!(&out[..], [Out::Warning(w)] if w.contains("not ready")), "{out:?}");
+            assert!(
+                matches!(&out[..], [Out::Warning(w)] if w.contains("not ready")),
+                "{out:?}"
+            );
             assert!(!sim.busy);
         }
     }

@@ -101,17 +101,22 @@ pub struct RecordArgs {
     pub seconds: Option<f64>,
 }
 
-/// Options shared by the simulator procedures.
+/// Options shared by the procedures, on the simulator (`--config SCENARIO`) or on a real arm
+/// through its console (`--robot ros2:PSM1`).
 #[derive(Clone, Debug, clap::Args)]
 pub struct SimArgs {
     /// Simulator scenario (config/sim/*.toml): seed, time step, start pose, noise, shaft truth.
-    /// Its environment and motion are replaced by the procedure's.
-    #[arg(long)]
-    pub config: PathBuf,
+    /// Its environment and motion are replaced by the procedure's. Not with --robot.
+    #[arg(long, required_unless_present = "robot", conflicts_with = "robot")]
+    pub config: Option<PathBuf>,
+    /// A real arm through the dVRK console's CRTK interface over DDS: `ros2:ARM` (e.g.
+    /// `ros2:PSM1`), on the domain of ROS_DOMAIN_ID (default 0).
+    #[arg(long, value_name = "ros2:ARM")]
+    pub robot: Option<String>,
     /// Data file to write (CSV).
     #[arg(long)]
     pub out: PathBuf,
-    /// Board conversion config used by the emulator and the reader.
+    /// Board conversion config used by the emulator and the reader (simulator only).
     #[arg(long, default_value = "config/io/psm-classic.toml")]
     pub io: PathBuf,
     /// Joints to run (1 = yaw, 2 = pitch).
@@ -127,12 +132,89 @@ pub struct SimArgs {
     /// Effort limit that aborts (N·m).
     #[arg(long, default_value_t = 1.5)]
     pub effort_limit_nm: f64,
-    /// Stillness window before averaging (s).
-    #[arg(long, default_value_t = 0.1)]
-    pub settle_s: f64,
+    /// Stillness window before averaging (s); with --robot the default is 0.3.
+    #[arg(long)]
+    pub settle_s: Option<f64>,
     /// Hide the progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// With --robot: answer the operator prompts (pausing a few seconds at each) and the plan's
+    /// confirmation. It never enables or homes an arm.
+    #[arg(long)]
+    pub yes: bool,
+    /// With --robot: print the plan and exit without sending anything.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// With --robot: ask the console to enable and home the arm first, and wait for it.
+    #[arg(long)]
+    pub enable: bool,
+    /// With --robot: trajectory_j/set_ratio of the console's move_jp (0 < ratio <= 1).
+    #[arg(long, default_value_t = 0.2)]
+    pub ratio: f64,
+    /// With --robot: where rows come from. `console`: its measured_js (100 Hz).
+    #[arg(long, default_value = "console", value_parser = ["console"])]
+    pub measure: String,
+    /// With --robot and --yes: the pause after each operator prompt (s).
+    #[arg(long, default_value_t = 2.0)]
+    pub prompt_pause_s: f64,
+}
+
+impl SimArgs {
+    /// Checks every argument before anything is opened or written.
+    pub fn validate(&self, name: &str) -> anyhow::Result<()> {
+        if let Some(j) = self.joints.iter().find(|&&j| j != 1 && j != 2) {
+            bail!("--joints {j}: joints must be 1 (yaw) or 2 (pitch)");
+        }
+        if self.joints.is_empty() {
+            bail!("--joints: give at least one joint (1, 2)");
+        }
+        let [lo, hi] = super::console_run::CONSOLE_JOINT_LIMITS[2];
+        for &d in &self.depths {
+            if !(d.is_finite() && d > lo && d <= hi) {
+                bail!("--depths {d}: each depth must be a number of metres in ]{lo}, {hi}]");
+            }
+        }
+        if !(self.effort_limit_nm.is_finite()
+            && self.effort_limit_nm > 0.0
+            && self.effort_limit_nm <= 3.0)
+        {
+            bail!(
+                "--effort-limit-nm {}: must be in ]0, 3] N·m (the PSM's joints 1-2 effort cap is 3.32)",
+                self.effort_limit_nm
+            );
+        }
+        if let Some(s) = self.settle_s
+            && !(s.is_finite() && s > 0.0 && s <= 10.0)
+        {
+            bail!("--settle-s {s}: must be in ]0, 10] s");
+        }
+        if !(self.ratio > 0.0 && self.ratio <= 1.0) {
+            bail!("--ratio {}: must be in ]0, 1]", self.ratio);
+        }
+        if !(self.prompt_pause_s.is_finite() && (0.0..=60.0).contains(&self.prompt_pause_s)) {
+            bail!(
+                "--prompt-pause-s {}: must be in [0, 60] s",
+                self.prompt_pause_s
+            );
+        }
+        if name != "clamp" && !self.torque_offset.is_empty() {
+            bail!("--torque-offset: only for calibrate clamp");
+        }
+        if let Some(r) = &self.robot {
+            robot_arm(r)?;
+        }
+        data::check_output_path(&self.out)?;
+        Ok(())
+    }
+}
+
+/// The arm of `--robot ros2:ARM`.
+pub fn robot_arm(robot: &str) -> anyhow::Result<String> {
+    let Some(arm) = robot.strip_prefix("ros2:") else {
+        bail!("--robot {robot:?}: expected ros2:ARM, e.g. ros2:PSM1");
+    };
+    dvrk_bridge::validate_arm(arm).with_context(|| format!("--robot {robot:?}"))?;
+    Ok(arm.to_owned())
 }
 
 /// Result of a simulator run.
@@ -234,7 +316,7 @@ fn runner_config(sc: &Scenario, args: &SimArgs) -> RunnerConfig {
     RunnerConfig {
         effort_limit_nm: args.effort_limit_nm,
         joint_limits: limits,
-        settle_s: args.settle_s,
+        settle_s: args.settle_s.unwrap_or(0.1),
         ..RunnerConfig::default()
     }
 }
@@ -447,8 +529,8 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     Ok(())
 }
 
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum SimKind {
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum SimKind {
     Sweep,
     Clamp,
     Divot,
@@ -466,25 +548,36 @@ pub fn run_procedure(procedure: &Procedure, stop: &AtomicBool) -> anyhow::Result
     }
 }
 
-fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::Result<()> {
-    let name = match kind {
-        SimKind::Sweep => "torque-offset",
-        SimKind::Clamp => "clamp",
-        SimKind::Divot => "divot",
-    };
-    if let Some(j) = a.joints.iter().find(|&&j| j != 1 && j != 2) {
-        bail!("--joints {j}: joints must be 1 (yaw) or 2 (pitch)");
+/// One of the three plans, so a caller builds it once for either robot.
+pub enum AnyPlan {
+    Sweep(SweepPlan),
+    Clamp(ClampPlan),
+    Divot(DivotPlan),
+}
+
+impl Plan for AnyPlan {
+    fn next(
+        &mut self,
+        start: &[f64; 3],
+        last: Option<&dvrk_compliance::calibration::Averaged>,
+    ) -> dvrk_compliance::calibration::Op {
+        match self {
+            AnyPlan::Sweep(p) => p.next(start, last),
+            AnyPlan::Clamp(p) => p.next(start, last),
+            AnyPlan::Divot(p) => p.next(start, last),
+        }
     }
-    let sc = load_scenario(&a.config)?;
-    let io = load_io(&a.io)?;
-    let rc = runner_config(&sc, a);
-    let bar = progress_bar(a.quiet, name);
-    let tick = |done: u32, total: u32, steps: u32| {
-        bar.set_length(u64::from(total));
-        bar.set_position(u64::from(done));
-        bar.set_message(format!("{steps} steps"));
-    };
-    let run = match kind {
+    fn units(&self) -> (u32, u32) {
+        match self {
+            AnyPlan::Sweep(p) => p.units(),
+            AnyPlan::Clamp(p) => p.units(),
+            AnyPlan::Divot(p) => p.units(),
+        }
+    }
+}
+
+fn build_plan(kind: SimKind, a: &SimArgs) -> (AnyPlan, String) {
+    match kind {
         SimKind::Sweep => {
             let mut cfg = SweepConfig {
                 joints: a.joints.clone(),
@@ -493,10 +586,13 @@ fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::R
             if !a.depths.is_empty() {
                 cfg.depths_m = a.depths.clone();
             }
-            run_sim(SweepPlan::new(cfg), rc, &sc, io, stop, |r| {
-                let p = r.progress();
-                tick(p.units_done, p.units_total, p.steps_done)
-            })?
+            let text = format!(
+                "torque-offset sweep: joints {:?}, depths {:?} m; each joint from {:?} rad in \
+                 {:.4} rad steps, up and back down, one row per step; nothing may touch the \
+                 instrument",
+                cfg.joints, cfg.depths_m, cfg.range_rad, cfg.step_rad
+            );
+            (AnyPlan::Sweep(SweepPlan::new(cfg)), text)
         }
         SimKind::Clamp => {
             let mut cfg = ClampConfig {
@@ -506,34 +602,100 @@ fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::R
             if !a.depths.is_empty() {
                 cfg.depths_m = a.depths.clone();
             }
-            run_sim(ClampPlan::new(cfg), rc, &sc, io, stop, |r| {
-                let p = r.progress();
-                tick(p.units_done, p.units_total, p.steps_done)
-            })?
+            let text = format!(
+                "clamp: joints {:?}, depths {:?} m; per joint and depth the shaft is clamped, \
+                 then the joint steps {:.2} mm at the tip (tip_step / L rad) until |effort| > \
+                 {} N·m, reverses to the same effort on the other side, and returns past the \
+                 start (at most {} steps per leg)",
+                cfg.joints,
+                cfg.depths_m,
+                cfg.tip_step_m * 1e3,
+                cfg.reverse_effort_nm,
+                cfg.max_steps_per_leg
+            );
+            (AnyPlan::Clamp(ClampPlan::new(cfg)), text)
         }
         SimKind::Divot => {
             let cfg = DivotConfig {
                 joints: a.joints.clone(),
                 ..DivotConfig::default()
             };
-            run_sim(DivotPlan::new(cfg), rc, &sc, io, stop, |r| {
-                let p = r.progress();
-                tick(p.units_done, p.units_total, p.steps_done)
-            })?
+            let text = format!(
+                "divot: joints {:?} pushed each way by {:.2} mm at the tip per step until \
+                 |effort| > {} N·m, then back to the start; the tip stays in the divot",
+                cfg.joints,
+                cfg.tip_step_m * 1e3,
+                cfg.push_effort_nm
+            );
+            (AnyPlan::Divot(DivotPlan::new(cfg)), text)
         }
-    };
-    bar.finish_and_clear();
+    }
+}
 
+/// Writes the rows of a run; an existing file is left as it is when there is no row.
+fn write_records(
+    kind: SimKind,
+    a: &SimArgs,
+    records: &[Record],
+    with_truth: bool,
+) -> anyhow::Result<bool> {
+    if records.is_empty() && std::fs::symlink_metadata(&a.out).is_ok() {
+        eprintln!("no row collected: {} is left as it was", a.out.display());
+        return Ok(false);
+    }
     let mut buf = Vec::new();
     match kind {
-        SimKind::Divot => data::write_divot(&mut buf, &to_divot_rows(&run.records))?,
+        SimKind::Divot => {
+            let mut rows = to_divot_rows(records);
+            if !with_truth {
+                rows.iter_mut().for_each(|r| r.truth = None);
+            }
+            data::write_divot(&mut buf, &rows)?
+        }
         SimKind::Clamp => {
             let offsets = sweep_offsets(&a.torque_offset, &a.joints)?;
-            data::write_rows(&mut buf, &to_rows(&run.records, &offsets))?
+            data::write_rows(&mut buf, &to_rows(records, &offsets))?
         }
-        SimKind::Sweep => data::write_rows(&mut buf, &to_rows(&run.records, &[]))?,
+        SimKind::Sweep => data::write_rows(&mut buf, &to_rows(records, &[]))?,
     }
     data::write_atomically(&a.out, &buf)?;
+    Ok(true)
+}
+
+fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::Result<()> {
+    let name = match kind {
+        SimKind::Sweep => "torque-offset",
+        SimKind::Clamp => "clamp",
+        SimKind::Divot => "divot",
+    };
+    a.validate(name)?;
+    if kind == SimKind::Clamp {
+        // read before moving anything: a bad sweep file must not cost a run
+        sweep_offsets(&a.torque_offset, &a.joints)?;
+    }
+    if let Some(robot) = &a.robot {
+        return super::console_run::run_procedure(kind, a, &robot_arm(robot)?, stop);
+    }
+    let Some(config) = &a.config else {
+        bail!("--config SCENARIO (simulator) or --robot ros2:ARM (a real arm): one is needed");
+    };
+    let sc = load_scenario(config)?;
+    let io = load_io(&a.io)?;
+    let rc = runner_config(&sc, a);
+    let bar = progress_bar(a.quiet, name);
+    let tick = |done: u32, total: u32, steps: u32| {
+        bar.set_length(u64::from(total));
+        bar.set_position(u64::from(done));
+        bar.set_message(format!("{steps} steps"));
+    };
+    let (plan, _) = build_plan(kind, a);
+    let run = run_sim(plan, rc, &sc, io, stop, |r| {
+        let p = r.progress();
+        tick(p.units_done, p.units_total, p.steps_done)
+    })?;
+    bar.finish_and_clear();
+
+    write_records(kind, a, &run.records, true)?;
     let simulated_s = run.samples as f64 * PERIOD_NS as f64 * 1e-9;
     eprintln!(
         "{name}: {} rows written to {} ({simulated_s:.1} s simulated)",
@@ -554,6 +716,20 @@ fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::R
     }
 }
 
+/// Builds the plan of `kind` and its description (for the console shell).
+pub fn plan_for(kind: SimKind, a: &SimArgs) -> (AnyPlan, String) {
+    build_plan(kind, a)
+}
+
+/// Writes the rows (for the console shell): no truth columns.
+pub fn write_console_records(
+    kind: SimKind,
+    a: &SimArgs,
+    records: &[Record],
+) -> anyhow::Result<bool> {
+    write_records(kind, a, records, false)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::evaluate::evaluate;
@@ -571,15 +747,22 @@ mod tests {
 
     fn args(out: PathBuf, depths: Vec<f64>, sweep: Vec<PathBuf>) -> SimArgs {
         SimArgs {
-            config: repo_file("config/sim/clamp.toml"),
+            config: Some(repo_file("config/sim/clamp.toml")),
+            robot: None,
             out,
             io: repo_file("config/io/psm-classic.toml"),
             joints: vec![2],
             depths,
             torque_offset: sweep,
             effort_limit_nm: 1.5,
-            settle_s: 0.1,
+            settle_s: Some(0.1),
             quiet: true,
+            yes: false,
+            dry_run: false,
+            enable: false,
+            ratio: 0.2,
+            measure: "console".into(),
+            prompt_pause_s: 2.0,
         }
     }
 

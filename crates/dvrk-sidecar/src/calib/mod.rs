@@ -2,6 +2,7 @@
 //! `evaluate` commands, figures, and the `calibrate` procedures.
 
 pub mod calibrate;
+pub mod console_run;
 pub mod data;
 pub mod dynamics_cmd;
 pub mod evaluate;
