@@ -12,12 +12,13 @@
 //!
 //! The 2017 rows carry no direction (0): the fit derives it from the order of the rows.
 
-use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use dvrk_compliance::fit::DataRow;
+
+use crate::files::{Bounded, DATA_MAX_BYTES, open_regular, quote};
 
 /// Header of the project's calibration CSV.
 pub const HEADER: [&str; 7] = [
@@ -75,8 +76,8 @@ impl Layout {
     }
 }
 
-fn reader(path: &Path) -> anyhow::Result<csv::Reader<File>> {
-    let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+fn reader(path: &Path) -> anyhow::Result<csv::Reader<Bounded>> {
+    let file = open_regular(path, DATA_MAX_BYTES)?;
     Ok(csv::ReaderBuilder::new()
         .has_headers(true)
         .trim(csv::Trim::All)
@@ -94,7 +95,7 @@ pub fn detect_layout(path: &Path) -> anyhow::Result<Layout> {
         format!(
             "{}: unknown header `{}`; expected `{}`, or the dVRK 2017 clamp header `{}`, or the dVRK 2017 torque-offset header `{}`",
             path.display(),
-            header.iter().collect::<Vec<_>>().join(","),
+            quote(&header.iter().collect::<Vec<_>>().join(",")),
             HEADER.join(","),
             DVRK2017_CLAMP.join(","),
             DVRK2017_TORQUE_OFFSET.join(",")
@@ -123,17 +124,48 @@ fn number(
     let s = field(rec, i, name, path, line)?;
     let v: f64 = s.parse().with_context(|| {
         format!(
-            "{} line {line}: column `{name}` = `{s}` is not a number",
-            path.display()
+            "{} line {line}: column `{name}` = `{}` is not a number",
+            path.display(),
+            quote(s)
         )
     })?;
     if !v.is_finite() {
         bail!(
-            "{} line {line}: column `{name}` = `{s}` is not finite",
+            "{} line {line}: column `{name}` = `{}` is not finite",
+            path.display(),
+            quote(s)
+        );
+    }
+    Ok(v)
+}
+
+/// A number of column `name` within `[lo, hi]` (`unit` for the message): the physical bounds
+/// of [`dvrk_compliance::bounds`], so that 1e308 rad cannot become a data point (issue 22).
+#[allow(clippy::too_many_arguments)]
+fn bounded(
+    rec: &csv::StringRecord,
+    i: usize,
+    name: &str,
+    path: &Path,
+    line: u64,
+    [lo, hi]: [f64; 2],
+    unit: &str,
+) -> anyhow::Result<f64> {
+    let v = number(rec, i, name, path, line)?;
+    if !(lo..=hi).contains(&v) {
+        bail!(
+            "{} line {line}: column `{name}` = {v:?} {unit} is outside the physical range [{lo}, {hi}] {unit}",
             path.display()
         );
     }
     Ok(v)
+}
+
+/// The bounds of a data file's columns: position of `joint` (1 or 2), insertion, effort.
+fn ranges(joint: u8) -> ([f64; 2], [f64; 2], [f64; 2]) {
+    let range = dvrk_compliance::bounds::PSM_JOINT_RANGE;
+    let e = dvrk_compliance::bounds::MAX_ABS_EFFORT;
+    (range[usize::from(joint == 2)], range[2], [-e, e])
 }
 
 fn integer<T: std::str::FromStr>(
@@ -146,8 +178,9 @@ fn integer<T: std::str::FromStr>(
     let s = field(rec, i, name, path, line)?;
     s.parse().ok().with_context(|| {
         format!(
-            "{} line {line}: column `{name}` = `{s}` is not a valid integer here",
-            path.display()
+            "{} line {line}: column `{name}` = `{}` is not a valid integer here",
+            path.display(),
+            quote(s)
         )
     })
 }
@@ -189,34 +222,49 @@ pub fn read_rows(path: &Path, joint: Option<u8>) -> anyhow::Result<(Layout, Vec<
                         path.display()
                     );
                 }
+                let (q, l, e) = ranges(j);
                 DataRow {
                     joint: j,
                     depth_index: integer(&rec, 1, "depth_index", path, line)?,
-                    insertion_m: number(&rec, 2, "insertion_m", path, line)?,
-                    position_rad: number(&rec, 3, "position_rad", path, line)?,
-                    effort_nm: number(&rec, 4, "effort_nm", path, line)?,
-                    torque_offset_nm: number(&rec, 5, "torque_offset_nm", path, line)?,
+                    insertion_m: bounded(&rec, 2, "insertion_m", path, line, l, "m")?,
+                    position_rad: bounded(&rec, 3, "position_rad", path, line, q, "rad")?,
+                    effort_nm: bounded(&rec, 4, "effort_nm", path, line, e, "N·m")?,
+                    torque_offset_nm: bounded(&rec, 5, "torque_offset_nm", path, line, e, "N·m")?,
                     direction,
                 }
             }
-            Layout::Dvrk2017Clamp => DataRow {
-                joint: joint.unwrap_or(0),
-                depth_index: integer(&rec, 1, "depth index", path, line)?,
-                insertion_m: number(&rec, 2, "depth", path, line)?,
-                position_rad: number(&rec, 3, "current joint position", path, line)?,
-                effort_nm: number(&rec, 4, "current joint effort", path, line)?,
-                torque_offset_nm: number(&rec, 5, "current torque offset", path, line)?,
-                direction: 0,
-            },
-            Layout::Dvrk2017TorqueOffset => DataRow {
-                joint: joint.unwrap_or(0),
-                depth_index: integer(&rec, 1, "depth index", path, line)?,
-                insertion_m: number(&rec, 2, "current depth", path, line)?,
-                position_rad: number(&rec, 3, "current joint position", path, line)?,
-                effort_nm: number(&rec, 4, "current torque offset", path, line)?,
-                torque_offset_nm: 0.0,
-                direction: 0,
-            },
+            Layout::Dvrk2017Clamp => {
+                let (q, l, e) = ranges(joint.unwrap_or(0));
+                DataRow {
+                    joint: joint.unwrap_or(0),
+                    depth_index: integer(&rec, 1, "depth index", path, line)?,
+                    insertion_m: bounded(&rec, 2, "depth", path, line, l, "m")?,
+                    position_rad: bounded(&rec, 3, "current joint position", path, line, q, "rad")?,
+                    effort_nm: bounded(&rec, 4, "current joint effort", path, line, e, "N·m")?,
+                    torque_offset_nm: bounded(
+                        &rec,
+                        5,
+                        "current torque offset",
+                        path,
+                        line,
+                        e,
+                        "N·m",
+                    )?,
+                    direction: 0,
+                }
+            }
+            Layout::Dvrk2017TorqueOffset => {
+                let (q, l, e) = ranges(joint.unwrap_or(0));
+                DataRow {
+                    joint: joint.unwrap_or(0),
+                    depth_index: integer(&rec, 1, "depth index", path, line)?,
+                    insertion_m: bounded(&rec, 2, "current depth", path, line, l, "m")?,
+                    position_rad: bounded(&rec, 3, "current joint position", path, line, q, "rad")?,
+                    effort_nm: bounded(&rec, 4, "current torque offset", path, line, e, "N·m")?,
+                    torque_offset_nm: 0.0,
+                    direction: 0,
+                }
+            }
         };
         rows.push(row);
     }
@@ -472,6 +520,64 @@ mod tests {
     }
 
     #[test]
+    fn unphysical_numbers_are_refused_naming_file_line_column_and_value() {
+        let project =
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n";
+        for (row, column, value) in [
+            ("1,0,0.1,1e308,0,0,1", "position_rad", "1e308 rad"),
+            ("2,0,0.1,-1.3,0,0,1", "position_rad", "-1.3 rad"),
+            ("1,0,0.5,0,0,0,1", "insertion_m", "0.5 m"),
+            ("1,0,-0.01,0,0,0,1", "insertion_m", "-0.01 m"),
+            ("1,0,0.1,0,51,0,1", "effort_nm", "51.0 N·m"),
+            ("1,0,0.1,0,0,-1e300,1", "torque_offset_nm", "-1e300 N·m"),
+        ] {
+            let p = tmp("unphysical.csv", &format!("{project}{row}\n"));
+            let err = format!("{:#}", read_rows(&p, None).unwrap_err());
+            assert!(
+                err.contains("unphysical.csv line 2")
+                    && err.contains(&format!("`{column}` = {value}"))
+                    && err.contains("physical range"),
+                "{row}: {err}"
+            );
+        }
+        // The range's ends pass.
+        let p = tmp("ends.csv", &format!("{project}2,0,0.29,1.301,-50,50,1\n"));
+        assert!(read_rows(&p, None).is_ok());
+        // The 2017 layout and divot files too.
+        let p = tmp(
+            "legacy-unphysical.csv",
+            "pos index,depth index,depth,current joint position,current joint effort,current torque offset\n0,0,0.1,1e308,0.2,0.1\n",
+        );
+        let err = format!("{:#}", read_rows(&p, Some(1)).unwrap_err());
+        assert!(
+            err.contains("line 2") && err.contains("`current joint position` = 1e308 rad"),
+            "{err}"
+        );
+        let mut row = DivotRow {
+            push_index: 0,
+            joint: 1,
+            direction: 1,
+            t_s: 0.0,
+            position: [0.1, -0.2, 0.12, 0.0, 0.1, -0.1],
+            effort: [0.2, -0.9, 1.0],
+            truth: None,
+        };
+        let mut buf = Vec::new();
+        write_divot(&mut buf, &[row]).unwrap();
+        let p = tmp("divot-ok.csv", std::str::from_utf8(&buf).unwrap());
+        assert!(read_divot(&p).is_ok());
+        row.position[0] = 1e308;
+        let mut buf = Vec::new();
+        write_divot(&mut buf, &[row]).unwrap();
+        let p = tmp("divot-1e308.csv", std::str::from_utf8(&buf).unwrap());
+        let err = format!("{:#}", read_divot(&p).unwrap_err());
+        assert!(
+            err.contains("divot-1e308.csv line 2") && err.contains("= 1e308 rad"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn divot_round_trip_with_and_without_truth() {
         let mut row = DivotRow {
             push_index: 3,
@@ -584,7 +690,7 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
         bail!(
             "{}: unknown header `{}`; a divot file has `{}`, optionally followed by `{}`",
             path.display(),
-            names.join(","),
+            quote(&names.join(",")),
             DIVOT_HEADER.join(","),
             DIVOT_TRUTH_HEADER.join(",")
         );
@@ -608,16 +714,31 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
                 path.display()
             );
         }
+        // Physical bounds (issue 22): joints 1-2 and insertion within the PSM's range, the
+        // wrist within a turn, efforts within MAX_ABS_EFFORT.
+        let (q1, l, e) = ranges(1);
+        let (q2, _, _) = ranges(2);
+        let wrist = [-std::f64::consts::PI, std::f64::consts::PI];
+        let b = |i: usize, range: [f64; 2], unit: &str| {
+            bounded(&rec, i, with_truth[i], path, line, range, unit)
+        };
         rows.push(DivotRow {
             push_index: integer(&rec, 0, "push_index", path, line)?,
             joint,
             direction,
             t_s: n(3)?,
-            position: [n(4)?, n(5)?, n(6)?, n(7)?, n(8)?, n(9)?],
-            effort: [n(10)?, n(11)?, n(12)?],
+            position: [
+                b(4, q1, "rad")?,
+                b(5, q2, "rad")?,
+                b(6, l, "m")?,
+                b(7, wrist, "rad")?,
+                b(8, wrist, "rad")?,
+                b(9, wrist, "rad")?,
+            ],
+            effort: [b(10, e, "N·m")?, b(11, e, "N·m")?, b(12, e, "N")?],
             truth: if truth {
                 Some(DivotTruth {
-                    position_rad: [n(13)?, n(14)?],
+                    position_rad: [b(13, q1, "rad")?, b(14, q2, "rad")?],
                     tip_m: [n(15)?, n(16)?, n(17)?],
                 })
             } else {
