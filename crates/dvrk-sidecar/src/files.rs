@@ -28,7 +28,7 @@ pub const DATA_MAX_BYTES: u64 = 1 << 30;
 pub const MAX_QUOTED_CHARS: usize = 200;
 
 /// What a non-regular file is, for the error that refuses it.
-fn kind(ft: std::fs::FileType) -> &'static str {
+pub fn kind(ft: std::fs::FileType) -> &'static str {
     if ft.is_dir() {
         "a directory"
     } else if ft.is_fifo() {

@@ -293,11 +293,40 @@ pub fn write_rows<W: Write>(out: W, rows: &[DataRow]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Checks that `path` can be an output file: not a directory, with a parent directory that
-/// exists. The CLI runs it on every `--out` before any work starts.
+/// Checks that `path` can be an output file: a new path or an existing regular file, with a
+/// parent directory that exists. The CLI runs it on every `--out` before any work starts, and
+/// [`write_atomically`] again just before it writes.
+///
+/// Anything else that exists is refused, naming it: the write goes to a temporary file that is
+/// then renamed onto `path`, which would replace a device node such as `/dev/null` (run as
+/// root) or a FIFO with a regular file (issue 22). A symbolic link is refused too, even to a
+/// regular file: the rename would replace the link itself and leave the file it points to
+/// unchanged, the opposite of what the user asked; the message names the target to give
+/// instead.
 pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
     if path.as_os_str().is_empty() {
         anyhow::bail!("the output path is empty");
+    }
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        let ft = meta.file_type();
+        if ft.is_symlink() {
+            let target = std::fs::read_link(path)
+                .map(|t| t.display().to_string())
+                .unwrap_or_else(|_| "?".to_owned());
+            anyhow::bail!(
+                "{} is a symbolic link (to {target}); --out replaces the path given, so name the \
+                 file itself",
+                path.display()
+            );
+        }
+        if !ft.is_file() && !ft.is_dir() {
+            anyhow::bail!(
+                "{} exists and is {}, not a regular file; --out writes only a regular file or a \
+                 new path",
+                path.display(),
+                crate::files::kind(ft)
+            );
+        }
     }
     if path.is_dir() {
         anyhow::bail!(
@@ -332,7 +361,14 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .file_name()
         .with_context(|| format!("{}: not a file path", path.display()))?;
     let tmp = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
-    let result = std::fs::write(&tmp, bytes)
+    // A stale temporary file (or a link planted in its place) is removed, and the new one is
+    // created exclusively, so the write never follows a link to somewhere else.
+    let _ = std::fs::remove_file(&tmp);
+    let result = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .and_then(|mut f| f.write_all(bytes).and_then(|()| f.sync_all()))
         .with_context(|| format!("writing {}", tmp.display()))
         .and_then(|()| {
             std::fs::rename(&tmp, path)
@@ -410,6 +446,32 @@ mod output_tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("does not exist"), "{e}");
+        // Issue 22: a FIFO, a device and a symbolic link are refused, and stay what they were.
+        let fifo = dir.join("fifo");
+        let c = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: mkfifo(3) with a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let e = write_atomically(&fifo, b"x").unwrap_err().to_string();
+        assert!(e.contains("fifo") && e.contains("named pipe"), "{e}");
+        assert!(std::os::unix::fs::FileTypeExt::is_fifo(
+            &std::fs::metadata(&fifo).unwrap().file_type()
+        ));
+        let e = check_output_path(Path::new("/dev/null"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("/dev/null") && e.contains("character device"),
+            "{e}"
+        );
+        let link = dir.join("link.toml");
+        std::os::unix::fs::symlink(dir.join("p.toml"), &link).unwrap();
+        let e = write_atomically(&link, b"x").unwrap_err().to_string();
+        assert!(
+            e.contains("link.toml") && e.contains("symbolic link"),
+            "{e}"
+        );
+        std::fs::remove_file(&fifo).unwrap();
+        std::fs::remove_file(&link).unwrap();
         // A good path: written, no temporary file left.
         let f = dir.join("p.toml");
         write_atomically(&f, b"ok").unwrap();
