@@ -207,7 +207,7 @@ fn run_case(case: Case, protocol: &str, ethernet: &str, secs: f64, dir: &Path) -
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    let prefix = format!("coexist/p{}/{port}", std::process::id());
+    let prefix = format!("coexist/p{}/port{port}", std::process::id());
     let stop_sub = Arc::new(AtomicBool::new(false));
     let (serve, sub) = if case == Case::Alone {
         (None, None)

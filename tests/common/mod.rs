@@ -34,9 +34,10 @@ pub fn sidecar_bin() -> PathBuf {
     bin
 }
 
-/// A service prefix no other test (or other run) uses.
+/// A service prefix no other test (or other run) uses. Its segments follow the arm-name rule
+/// of every prefix (ROS name tokens: `-` becomes `_`).
 pub fn unique_prefix(test: &str) -> String {
-    format!("test/p{}/{test}", std::process::id())
+    format!("test/p{}/{}", std::process::id(), test.replace('-', "_"))
 }
 
 /// A scratch directory for one test.

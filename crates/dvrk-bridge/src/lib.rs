@@ -87,25 +87,16 @@ impl SourceOptions {
 }
 
 /// Checks that `arm` is one ROS name token (`PSM1`): ASCII letters, digits and `_`, not starting
-/// with a digit.
+/// with a digit. The rule is [`dvrk_ipc::arm_name_problem`], the one `serve`'s prefix follows.
 pub fn validate_arm(arm: &str) -> Result<(), BridgeError> {
-    let bad = |reason| BridgeError::InvalidArgument {
-        what: "arm name (--prefix)",
-        value: arm.to_owned(),
-        reason,
-    };
-    let Some(first) = arm.chars().next() else {
-        return Err(bad("is empty"));
-    };
-    if first.is_ascii_digit() {
-        return Err(bad("must not start with a digit (ROS names)"));
+    match dvrk_ipc::arm_name_problem(arm) {
+        None => Ok(()),
+        Some(reason) => Err(BridgeError::InvalidArgument {
+            what: "arm name (--prefix)",
+            value: arm.to_owned(),
+            reason,
+        }),
     }
-    if !arm.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
-        return Err(bad(
-            "must be ASCII letters, digits and '_' only (one ROS name token, e.g. PSM1)",
-        ));
-    }
-    Ok(())
 }
 
 /// Runs the ROS 2 bridge until `stop` is raised.

@@ -51,6 +51,7 @@ fn default_gate_sigmas() -> f64 {
 #[serde(deny_unknown_fields)]
 pub struct DynamicsParams {
     /// `[J_0, J_2]` of `J(L) = J_0 + J_2 L^2` (kg·m², kg).
+    #[serde(deserialize_with = "crate::exact::array")]
     pub inertia_kg_m2: [f64; 2],
     /// Viscous friction `b` (N·m·s/rad).
     pub viscous_nm_s_per_rad: f64,

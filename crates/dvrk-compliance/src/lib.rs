@@ -30,8 +30,10 @@
 //! assert!(t_rcm_tip.translation.vector.norm() < 0.12);
 //! ```
 
+pub mod bounds;
 pub mod calibration;
 pub mod dynamics;
+pub mod exact;
 pub mod fit;
 pub mod instruments;
 pub mod kinematics;
@@ -48,7 +50,7 @@ pub use kinematics::{ArmKind, PsmKinematics};
 pub use model::{Compensator, ComplianceConfig, Correction, JointModel, ModelKind};
 pub use params::{
     ComplianceParams, HysteresisKind, HysteresisParams, INSERTION_LIMITS_M, JointParams,
-    MAX_BACKLASH_RAD, MAX_INERTIA_KG_M2, MAX_TAU_MIN_NM, MIN_INVERSE_COMPLIANCE_NM_PER_RAD,
-    ParamsError, TorqueOffsetParams, params_to_toml,
+    MAX_BACKLASH_RAD, MAX_INERTIA_KG_M2, MAX_INVERSE_COMPLIANCE_NM_PER_RAD, MAX_TAU_MIN_NM,
+    MIN_INVERSE_COMPLIANCE_NM_PER_RAD, ParamsError, TorqueOffsetParams, params_to_toml,
 };
 pub use torque_offset::TorqueOffsetTable;

@@ -23,20 +23,14 @@ use crate::dynamics::DynamicsParams;
 use crate::model::{ComplianceConfig, JointModel, ModelKind, cubic};
 use crate::torque_offset::TorqueOffsetTable;
 
-/// Insertion ranges must lie within the Classic PSM's insertion joint limits (reference 1.2).
-pub const INSERTION_LIMITS_M: [f64; 2] = [0.0, 0.24];
+pub use crate::bounds::{
+    INSERTION_LIMITS_M, MAX_BACKLASH_RAD, MAX_INERTIA_KG_M2, MAX_TAU_MIN_NM, PSM_JOINT_RANGE,
+};
 
-/// The smallest plausible `1/K(L)` (N·m/rad) of an instrument shaft (issue 9): the 2017 data
-/// measure 13 to 29 N·m/rad; a cubic that falls below 1 anywhere in its range is a fit error.
-pub const MIN_INVERSE_COMPLIANCE_NM_PER_RAD: f64 = 1.0;
-/// The largest plausible backlash (rad): the 2017 data show a few mrad.
-pub const MAX_BACKLASH_RAD: f64 = 0.02;
-/// The largest plausible dead band (N·m): the paper uses 0.1 and 0.2 N·m. Also the bound of a
-/// Coulomb friction and of a residual std in `[joint.dynamics]`.
-pub const MAX_TAU_MIN_NM: f64 = 1.0;
-/// The largest plausible inertia of joint 1 or 2 (kg·m²): a Classic PSM's arm and reflected
-/// motor inertia are well below it.
-pub const MAX_INERTIA_KG_M2: f64 = 1.0;
+/// The smallest plausible `1/K(L)` (N·m/rad): see [`crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD`].
+pub const MIN_INVERSE_COMPLIANCE_NM_PER_RAD: f64 = crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[0];
+/// The largest plausible `1/K(L)` (N·m/rad): see [`crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD`].
+pub const MAX_INVERSE_COMPLIANCE_NM_PER_RAD: f64 = crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[1];
 
 /// A parameter file as parsed, before validation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,8 +54,10 @@ pub struct JointParams {
     /// Dead band `tau_min` (N·m), >= 0.
     pub tau_min_nm: f64,
     /// `[c3, c2, c1, c0]`: `1/K(L) = c3 L^3 + c2 L^2 + c1 L + c0` (N·m/rad, L in m).
+    #[serde(deserialize_with = "crate::exact::array")]
     pub inverse_compliance_nm_per_rad: [f64; 4],
     /// `[min, max]` (m) of the calibrated insertion depths; L is clamped into it.
+    #[serde(deserialize_with = "crate::exact::array")]
     pub insertion_range_m: [f64; 2],
     /// The torque offset table `tau_0(q)`.
     pub torque_offset: TorqueOffsetParams,
@@ -144,17 +140,42 @@ pub enum ParamsError {
     /// somewhere in the insertion range: no instrument shaft is that soft, so the cubic is a
     /// fit error.
     #[error(
-        "joint {joint}: inverse_compliance_nm_per_rad gives 1/K({insertion_m} m) = {value} N·m/rad; \
-         it must be finite and >= 1 N·m/rad over insertion_range_m (a softer shaft is a fit error)"
+        "joint {joint}: inverse_compliance_nm_per_rad gives 1/K({insertion_m} m) = {value:?} N·m/rad; \
+         it must be finite and >= {MIN_INVERSE_COMPLIANCE_NM_PER_RAD} N·m/rad over \
+         insertion_range_m (a softer shaft is a fit error; the paper's are 12-31 N·m/rad)"
     )]
     StiffnessTooLow {
         joint: i64,
         insertion_m: f64,
         value: f64,
     },
+    /// The cubic `1/K(L)` is above [`MAX_INVERSE_COMPLIANCE_NM_PER_RAD`] somewhere in the
+    /// insertion range: a shaft that stiff would need no correction, so the cubic is a fit error.
+    #[error(
+        "joint {joint}: inverse_compliance_nm_per_rad gives 1/K({insertion_m} m) = {value:?} N·m/rad; \
+         it must be <= {MAX_INVERSE_COMPLIANCE_NM_PER_RAD} N·m/rad over insertion_range_m (a \
+         stiffer shaft is a fit error; the paper's are 12-31 N·m/rad)"
+    )]
+    StiffnessTooHigh {
+        joint: i64,
+        insertion_m: f64,
+        value: f64,
+    },
+    /// A torque offset table position outside the joint's range ([`PSM_JOINT_RANGE`]).
+    #[error(
+        "joint {joint}: torque_offset.position_rad[{element}] = {value:?} rad is outside the joint's \
+         range [{min}, {max}] rad"
+    )]
+    TorqueOffsetOutOfRange {
+        joint: i64,
+        element: usize,
+        value: f64,
+        min: f64,
+        max: f64,
+    },
     /// A backlash or dead band beyond its physical bound ([`MAX_BACKLASH_RAD`],
     /// [`MAX_TAU_MIN_NM`]).
-    #[error("joint {joint}: {field} = {value} exceeds its physical bound {max}")]
+    #[error("joint {joint}: {field} = {value:?} exceeds its physical bound {max}")]
     AboveBound {
         joint: i64,
         field: String,
@@ -280,8 +301,9 @@ impl ComplianceConfig {
     /// Validates parsed parameters. The checks, each reported with joint, field and value:
     /// index 1 or 2 and not repeated; every number finite; `0 <= backlash <= 0.02` rad and
     /// `0 <= tau_min <= 1` N·m; `0 <= min <= max <= 0.24` m; a non-empty torque offset table
-    /// with equal lengths and strictly increasing positions; `1/K(L) >= 1` N·m/rad on the whole
-    /// insertion range.
+    /// with equal lengths and strictly increasing positions within the joint's range; `1/K(L)`
+    /// within `2..=500` N·m/rad on the whole insertion range (the bounds are stated once, in
+    /// [`crate::bounds`]).
     pub fn from_params(p: ComplianceParams) -> Result<Self, ParamsError> {
         let mut joints: [Option<JointModel>; 2] = [None, None];
         for jp in p.joint {
@@ -431,6 +453,22 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
     if positions == 0 {
         return Err(ParamsError::TorqueOffsetEmpty { joint });
     }
+    // Joint 1 or 2 here (the index was checked by the caller).
+    let [min, max] = PSM_JOINT_RANGE[usize::from(joint == 2)];
+    if let Some((element, &value)) = torque_offset
+        .position_rad
+        .iter()
+        .enumerate()
+        .find(|&(_, &q)| !(min..=max).contains(&q))
+    {
+        return Err(ParamsError::TorqueOffsetOutOfRange {
+            joint,
+            element,
+            value,
+            min,
+            max,
+        });
+    }
     for (i, w) in torque_offset.position_rad.windows(2).enumerate() {
         if w[1] <= w[0] {
             let (element, value) = (i + 1, w[1]);
@@ -445,6 +483,16 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
     let (insertion_m, value) = cubic_minimum(&coeffs, [min_m, max_m]);
     if !(value >= MIN_INVERSE_COMPLIANCE_NM_PER_RAD && value.is_finite()) {
         return Err(ParamsError::StiffnessTooLow {
+            joint,
+            insertion_m,
+            value,
+        });
+    }
+    // The maximum of the cubic is the minimum of its negation.
+    let (insertion_m, negated) = cubic_minimum(&coeffs.map(|c| -c), [min_m, max_m]);
+    let value = -negated;
+    if value > MAX_INVERSE_COMPLIANCE_NM_PER_RAD {
+        return Err(ParamsError::StiffnessTooHigh {
             joint,
             insertion_m,
             value,

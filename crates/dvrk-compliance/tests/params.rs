@@ -96,10 +96,12 @@ fn every_bad_file_fails_with_its_expected_error() {
         "Negative",
         "InsertionRange",
         "StiffnessTooLow",
+        "StiffnessTooHigh",
         "AboveBound",
         "TorqueOffsetLength",
         "TorqueOffsetEmpty",
         "TorqueOffsetNotIncreasing",
+        "TorqueOffsetOutOfRange",
     ] {
         assert!(
             seen.iter().any(|s| s == variant),
@@ -272,7 +274,7 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
     // A true cubic with an interior local minimum: 1000 (u^3 - 0.0025 u) + c, u = L - 0.15,
     // i.e. 1000 L^3 - 450 L^2 + 65 L - 3 + c. Its minimum on [0.12, 0.22] is at
     // u = sqrt(0.0025 / 3) = 0.02887 (L = 0.17887), value c - 0.04811; the ends give c + 0.048
-    // and c + 0.168. With c = 1.06 it stays above the 1 N·m/rad bound, with c = 1.04 it dips
+    // and c + 0.168. With c = 2.06 it stays above the 2 N·m/rad bound, with c = 2.04 it dips
     // below it inside.
     let with_c0 = |c0: f64| {
         let mut j = valid_joint(1);
@@ -283,8 +285,8 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
             joint: vec![j],
         })
     };
-    assert!(with_c0(-3.0 + 1.06).is_ok());
-    let e = with_c0(-3.0 + 1.04).unwrap_err();
+    assert!(with_c0(-3.0 + 2.06).is_ok());
+    let e = with_c0(-3.0 + 2.04).unwrap_err();
     let ParamsError::StiffnessTooLow {
         joint: 1,
         insertion_m,
@@ -297,7 +299,7 @@ fn stiffness_check_reports_where_the_cubic_is_lowest() {
         (insertion_m - (0.15 + (0.0025f64 / 3.0).sqrt())).abs() < 1e-9,
         "{insertion_m}"
     );
-    assert!((value - (1.04 - 0.048_112_5)).abs() < 1e-6, "{value}");
+    assert!((value - (2.04 - 0.048_112_5)).abs() < 1e-6, "{value}");
 }
 
 #[test]
@@ -319,9 +321,74 @@ fn physical_bounds_name_joint_field_and_value() {
         e.to_string().contains("joint 2") && e.to_string().contains("0.5"),
         "{e}"
     );
-    // Exactly 1 N·m/rad is the bound itself and passes.
+    // Issue 22: exactly 1 N·m/rad (a 0.5 rad correction for 0.5 N·m) is refused; the bounds
+    // 2 and 500 N·m/rad themselves pass.
     let mut j = valid_joint(1);
     j.inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, 1.0];
+    assert!(matches!(
+        config_error(vec![j]),
+        ParamsError::StiffnessTooLow { joint: 1, value, .. } if value == 1.0
+    ));
+    for bound in [2.0, 500.0] {
+        let mut j = valid_joint(1);
+        j.inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, bound];
+        assert!(
+            ComplianceConfig::from_params(ComplianceParams {
+                model: ModelKind::Paper,
+                joint: vec![j],
+            })
+            .is_ok(),
+            "{bound}"
+        );
+    }
+    // Issue 22: 1e308 N·m/rad (no correction at all) is refused, naming where the cubic is
+    // highest: a line rising to 600 N·m/rad at the top of [0.09, 0.22] m.
+    let mut j = valid_joint(2);
+    j.inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, 1e308];
+    let e = config_error(vec![j]);
+    assert!(
+        matches!(e, ParamsError::StiffnessTooHigh { joint: 2, value, .. } if value == 1e308),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string().contains("1e308") && e.to_string().contains("<= 500"),
+        "{e}"
+    );
+    let mut j = valid_joint(1);
+    j.inverse_compliance_nm_per_rad = [0.0, 0.0, 4000.0, -280.0];
+    let e = config_error(vec![j]);
+    let ParamsError::StiffnessTooHigh {
+        joint: 1,
+        insertion_m,
+        value,
+    } = e
+    else {
+        panic!("{e:?}")
+    };
+    assert_eq!(insertion_m, 0.22);
+    assert!((value - 600.0).abs() < 1e-9, "{value}");
+
+    // Issue 22: a torque offset point at 1e308 rad is outside the joint's range.
+    let mut j = valid_joint(1);
+    j.torque_offset.position_rad = vec![-1.0, 1e308];
+    j.torque_offset.effort_nm = vec![0.0, 0.0];
+    let e = config_error(vec![j]);
+    assert!(
+        matches!(
+            e,
+            ParamsError::TorqueOffsetOutOfRange { joint: 1, element: 1, value, .. } if value == 1e308
+        ),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .contains("torque_offset.position_rad[1] = 1e308"),
+        "{e}"
+    );
+    // The range's ends pass (pitch: the Si PSM's -1.265..1.301 rad).
+    let mut j = valid_joint(2);
+    j.torque_offset.position_rad = vec![-1.265, 1.301];
+    j.torque_offset.effort_nm = vec![0.0, 0.0];
     assert!(
         ComplianceConfig::from_params(ComplianceParams {
             model: ModelKind::Paper,

@@ -37,6 +37,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod convert;
+mod exact;
 pub mod plausibility;
 pub mod port;
 pub mod tap;

@@ -74,7 +74,7 @@ pub use msg::{
 };
 pub use names::{
     CYCLE_FIRST_SUFFIX, CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames,
-    Topic,
+    Topic, arm_name_problem,
 };
 pub use publisher::{ArmPublisher, CycleStarted, PUBLISH_ORDER, ReapReport, SubscriberCounts};
 pub use services::{

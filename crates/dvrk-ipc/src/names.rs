@@ -254,7 +254,32 @@ fn validate_prefix(prefix: &str) -> Result<(), IpcError> {
     if prefix.contains("//") {
         return fail("the prefix must not contain an empty segment ('//')");
     }
+    if prefix.split('/').any(|s| arm_name_problem(s).is_some()) {
+        return fail(
+            "each '/'-separated segment of the prefix must be a ROS name token: ASCII letters, \
+             digits and '_', not starting with a digit (the last one is the arm's name, as \
+             ros2-bridge --prefix takes it)",
+        );
+    }
     Ok(())
+}
+
+/// Why `name` cannot be an arm's name, or `None` when it can: one ROS name token (`PSM1`), ASCII
+/// letters, digits and `_`, not starting with a digit. The one rule for the arm name of
+/// `ros2-bridge --prefix` and for every segment of a service prefix (`serve`'s `prefix`), so
+/// that a prefix `serve` accepts, such as `lab/PSM1`, names an arm the bridge accepts too, and
+/// `../PSM1` is refused by both (issue 22).
+pub fn arm_name_problem(name: &str) -> Option<&'static str> {
+    let Some(first) = name.chars().next() else {
+        return Some("is empty");
+    };
+    if first.is_ascii_digit() {
+        return Some("must not start with a digit (ROS names)");
+    }
+    if !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Some("must be ASCII letters, digits and '_' only (one ROS name token, e.g. PSM1)");
+    }
+    None
 }
 
 #[cfg(test)]
@@ -328,6 +353,25 @@ mod tests {
         let err = ServiceNames::new(&long).unwrap_err();
         assert!(err.to_string().contains("longer than 200"), "{err}");
         assert!(ServiceNames::new(&"a".repeat(MAX_PREFIX_LEN)).is_ok());
+    }
+
+    #[test]
+    fn every_segment_follows_the_arm_name_rule() {
+        // Issue 22: `../PSM1` was accepted by serve and refused by ros2-bridge.
+        for bad in ["../PSM1", "./PSM1", "lab/PSM-1", "lab/1PSM", "lab.x/PSM1"] {
+            let err = ServiceNames::new(bad).unwrap_err().to_string();
+            assert!(
+                err.contains(&format!("{bad:?}")) && err.contains("ROS name token"),
+                "{bad}: {err}"
+            );
+        }
+        for good in ["PSM1", "lab/PSM1", "test/p123/record_rate", "psm_2"] {
+            assert!(ServiceNames::new(good).is_ok(), "{good}");
+        }
+        assert_eq!(arm_name_problem("PSM1"), None);
+        assert_eq!(arm_name_problem(""), Some("is empty"));
+        assert!(arm_name_problem("1PSM").is_some_and(|r| r.contains("digit")));
+        assert!(arm_name_problem("PSM/1").is_some_and(|r| r.contains("letters")));
     }
 
     #[test]

@@ -81,6 +81,7 @@ fn default_prefix() -> String {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BaseFrameParams {
+    #[serde(default, deserialize_with = "dvrk_compliance::exact::option_matrix")]
     pub transform: Option<[[f64; 4]; 4]>,
     pub dvrk_json: Option<PathBuf>,
     pub arm: Option<String>,
@@ -127,6 +128,7 @@ pub fn base_frame_from_dvrk_json(
     file: &str,
 ) -> Result<Option<Isometry3<f64>>> {
     let v: serde_json::Value = serde_json::from_str(&dvrk_io::convert::strip_json_comments(text))
+        .map_err(|e| anyhow::anyhow!("{}", crate::files::quote(&e.to_string())))
         .with_context(|| format!("{file}: not valid JSON"))?;
     let arms = v
         .get("arms")
@@ -241,9 +243,18 @@ impl Source {
             if let Ok(ip) = rest.parse::<IpAddr>() {
                 return Ok(Source::Udp(SocketAddr::new(ip, BOARD_UDP_PORT)));
             }
-            return rest.parse::<SocketAddr>().map(Source::Udp).map_err(|_| {
+            let addr = rest.parse::<SocketAddr>().map_err(|_| {
                 anyhow::anyhow!("source \"{s}\": \"{rest}\" is not an IP address or IP:PORT")
-            });
+            })?;
+            // Port 0 is no board's port: every send fails, and serve would retry it for ever as
+            // a transient socket error (issue 22).
+            if addr.port() == 0 {
+                bail!(
+                    "source \"{s}\": port 0 is not a UDP port a board answers on; give the \
+                     boards' port (1394, the default when no port is given)"
+                );
+            }
+            return Ok(Source::Udp(addr));
         }
         if let Some(rest) = s.strip_prefix("fw:") {
             return rest
@@ -261,6 +272,12 @@ impl Source {
                 ),
                 None => (rest, BOARD_UDP_PORT),
             };
+            if port == 0 {
+                bail!(
+                    "source \"{s}\": port 0 is not a UDP port boards answer on; give the \
+                     boards' port (1394, the default when no port is given)"
+                );
+            }
             // Linux interface names: 1-15 bytes, no '/', ':' or whitespace.
             if iface.is_empty()
                 || iface.len() > 15
@@ -316,9 +333,10 @@ pub struct SidecarConfig {
     pub realtime: RealtimeParams,
 }
 
-/// Reads a file with an error that names it.
+/// Reads a configuration file with an error that names it: a regular file only, at most
+/// [`crate::files::CONFIG_MAX_BYTES`], never blocking (see [`crate::files`]).
 pub fn read_file(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+    crate::files::read_text(path, crate::files::CONFIG_MAX_BYTES)
 }
 
 /// Loads an actuator conversion file, TOML or the dVRK's JSON, chosen by extension.
@@ -406,7 +424,7 @@ impl SidecarConfig {
     /// Loads `path` and everything it names; every error names the file and the field.
     pub fn load(path: &Path) -> Result<Self> {
         let text = read_file(path)?;
-        let params: SidecarParams = toml::from_str(&text)
+        let params: SidecarParams = crate::files::from_toml(&text)
             .with_context(|| format!("{}: invalid service configuration", path.display()))?;
         Self::from_params(path, params)
     }
@@ -562,9 +580,37 @@ mod tests {
             Source::Udp("127.0.0.1:4000".parse().unwrap())
         );
         assert_eq!(Source::parse("fw:0").unwrap(), Source::Firewire(0));
-        for bad in ["", "udp:", "udp:nohost", "fw:x", "tcp:1.2.3.4", "SIM"] {
+        for bad in [
+            "",
+            "udp:",
+            "udp:nohost",
+            "fw:x",
+            "tcp:1.2.3.4",
+            "SIM",
+            "udp:127.0.0.1:0",
+            "udp:[::1]:0",
+        ] {
             let e = Source::parse(bad).unwrap_err().to_string();
             assert!(e.contains(bad), "error for {bad:?} names it: {e}");
+        }
+        let e = Source::parse("udp:127.0.0.1:0").unwrap_err().to_string();
+        assert!(e.contains("port 0"), "{e}");
+    }
+
+    #[test]
+    fn the_compliance_crates_joint_range_matches_dvrk_io_soft_limits() {
+        // dvrk-compliance may not import dvrk-io, so it states the range again: the widest of
+        // the Classic and Si PSM soft limits.
+        use dvrk_io::plausibility::{CLASSIC_PSM_SOFT_LIMITS, SI_PSM_SOFT_LIMITS};
+        for j in 0..3 {
+            let lo = CLASSIC_PSM_SOFT_LIMITS[j][0].min(SI_PSM_SOFT_LIMITS[j][0]);
+            let hi = CLASSIC_PSM_SOFT_LIMITS[j][1].max(SI_PSM_SOFT_LIMITS[j][1]);
+            assert_eq!(
+                dvrk_compliance::bounds::PSM_JOINT_RANGE[j],
+                [lo, hi],
+                "joint {}",
+                j + 1
+            );
         }
     }
 
@@ -584,6 +630,7 @@ mod tests {
             "tap:a/b",
             "tap:sixteen-chars-xy",
             "tap:lo:70000",
+            "tap:lo:0",
         ] {
             let e = Source::parse(bad).unwrap_err().to_string();
             assert!(e.contains(bad), "error for {bad:?} names it: {e}");

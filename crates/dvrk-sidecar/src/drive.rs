@@ -618,7 +618,8 @@ pub fn run(args: &DriveArgs) -> Result<()> {
                 r.counts[1][3]
             );
         }
-        std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))?;
+        // Through the checked writer: never onto a device, FIFO or symbolic link (issue 22).
+        crate::calib::data::write_atomically(path, out.as_bytes())?;
     }
     Ok(())
 }

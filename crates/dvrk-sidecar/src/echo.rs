@@ -120,21 +120,30 @@ fn echo<T: Message>(
     let mut silence = crate::watch::SilenceReporter::default();
     let mut gone = false;
     let limit = args.count.unwrap_or(u64::MAX);
+    let mut out = std::io::stdout().lock();
+    let mut write_error: Option<anyhow::Error> = None;
     while !stop.raised() && printed < limit {
         // Every drained sample is printed, oldest first, so no seq is skipped when this
         // process wakes up late.
         let update = sub
             .wait_with(|msg| {
-                if printed < limit {
-                    if args.json {
-                        println!("{}", to_json(names.topic(topic).as_str(), msg));
+                if printed < limit && write_error.is_none() {
+                    let written = if args.json {
+                        crate::outln!(out, "{}", to_json(names.topic(topic).as_str(), msg))
                     } else {
-                        println!("{}", to_text(msg));
+                        crate::outln!(out, "{}", to_text(msg))
+                    };
+                    match written {
+                        Ok(()) => printed += 1,
+                        Err(e) => write_error = Some(e),
                     }
-                    printed += 1;
                 }
             })
             .context("waiting for samples")?;
+        // A reader that closed stdout (`| head -1`) ends echo (main exits 0).
+        if let Some(e) = write_error.take() {
+            return Err(e);
+        }
         // A publisher that stopped or died is said once, in one line; echo then keeps waiting
         // for a new one (like `ros2 topic echo`), until Ctrl-C or --count.
         match update {

@@ -11,26 +11,27 @@ use dvrk_sim::{Scenario, ScenarioParams};
 
 /// A compliance parameter file (config/compliance/*.toml).
 pub fn compliance_from_toml(text: &str) -> Result<ComplianceConfig> {
-    let params: ComplianceParams = toml::from_str(text)?;
+    let params: ComplianceParams = crate::files::from_toml(text)?;
     Ok(ComplianceConfig::from_params(params)?)
 }
 
 /// This project's actuator conversion file (config/io/*.toml).
 pub fn io_from_toml(text: &str) -> Result<IoConfig> {
-    let params: IoParams = toml::from_str(text)?;
+    let params: IoParams = crate::files::from_toml(text)?;
     Ok(IoConfig::from_params(params)?)
 }
 
 /// The dVRK's own sawRobotIO1394 JSON file (version 6, comments allowed); its first robot.
 pub fn io_from_saw_json(text: &str) -> Result<IoConfig> {
-    let file: SawFile =
-        serde_json::from_str(&strip_json_comments(text)).context("sawRobotIO1394 JSON")?;
+    let file: SawFile = serde_json::from_str(&strip_json_comments(text))
+        .map_err(|e| anyhow::anyhow!("{}", crate::files::quote(&e.to_string())))
+        .context("sawRobotIO1394 JSON")?;
     Ok(IoConfig::from_saw_file(file, None)?)
 }
 
 /// A simulator scenario (config/sim/*.toml).
 pub fn scenario_from_toml(text: &str) -> Result<Scenario> {
-    let params: ScenarioParams = toml::from_str(text)?;
+    let params: ScenarioParams = crate::files::from_toml(text)?;
     Ok(Scenario::from_params(params)?)
 }
 

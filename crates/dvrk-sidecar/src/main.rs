@@ -110,6 +110,8 @@ fn main() -> std::process::ExitCode {
     init_tracing();
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // The reader of stdout went away (`| head -1`): done, not failed (see dvrk_sidecar::out).
+        Err(e) if dvrk_sidecar::out::is_stdout_closed(&e) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE

@@ -74,25 +74,30 @@ pub fn fk(args: &FkArgs) -> Result<()> {
             [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
         ],
     };
+    let mut stdout = std::io::stdout().lock();
     if args.json {
         // The pose body of `echo --json` (crate::shape), without topic and header.
         let q = pose.rotation.coords;
         let flat: [f64; 9] = core::array::from_fn(|i| out.rotation[i / 3][i % 3]);
         let body = crate::shape::pose_body(out.position_m, [q.x, q.y, q.z, q.w], &flat);
-        println!("{}", serde_json::to_string(&body)?);
+        crate::outln!(stdout, "{}", serde_json::to_string(&body)?)?;
     } else {
-        println!(
+        crate::outln!(
+            stdout,
             "tool {} on a {} PSM, RCM frame (local/measured_cp)",
             tool.name,
             arm_name(args.arm)
-        );
-        println!(
+        )?;
+        crate::outln!(
+            stdout,
             "position_m: [{:.6}, {:.6}, {:.6}]",
-            out.position_m[0], out.position_m[1], out.position_m[2]
-        );
-        println!("rotation:");
+            out.position_m[0],
+            out.position_m[1],
+            out.position_m[2]
+        )?;
+        crate::outln!(stdout, "rotation:")?;
         for row in out.rotation {
-            println!("  [{:9.6}, {:9.6}, {:9.6}]", row[0], row[1], row[2]);
+            crate::outln!(stdout, "  [{:9.6}, {:9.6}, {:9.6}]", row[0], row[1], row[2])?;
         }
     }
     Ok(())
@@ -242,15 +247,20 @@ pub fn correct(args: &CorrectArgs) -> Result<()> {
         active: c.active,
         insertion_clamped: c.insertion_clamped,
     };
+    let mut stdout = std::io::stdout().lock();
     if args.json {
-        println!("{}", serde_json::to_string(&out)?);
+        crate::outln!(stdout, "{}", serde_json::to_string(&out)?)?;
     } else {
-        println!(
+        crate::outln!(
+            stdout,
             "corrected position: [{:.6}, {:.6}, {:.6}]",
-            c.position[0], c.position[1], c.position[2]
-        );
+            c.position[0],
+            c.position[1],
+            c.position[2]
+        )?;
         for j in 0..2 {
-            println!(
+            crate::outln!(
+                stdout,
                 "joint {}: tau_ext {:+.4} N·m, delta {:+.6} rad, correction {}",
                 j + 1,
                 c.tau_ext_nm[j],
@@ -260,13 +270,15 @@ pub fn correct(args: &CorrectArgs) -> Result<()> {
                 } else {
                     "inactive (|tau_ext| <= tau_min)"
                 }
-            );
+            )?;
         }
         if c.insertion_clamped {
-            println!(
+            crate::outln!(
+                stdout,
                 "insertion {:.4} m was outside the parameters' range; clamped to {:.4} m",
-                position[2], c.insertion_m
-            );
+                position[2],
+                c.insertion_m
+            )?;
         }
     }
     Ok(())

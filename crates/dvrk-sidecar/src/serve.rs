@@ -37,23 +37,32 @@ fn board_ids(cfg: &SidecarConfig) -> Vec<u8> {
 pub fn check_config(path: &Path) -> Result<()> {
     let cfg = SidecarConfig::load(path)?;
     preflight(&cfg).with_context(|| format!("{}", path.display()))?;
-    println!("{}: OK", path.display());
-    println!("  source      {} (access {:?})", cfg.source, cfg.access);
-    println!(
+    let mut out = std::io::stdout().lock();
+    crate::outln!(out, "{}: OK", path.display())?;
+    crate::outln!(
+        out,
+        "  source      {} (access {:?})",
+        cfg.source,
+        cfg.access
+    )?;
+    crate::outln!(
+        out,
         "  io          {} (boards {:?})",
         cfg.io_path.display(),
         board_ids(&cfg)
-    );
-    println!(
+    )?;
+    crate::outln!(
+        out,
         "  arm         {:?}, instrument {}",
-        cfg.arm, cfg.instrument.name
-    );
-    println!("  compliance  {}", cfg.compliance_path.display());
-    println!("  rate        {}", cfg.rate);
-    println!("  prefix      {}", cfg.prefix);
-    println!("  base frame  {}", cfg.base_frame_origin);
+        cfg.arm,
+        cfg.instrument.name
+    )?;
+    crate::outln!(out, "  compliance  {}", cfg.compliance_path.display())?;
+    crate::outln!(out, "  rate        {}", cfg.rate)?;
+    crate::outln!(out, "  prefix      {}", cfg.prefix)?;
+    crate::outln!(out, "  base frame  {}", cfg.base_frame_origin)?;
     if let Some(p) = &cfg.scenario_path {
-        println!("  scenario    {}", p.display());
+        crate::outln!(out, "  scenario    {}", p.display())?;
     }
     for w in &cfg.warnings {
         eprintln!("warning: {w}");

@@ -68,19 +68,24 @@ pub enum MotionParams {
     /// pushes with peak effort `A` once the play is taken up. With a divot, the insertion setpoint
     /// goes `insertion_force_n / plate stiffness` past the plate to keep the tip seated.
     PushCycle {
+        #[serde(deserialize_with = "dvrk_compliance::exact::array")]
         effort_amplitude_nm: [f64; 2],
         period_s: f64,
         insertion_force_n: f64,
     },
     /// Smooth sinusoids around the initial pose, one per joint (amplitude 0 = still).
     Trajectory {
+        #[serde(deserialize_with = "dvrk_compliance::exact::array")]
         amplitude: [f64; NUM_JOINTS],
+        #[serde(deserialize_with = "dvrk_compliance::exact::array")]
         period_s: [f64; NUM_JOINTS],
     },
     /// The identification excitation of `calibrate dynamics` ([`Motion::MultiSine`]): per joint
     /// 1 and 2 three sines around the initial pose (rad, rad/s), faded in over the first second.
     MultiSine {
+        #[serde(deserialize_with = "dvrk_compliance::exact::matrix")]
         amplitude: [[f64; 3]; 2],
+        #[serde(deserialize_with = "dvrk_compliance::exact::matrix")]
         angular_frequency: [[f64; 3]; 2],
     },
 }
@@ -98,9 +103,13 @@ pub struct NoiseSection {
 #[serde(deny_unknown_fields)]
 pub struct ShaftSection {
     /// `[a, b, c, d]` of `1/K1(L) = a L^3 + b L^2 + c L + d`, N·m/rad.
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub inverse_compliance_j1: [f64; 4],
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub inverse_compliance_j2: [f64; 4],
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub backlash_rad: [f64; 2],
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub insertion_range_m: [f64; 2],
 }
 
@@ -117,10 +126,13 @@ pub struct ShaftSection {
 #[serde(deny_unknown_fields)]
 pub struct TransmissionSection {
     #[serde(default)]
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub coulomb_nm: [f64; 2],
     #[serde(default)]
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub stiction_nm: [f64; 2],
     #[serde(default = "default_viscous")]
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub viscous_nm_s_per_rad: [f64; 2],
 }
 
@@ -173,6 +185,7 @@ pub struct ScenarioParams {
     pub description: String,
     pub seed: u64,
     pub dt_s: f64,
+    #[serde(deserialize_with = "dvrk_compliance::exact::array")]
     pub initial_position: [f64; NUM_JOINTS],
     pub environment: EnvironmentParams,
     pub motion: MotionParams,

@@ -130,6 +130,7 @@ pub struct CouplingParams {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub instrument: Option<String>,
     /// Rows = joints 4–7 (roll, wrist pitch, wrist yaw, jaw), columns = actuators 4–7.
+    #[serde(deserialize_with = "crate::exact::matrix")]
     pub actuator_to_joint_position: [[f64; 4]; 4],
 }
 

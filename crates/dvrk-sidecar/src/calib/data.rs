@@ -12,12 +12,13 @@
 //!
 //! The 2017 rows carry no direction (0): the fit derives it from the order of the rows.
 
-use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use dvrk_compliance::fit::DataRow;
+
+use crate::files::{Bounded, DATA_MAX_BYTES, open_regular, quote};
 
 /// Header of the project's calibration CSV.
 pub const HEADER: [&str; 7] = [
@@ -75,8 +76,8 @@ impl Layout {
     }
 }
 
-fn reader(path: &Path) -> anyhow::Result<csv::Reader<File>> {
-    let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+fn reader(path: &Path) -> anyhow::Result<csv::Reader<Bounded>> {
+    let file = open_regular(path, DATA_MAX_BYTES)?;
     Ok(csv::ReaderBuilder::new()
         .has_headers(true)
         .trim(csv::Trim::All)
@@ -94,7 +95,7 @@ pub fn detect_layout(path: &Path) -> anyhow::Result<Layout> {
         format!(
             "{}: unknown header `{}`; expected `{}`, or the dVRK 2017 clamp header `{}`, or the dVRK 2017 torque-offset header `{}`",
             path.display(),
-            header.iter().collect::<Vec<_>>().join(","),
+            quote(&header.iter().collect::<Vec<_>>().join(",")),
             HEADER.join(","),
             DVRK2017_CLAMP.join(","),
             DVRK2017_TORQUE_OFFSET.join(",")
@@ -123,17 +124,48 @@ fn number(
     let s = field(rec, i, name, path, line)?;
     let v: f64 = s.parse().with_context(|| {
         format!(
-            "{} line {line}: column `{name}` = `{s}` is not a number",
-            path.display()
+            "{} line {line}: column `{name}` = `{}` is not a number",
+            path.display(),
+            quote(s)
         )
     })?;
     if !v.is_finite() {
         bail!(
-            "{} line {line}: column `{name}` = `{s}` is not finite",
+            "{} line {line}: column `{name}` = `{}` is not finite",
+            path.display(),
+            quote(s)
+        );
+    }
+    Ok(v)
+}
+
+/// A number of column `name` within `[lo, hi]` (`unit` for the message): the physical bounds
+/// of [`dvrk_compliance::bounds`], so that 1e308 rad cannot become a data point (issue 22).
+#[allow(clippy::too_many_arguments)]
+fn bounded(
+    rec: &csv::StringRecord,
+    i: usize,
+    name: &str,
+    path: &Path,
+    line: u64,
+    [lo, hi]: [f64; 2],
+    unit: &str,
+) -> anyhow::Result<f64> {
+    let v = number(rec, i, name, path, line)?;
+    if !(lo..=hi).contains(&v) {
+        bail!(
+            "{} line {line}: column `{name}` = {v:?} {unit} is outside the physical range [{lo}, {hi}] {unit}",
             path.display()
         );
     }
     Ok(v)
+}
+
+/// The bounds of a data file's columns: position of `joint` (1 or 2), insertion, effort.
+fn ranges(joint: u8) -> ([f64; 2], [f64; 2], [f64; 2]) {
+    let range = dvrk_compliance::bounds::PSM_JOINT_RANGE;
+    let e = dvrk_compliance::bounds::MAX_ABS_EFFORT;
+    (range[usize::from(joint == 2)], range[2], [-e, e])
 }
 
 fn integer<T: std::str::FromStr>(
@@ -146,8 +178,9 @@ fn integer<T: std::str::FromStr>(
     let s = field(rec, i, name, path, line)?;
     s.parse().ok().with_context(|| {
         format!(
-            "{} line {line}: column `{name}` = `{s}` is not a valid integer here",
-            path.display()
+            "{} line {line}: column `{name}` = `{}` is not a valid integer here",
+            path.display(),
+            quote(s)
         )
     })
 }
@@ -189,34 +222,49 @@ pub fn read_rows(path: &Path, joint: Option<u8>) -> anyhow::Result<(Layout, Vec<
                         path.display()
                     );
                 }
+                let (q, l, e) = ranges(j);
                 DataRow {
                     joint: j,
                     depth_index: integer(&rec, 1, "depth_index", path, line)?,
-                    insertion_m: number(&rec, 2, "insertion_m", path, line)?,
-                    position_rad: number(&rec, 3, "position_rad", path, line)?,
-                    effort_nm: number(&rec, 4, "effort_nm", path, line)?,
-                    torque_offset_nm: number(&rec, 5, "torque_offset_nm", path, line)?,
+                    insertion_m: bounded(&rec, 2, "insertion_m", path, line, l, "m")?,
+                    position_rad: bounded(&rec, 3, "position_rad", path, line, q, "rad")?,
+                    effort_nm: bounded(&rec, 4, "effort_nm", path, line, e, "N·m")?,
+                    torque_offset_nm: bounded(&rec, 5, "torque_offset_nm", path, line, e, "N·m")?,
                     direction,
                 }
             }
-            Layout::Dvrk2017Clamp => DataRow {
-                joint: joint.unwrap_or(0),
-                depth_index: integer(&rec, 1, "depth index", path, line)?,
-                insertion_m: number(&rec, 2, "depth", path, line)?,
-                position_rad: number(&rec, 3, "current joint position", path, line)?,
-                effort_nm: number(&rec, 4, "current joint effort", path, line)?,
-                torque_offset_nm: number(&rec, 5, "current torque offset", path, line)?,
-                direction: 0,
-            },
-            Layout::Dvrk2017TorqueOffset => DataRow {
-                joint: joint.unwrap_or(0),
-                depth_index: integer(&rec, 1, "depth index", path, line)?,
-                insertion_m: number(&rec, 2, "current depth", path, line)?,
-                position_rad: number(&rec, 3, "current joint position", path, line)?,
-                effort_nm: number(&rec, 4, "current torque offset", path, line)?,
-                torque_offset_nm: 0.0,
-                direction: 0,
-            },
+            Layout::Dvrk2017Clamp => {
+                let (q, l, e) = ranges(joint.unwrap_or(0));
+                DataRow {
+                    joint: joint.unwrap_or(0),
+                    depth_index: integer(&rec, 1, "depth index", path, line)?,
+                    insertion_m: bounded(&rec, 2, "depth", path, line, l, "m")?,
+                    position_rad: bounded(&rec, 3, "current joint position", path, line, q, "rad")?,
+                    effort_nm: bounded(&rec, 4, "current joint effort", path, line, e, "N·m")?,
+                    torque_offset_nm: bounded(
+                        &rec,
+                        5,
+                        "current torque offset",
+                        path,
+                        line,
+                        e,
+                        "N·m",
+                    )?,
+                    direction: 0,
+                }
+            }
+            Layout::Dvrk2017TorqueOffset => {
+                let (q, l, e) = ranges(joint.unwrap_or(0));
+                DataRow {
+                    joint: joint.unwrap_or(0),
+                    depth_index: integer(&rec, 1, "depth index", path, line)?,
+                    insertion_m: bounded(&rec, 2, "current depth", path, line, l, "m")?,
+                    position_rad: bounded(&rec, 3, "current joint position", path, line, q, "rad")?,
+                    effort_nm: bounded(&rec, 4, "current torque offset", path, line, e, "N·m")?,
+                    torque_offset_nm: 0.0,
+                    direction: 0,
+                }
+            }
         };
         rows.push(row);
     }
@@ -245,11 +293,40 @@ pub fn write_rows<W: Write>(out: W, rows: &[DataRow]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Checks that `path` can be an output file: not a directory, with a parent directory that
-/// exists. The CLI runs it on every `--out` before any work starts.
+/// Checks that `path` can be an output file: a new path or an existing regular file, with a
+/// parent directory that exists. The CLI runs it on every `--out` before any work starts, and
+/// [`write_atomically`] again just before it writes.
+///
+/// Anything else that exists is refused, naming it: the write goes to a temporary file that is
+/// then renamed onto `path`, which would replace a device node such as `/dev/null` (run as
+/// root) or a FIFO with a regular file (issue 22). A symbolic link is refused too, even to a
+/// regular file: the rename would replace the link itself and leave the file it points to
+/// unchanged, the opposite of what the user asked; the message names the target to give
+/// instead.
 pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
     if path.as_os_str().is_empty() {
         anyhow::bail!("the output path is empty");
+    }
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        let ft = meta.file_type();
+        if ft.is_symlink() {
+            let target = std::fs::read_link(path)
+                .map(|t| t.display().to_string())
+                .unwrap_or_else(|_| "?".to_owned());
+            anyhow::bail!(
+                "{} is a symbolic link (to {target}); --out replaces the path given, so name the \
+                 file itself",
+                path.display()
+            );
+        }
+        if !ft.is_file() && !ft.is_dir() {
+            anyhow::bail!(
+                "{} exists and is {}, not a regular file; --out writes only a regular file or a \
+                 new path",
+                path.display(),
+                crate::files::kind(ft)
+            );
+        }
     }
     if path.is_dir() {
         anyhow::bail!(
@@ -284,7 +361,14 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .file_name()
         .with_context(|| format!("{}: not a file path", path.display()))?;
     let tmp = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
-    let result = std::fs::write(&tmp, bytes)
+    // A stale temporary file (or a link planted in its place) is removed, and the new one is
+    // created exclusively, so the write never follows a link to somewhere else.
+    let _ = std::fs::remove_file(&tmp);
+    let result = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .and_then(|mut f| f.write_all(bytes).and_then(|()| f.sync_all()))
         .with_context(|| format!("writing {}", tmp.display()))
         .and_then(|()| {
             std::fs::rename(&tmp, path)
@@ -362,6 +446,32 @@ mod output_tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("does not exist"), "{e}");
+        // Issue 22: a FIFO, a device and a symbolic link are refused, and stay what they were.
+        let fifo = dir.join("fifo");
+        let c = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: mkfifo(3) with a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let e = write_atomically(&fifo, b"x").unwrap_err().to_string();
+        assert!(e.contains("fifo") && e.contains("named pipe"), "{e}");
+        assert!(std::os::unix::fs::FileTypeExt::is_fifo(
+            &std::fs::metadata(&fifo).unwrap().file_type()
+        ));
+        let e = check_output_path(Path::new("/dev/null"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("/dev/null") && e.contains("character device"),
+            "{e}"
+        );
+        let link = dir.join("link.toml");
+        std::os::unix::fs::symlink(dir.join("p.toml"), &link).unwrap();
+        let e = write_atomically(&link, b"x").unwrap_err().to_string();
+        assert!(
+            e.contains("link.toml") && e.contains("symbolic link"),
+            "{e}"
+        );
+        std::fs::remove_file(&fifo).unwrap();
+        std::fs::remove_file(&link).unwrap();
         // A good path: written, no temporary file left.
         let f = dir.join("p.toml");
         write_atomically(&f, b"ok").unwrap();
@@ -469,6 +579,64 @@ mod tests {
             "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n1,0,0.1\n",
         );
         assert!(read_rows(&p, None).is_err());
+    }
+
+    #[test]
+    fn unphysical_numbers_are_refused_naming_file_line_column_and_value() {
+        let project =
+            "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n";
+        for (row, column, value) in [
+            ("1,0,0.1,1e308,0,0,1", "position_rad", "1e308 rad"),
+            ("2,0,0.1,-1.3,0,0,1", "position_rad", "-1.3 rad"),
+            ("1,0,0.5,0,0,0,1", "insertion_m", "0.5 m"),
+            ("1,0,-0.01,0,0,0,1", "insertion_m", "-0.01 m"),
+            ("1,0,0.1,0,51,0,1", "effort_nm", "51.0 N·m"),
+            ("1,0,0.1,0,0,-1e300,1", "torque_offset_nm", "-1e300 N·m"),
+        ] {
+            let p = tmp("unphysical.csv", &format!("{project}{row}\n"));
+            let err = format!("{:#}", read_rows(&p, None).unwrap_err());
+            assert!(
+                err.contains("unphysical.csv line 2")
+                    && err.contains(&format!("`{column}` = {value}"))
+                    && err.contains("physical range"),
+                "{row}: {err}"
+            );
+        }
+        // The range's ends pass.
+        let p = tmp("ends.csv", &format!("{project}2,0,0.29,1.301,-50,50,1\n"));
+        assert!(read_rows(&p, None).is_ok());
+        // The 2017 layout and divot files too.
+        let p = tmp(
+            "legacy-unphysical.csv",
+            "pos index,depth index,depth,current joint position,current joint effort,current torque offset\n0,0,0.1,1e308,0.2,0.1\n",
+        );
+        let err = format!("{:#}", read_rows(&p, Some(1)).unwrap_err());
+        assert!(
+            err.contains("line 2") && err.contains("`current joint position` = 1e308 rad"),
+            "{err}"
+        );
+        let mut row = DivotRow {
+            push_index: 0,
+            joint: 1,
+            direction: 1,
+            t_s: 0.0,
+            position: [0.1, -0.2, 0.12, 0.0, 0.1, -0.1],
+            effort: [0.2, -0.9, 1.0],
+            truth: None,
+        };
+        let mut buf = Vec::new();
+        write_divot(&mut buf, &[row]).unwrap();
+        let p = tmp("divot-ok.csv", std::str::from_utf8(&buf).unwrap());
+        assert!(read_divot(&p).is_ok());
+        row.position[0] = 1e308;
+        let mut buf = Vec::new();
+        write_divot(&mut buf, &[row]).unwrap();
+        let p = tmp("divot-1e308.csv", std::str::from_utf8(&buf).unwrap());
+        let err = format!("{:#}", read_divot(&p).unwrap_err());
+        assert!(
+            err.contains("divot-1e308.csv line 2") && err.contains("= 1e308 rad"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -584,7 +752,7 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
         bail!(
             "{}: unknown header `{}`; a divot file has `{}`, optionally followed by `{}`",
             path.display(),
-            names.join(","),
+            quote(&names.join(",")),
             DIVOT_HEADER.join(","),
             DIVOT_TRUTH_HEADER.join(",")
         );
@@ -608,16 +776,31 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
                 path.display()
             );
         }
+        // Physical bounds (issue 22): joints 1-2 and insertion within the PSM's range, the
+        // wrist within a turn, efforts within MAX_ABS_EFFORT.
+        let (q1, l, e) = ranges(1);
+        let (q2, _, _) = ranges(2);
+        let wrist = [-std::f64::consts::PI, std::f64::consts::PI];
+        let b = |i: usize, range: [f64; 2], unit: &str| {
+            bounded(&rec, i, with_truth[i], path, line, range, unit)
+        };
         rows.push(DivotRow {
             push_index: integer(&rec, 0, "push_index", path, line)?,
             joint,
             direction,
             t_s: n(3)?,
-            position: [n(4)?, n(5)?, n(6)?, n(7)?, n(8)?, n(9)?],
-            effort: [n(10)?, n(11)?, n(12)?],
+            position: [
+                b(4, q1, "rad")?,
+                b(5, q2, "rad")?,
+                b(6, l, "m")?,
+                b(7, wrist, "rad")?,
+                b(8, wrist, "rad")?,
+                b(9, wrist, "rad")?,
+            ],
+            effort: [b(10, e, "N·m")?, b(11, e, "N·m")?, b(12, e, "N")?],
             truth: if truth {
                 Some(DivotTruth {
-                    position_rad: [n(13)?, n(14)?],
+                    position_rad: [b(13, q1, "rad")?, b(14, q2, "rad")?],
                     tip_m: [n(15)?, n(16)?, n(17)?],
                 })
             } else {

@@ -373,15 +373,14 @@ pub fn run_trajectory(a: &TrajectoryArgs) -> anyhow::Result<()> {
 
 /// Reads a dynamics file; every error names the file, line and column.
 pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = crate::files::read_text(path, crate::files::DATA_MAX_BYTES)?;
     let mut lines = text.lines().enumerate();
     match lines.next() {
         Some((_, h)) if h.trim() == HEADER => {}
         Some((_, h)) => bail!(
             "{} line 1: header `{}`; a dynamics file starts with `{HEADER}`",
             path.display(),
-            h.trim()
+            crate::files::quote(h.trim())
         ),
         None => bail!("{}: empty file", path.display()),
     }
@@ -414,7 +413,7 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
                         path.display(),
                         i + 1,
                         names[k],
-                        f.trim()
+                        crate::files::quote(f.trim())
                     )
                 })?;
         }

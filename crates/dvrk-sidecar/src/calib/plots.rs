@@ -20,7 +20,10 @@ static FONT: OnceLock<PathBuf> = OnceLock::new();
 
 /// Reads a TTF file into memory that lives for the rest of the process (plotters keeps it).
 fn load_font(path: &Path) -> anyhow::Result<&'static [u8]> {
-    let bytes = std::fs::read(path).map_err(|e| {
+    let mut bytes = Vec::new();
+    let read = crate::files::open_regular(path, crate::files::CONFIG_MAX_BYTES)
+        .and_then(|mut f| Ok(std::io::Read::read_to_end(&mut f, &mut bytes)?));
+    read.map_err(|e| {
         anyhow!(
             "cannot read the figure font {}: {e} (install it with `apt-get install -y fonts-dejavu-core`, or pass --font with a TTF file)",
             path.display()

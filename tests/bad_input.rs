@@ -1,0 +1,325 @@
+//! The bad-input suite (issue 22): one probe per class of bad input, each driven through the real
+//! binary. Every probe checks the exit status (refused, or a clean exit, never a signal) and that
+//! the message names the file and the field (or line) and the value.
+//!
+//! Classes: a fixed-size array with an extra value, an unphysical stiffness, UDP port 0, a prefix
+//! the bridge would refuse, a FIFO as configuration (under a timeout, so the suite itself cannot
+//! hang), a huge invalid line, stdout a closed pipe, `--out` onto a device or a FIFO.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+
+use std::os::fd::{FromRawFd, OwnedFd};
+use std::os::unix::fs::FileTypeExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::Duration;
+
+use common::*;
+
+fn check_config(cfg: &Path) -> Output {
+    Command::new(sidecar_bin())
+        .args(["check-config", "--config", cfg.to_str().unwrap()])
+        .output()
+        .unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Refused: exit status 1 (an error, not a signal, not a panic's 101).
+fn assert_refused(o: &Output, what: &str) -> String {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(1), "{what}: {:?}\n{err}", o.status);
+    assert!(!err.contains("panicked"), "{what}: {err}");
+    err
+}
+
+/// A service configuration in `dir` with `line` replacing the one that starts like it.
+fn config_with(dir: &Path, name: &str, replace: &[(&str, &str)]) -> PathBuf {
+    let c = repo().join("config");
+    let mut text = format!(
+        "source = \"sim\"\nio = \"{}\"\narm = \"classic\"\ninstrument = \
+         \"LARGE_NEEDLE_DRIVER_400006\"\ncompliance = \"{}\"\nprefix = \"PSM1\"\n[sim]\nscenario = \
+         \"{}\"\n",
+        c.join("io/psm-classic.toml").display(),
+        c.join("compliance/paper-psm.toml").display(),
+        c.join("sim/idle.toml").display(),
+    );
+    for (from, to) in replace {
+        let start = text.find(from).unwrap_or_else(|| panic!("{from}"));
+        let end = start + text[start..].find('\n').unwrap();
+        text.replace_range(start..end, to);
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// The paper's compliance file with one line replaced.
+fn compliance_with(dir: &Path, name: &str, from: &str, to: &str) -> PathBuf {
+    let text = std::fs::read_to_string(repo().join("config/compliance/paper-psm.toml")).unwrap();
+    assert!(text.contains(from), "{from}");
+    let p = dir.join(name);
+    std::fs::write(&p, text.replacen(from, to, 1)).unwrap();
+    p
+}
+
+fn mkfifo(p: &Path) {
+    let c = std::ffi::CString::new(p.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: mkfifo(3) with a valid NUL-terminated path.
+    assert_eq!(
+        unsafe { libc::mkfifo(c.as_ptr(), 0o600) },
+        0,
+        "{}",
+        p.display()
+    );
+}
+
+#[test]
+fn an_extra_array_value_is_refused_naming_field_and_lengths() {
+    let d = scratch("bad_extra");
+    let comp = compliance_with(
+        &d,
+        "five.toml",
+        "[639.16, -432.35, 136.32, 3.12]",
+        "[1.0, 639.16, -432.35, 136.32, 3.12]",
+    );
+    let cfg = config_with(
+        &d,
+        "sidecar.toml",
+        &[(
+            "compliance =",
+            &format!("compliance = \"{}\"", comp.display()),
+        )],
+    );
+    let err = assert_refused(&check_config(&cfg), "5-value cubic");
+    assert!(
+        err.contains("five.toml")
+            && err.contains("joint.inverse_compliance_nm_per_rad")
+            && err.contains("invalid length 5")
+            && err.contains("exactly 4"),
+        "{err}"
+    );
+    // A 4x5 base frame too.
+    let cfg = config_with(
+        &d,
+        "frame.toml",
+        &[(
+            "prefix =",
+            "prefix = \"PSM1\"\nbase_frame = { transform = [[1.0, 0.0, 0.0, 0.0, 9.0], \
+             [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]] }",
+        )],
+    );
+    let err = assert_refused(&check_config(&cfg), "4x5 base frame");
+    assert!(
+        err.contains("frame.toml")
+            && err.contains("base_frame.transform")
+            && err.contains("invalid length 5"),
+        "{err}"
+    );
+}
+
+#[test]
+fn an_unphysical_stiffness_is_refused_naming_file_field_and_value() {
+    let d = scratch("bad_stiffness");
+    for (name, value, bound) in [
+        ("stiff.toml", "1e308", "<= 500"),
+        ("soft.toml", "1.0", ">= 2"),
+    ] {
+        let comp = compliance_with(
+            &d,
+            name,
+            "[639.16, -432.35, 136.32, 3.12]",
+            &format!("[0.0, 0.0, 0.0, {value}]"),
+        );
+        let cfg = config_with(
+            &d,
+            "sidecar.toml",
+            &[(
+                "compliance =",
+                &format!("compliance = \"{}\"", comp.display()),
+            )],
+        );
+        let err = assert_refused(&check_config(&cfg), name);
+        assert!(
+            err.contains(name)
+                && err.contains("joint 1: inverse_compliance_nm_per_rad")
+                && err.contains(&format!("= {value} N·m/rad"))
+                && err.contains(bound),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn udp_port_zero_and_a_path_like_prefix_are_refused_at_load() {
+    let d = scratch("bad_source");
+    let cfg = config_with(
+        &d,
+        "port0.toml",
+        &[("source =", "source = \"udp:127.0.0.1:0\"")],
+    );
+    let err = assert_refused(&check_config(&cfg), "port 0");
+    assert!(
+        err.contains("port0.toml") && err.contains("udp:127.0.0.1:0") && err.contains("port 0"),
+        "{err}"
+    );
+    let cfg = config_with(&d, "prefix.toml", &[("prefix =", "prefix = \"../PSM1\"")]);
+    let err = assert_refused(&check_config(&cfg), "../PSM1");
+    assert!(
+        err.contains("prefix.toml") && err.contains("`prefix`") && err.contains("../PSM1"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_fifo_as_configuration_or_parameter_file_is_refused_without_hanging() {
+    let d = scratch("bad_fifo");
+    let fifo = d.join("fifo.toml");
+    mkfifo(&fifo);
+    let comp_cfg = config_with(
+        &d,
+        "sidecar.toml",
+        &[(
+            "compliance =",
+            &format!("compliance = \"{}\"", fifo.display()),
+        )],
+    );
+    for (what, cfg) in [("--config", fifo.clone()), ("compliance", comp_cfg)] {
+        let mut p = Proc::spawn(
+            what,
+            Command::new(sidecar_bin())
+                .args(["check-config", "--config", cfg.to_str().unwrap()])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped()),
+        );
+        // Before the fix, check-config blocked in open(2) for ever: the guard kills it (Proc's
+        // drop) and fails the test instead of hanging the suite.
+        let st = p
+            .wait_timeout(Duration::from_secs(30))
+            .unwrap_or_else(|| panic!("{what}: check-config hangs on a FIFO"));
+        let err = p.stderr_text();
+        assert_eq!(st.code(), Some(1), "{what}: {st:?} {err}");
+        assert!(
+            err.contains("fifo.toml") && err.contains("named pipe"),
+            "{what}: {err}"
+        );
+    }
+}
+
+#[test]
+fn a_huge_invalid_line_is_quoted_within_bounds() {
+    let d = scratch("bad_huge");
+    // 20 MB would be refused by the size bound; 8 MB of one invalid line stays under it.
+    let huge = format!("rate = \"{}\"", "f".repeat(8 << 20));
+    let cfg = config_with(
+        &d,
+        "huge.toml",
+        &[("prefix =", &format!("prefix = \"PSM1\"\n{huge}"))],
+    );
+    let err = assert_refused(&check_config(&cfg), "huge line");
+    assert!(err.len() < 4096, "{} bytes on stderr", err.len());
+    assert!(
+        err.contains("huge.toml") && err.contains("line 7") && err.contains("characters cut"),
+        "{}",
+        &err[..err.len().min(2000)]
+    );
+    // A file over the 16 MiB bound is refused, saying the bound.
+    let big = d.join("big.toml");
+    std::fs::write(&big, vec![b'#'; 17 << 20]).unwrap();
+    let err = assert_refused(&check_config(&big), "17 MiB");
+    assert!(err.contains("big.toml") && err.contains("16 MiB"), "{err}");
+}
+
+/// Runs the binary with stdout a pipe whose reading end is already closed (as after
+/// `| head -1` has read its line).
+fn with_closed_stdout(args: &[&str]) -> (std::process::ExitStatus, String) {
+    let mut fds = [0; 2];
+    // SAFETY: pipe(2) fills two new descriptors; each is owned exactly once below.
+    assert_eq!(unsafe { libc::pipe(fds.as_mut_ptr()) }, 0);
+    // SAFETY: fresh descriptors from pipe(2), not owned elsewhere.
+    let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+    drop(read);
+    let o = Command::new(sidecar_bin())
+        .args(args)
+        .current_dir(repo())
+        .stdout(Stdio::from(write))
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    (o.status, stderr(&o))
+}
+
+#[test]
+fn a_closed_stdout_pipe_ends_the_command_cleanly() {
+    // Before the fix: "failed printing to stdout: Broken pipe", a panic (SIGABRT in release).
+    for args in [
+        &["fk", "0.1", "-0.1", "0.12", "0", "0", "0"][..],
+        &["fk", "--json", "0.1", "-0.1", "0.12", "0", "0", "0"],
+        &["check-config", "--config", "config/sidecar.toml"],
+        &[
+            "correct",
+            "--params",
+            "config/compliance/paper-psm.toml",
+            "--position",
+            "0.1,-0.1,0.12",
+            "--effort",
+            "0.5,0.5,0",
+        ],
+    ] {
+        let (st, err) = with_closed_stdout(args);
+        assert_eq!(st.code(), Some(0), "{args:?}: {st:?} {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn out_onto_a_device_or_a_fifo_is_refused_and_leaves_it_alone() {
+    let d = scratch("bad_out");
+    let fifo = d.join("out.fifo");
+    mkfifo(&fifo);
+    let mut outs = vec![fifo];
+    // As root (where the issue replaced /dev/null), a device node of our own, a copy of
+    // /dev/null (char 1:3): never the real one, so a binary without the fix cannot break the
+    // machine it is tested on.
+    // SAFETY: geteuid(2) has no preconditions.
+    if unsafe { libc::geteuid() } == 0 {
+        let dev = d.join("null-device");
+        let c = std::ffi::CString::new(dev.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: mknod(2) with a valid NUL-terminated path, creating a character device.
+        let made = unsafe { libc::mknod(c.as_ptr(), libc::S_IFCHR | 0o666, libc::makedev(1, 3)) };
+        assert_eq!(made, 0, "mknod {}", dev.display());
+        outs.push(dev);
+    }
+    let clamp = repo().join("../shared/data/dvrk2017-clamp-joint1.csv");
+    for out in &outs {
+        let o = Command::new(sidecar_bin())
+            .args(["fit", "--joint", "1", "--clamp"])
+            .arg(&clamp)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        let err = stderr(&o);
+        // Refused while the arguments are parsed (clap's usage error, status 2), before any work.
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "{}: {:?} {err}",
+            out.display(),
+            o.status
+        );
+        assert!(
+            err.contains(&out.display().to_string()) && err.contains("not a regular file"),
+            "{err}"
+        );
+        let ft = std::fs::symlink_metadata(out).unwrap().file_type();
+        assert!(
+            ft.is_char_device() || ft.is_fifo(),
+            "{} replaced",
+            out.display()
+        );
+    }
+}
