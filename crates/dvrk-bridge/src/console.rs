@@ -94,6 +94,12 @@ pub enum ConsoleQos {
     Event,
     /// Commands (`move_jp`, `servo_jp`, `state_command`, ...): RELIABLE, KEEP_LAST 1, VOLATILE.
     Command,
+    /// A reader of periodic state that must never wait for a repair: BEST_EFFORT, KEEP_LAST
+    /// 100, VOLATILE. It matches the console's RELIABLE writers; a lost datagram is skipped
+    /// instead of holding back every later sample until the writer's next heartbeat (a
+    /// reliable reader delivers in order), which a 0.3 s silence watchdog would take for a
+    /// console that fell silent.
+    StreamReader,
 }
 
 impl ConsoleQos {
@@ -102,12 +108,17 @@ impl ConsoleQos {
             max_blocking_time: rustdds::Duration::from_millis(100),
         };
         let (depth, durability) = match self {
-            ConsoleQos::State => (100, Durability::Volatile),
+            ConsoleQos::State | ConsoleQos::StreamReader => (100, Durability::Volatile),
             ConsoleQos::Event => (100, Durability::TransientLocal),
             ConsoleQos::Command => (1, Durability::Volatile),
         };
+        let reliability = if self == ConsoleQos::StreamReader {
+            Reliability::BestEffort
+        } else {
+            reliable
+        };
         QosPolicyBuilder::new()
-            .reliability(reliable)
+            .reliability(reliability)
             .history(History::KeepLast { depth })
             .durability(durability)
             .build()
@@ -360,14 +371,14 @@ impl ConsoleClient {
     /// Joins `domain` and creates the endpoints of `arm` (e.g. `PSM1`).
     pub fn new(arm: &str, domain: u16, interfaces: &[IpAddr]) -> Result<Self, BridgeError> {
         let ep = Endpoints::new(arm, domain, interfaces)?;
-        use ConsoleQos::{Command, Event, State};
+        use ConsoleQos::{Command, Event};
         Ok(Self {
             move_jp: ep.writer("move_jp", dds_type::JOINT_STATE, Command)?,
             servo_jp: ep.writer("servo_jp", dds_type::JOINT_STATE, Command)?,
             hold: ep.writer("hold", dds_type::EMPTY, Command)?,
             state_command: ep.writer("state_command", dds_type::STRING_STAMPED, Command)?,
             set_ratio: ep.writer("trajectory_j/set_ratio", dds_type::FLOAT64, Command)?,
-            measured_js: ep.reader("measured_js", dds_type::JOINT_STATE, State)?,
+            measured_js: ep.reader("measured_js", dds_type::JOINT_STATE, ConsoleQos::StreamReader)?,
             operating_state: ep.reader("operating_state", dds_type::OPERATING_STATE, Event)?,
             goal_reached: ep.reader("goal_reached", dds_type::BOOL, Event)?,
             warning: ep.reader("warning", dds_type::STRING, Event)?,
@@ -488,7 +499,7 @@ impl ConsoleClient {
         self.seq
     }
 
-    fn joints(&mut self, position: &[f64]) {
+    fn joints(&mut self, position: &[f64], velocity: &[f64]) {
         self.w.clear();
         let n = position.len().min(PSM_JOINT_NAMES.len());
         JointStateMsg {
@@ -499,7 +510,7 @@ impl ConsoleClient {
                 .map(|s| (*s).to_owned())
                 .collect(),
             position: position.to_vec(),
-            velocity: Vec::new(),
+            velocity: velocity.to_vec(),
             effort: Vec::new(),
         }
         .encode(&mut self.w);
@@ -507,13 +518,23 @@ impl ConsoleClient {
 
     /// `move_jp` to `position` (all the arm's joints, SI units).
     pub fn move_jp(&mut self, position: &[f64]) -> Result<(), BridgeError> {
-        self.joints(position);
+        self.joints(position, &[]);
         self.move_jp.send(&self.w)
     }
 
     /// `servo_jp` to `position` (a step the console's controller reaches in one cycle).
     pub fn servo_jp(&mut self, position: &[f64]) -> Result<(), BridgeError> {
-        self.joints(position);
+        self.joints(position, &[]);
+        self.servo_jp.send(&self.w)
+    }
+
+    /// `servo_jp` with a velocity feed-forward (same length as `position`).
+    pub fn servo_jp_with_velocity(
+        &mut self,
+        position: &[f64],
+        velocity: &[f64],
+    ) -> Result<(), BridgeError> {
+        self.joints(position, velocity);
         self.servo_jp.send(&self.w)
     }
 

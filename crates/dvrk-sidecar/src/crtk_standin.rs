@@ -86,7 +86,8 @@ pub struct CrtkArgs {
     pub effort_noise_nm: f64,
     /// Inject a fault at a time after start: `effort@S` (joint 1 effort reads +3 N·m),
     /// `estop@S` (DISABLED), `fault@S` (FAULT), `silence@S` (measured_js stops),
-    /// `invalid@S` (measured_js with a zero stamp).
+    /// `invalid@S` (measured_js with a zero stamp), `refuse@S` (moves refused with a warning
+    /// and no busy event, as the console does when it is not ready).
     #[arg(long, value_name = "KIND@SECONDS")]
     pub fault: Vec<String>,
     /// Write every command received and every state change as JSON lines to this file.
@@ -102,6 +103,7 @@ pub enum Fault {
     PidFault,
     Silence,
     Invalid,
+    Refuse,
 }
 
 pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
@@ -114,9 +116,10 @@ pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
         "fault" => Fault::PidFault,
         "silence" => Fault::Silence,
         "invalid" => Fault::Invalid,
-        other => {
-            bail!("--fault {s:?}: unknown kind {other:?} (effort, estop, fault, silence, invalid)")
-        }
+        "refuse" => Fault::Refuse,
+        other => bail!(
+            "--fault {s:?}: unknown kind {other:?} (effort, estop, fault, silence, invalid, refuse)"
+        ),
     };
     let at: f64 = at
         .parse()
@@ -173,6 +176,7 @@ pub struct ConsoleSim {
     still_since: Option<f64>,
     insertion_moved: bool,
     effort_offset: f64,
+    refuse: bool,
     t: f64,
 }
 
@@ -221,6 +225,7 @@ impl ConsoleSim {
             still_since: None,
             insertion_moved: fixture == "clamp",
             effort_offset: 0.0,
+            refuse: false,
             t: 0.0,
         }
     }
@@ -313,7 +318,7 @@ impl ConsoleSim {
             ConsoleCommand::MoveJp(js) | ConsoleCommand::ServoJp(js) => {
                 let servo = matches!(cmd, ConsoleCommand::ServoJp(_));
                 let what = if servo { "servo_jp" } else { "move_jp" };
-                if !self.ready() {
+                if !self.ready() || self.refuse {
                     out.push(Out::Warning(format!(
                         "{what}: arm not ready (state {}, homed {}), command ignored",
                         self.state, self.homed
@@ -425,6 +430,7 @@ impl ConsoleSim {
                 out.push(Out::Error("PSM1: injected fault".into()));
                 self.set_state("FAULT", out);
             }
+            Fault::Refuse => self.refuse = true,
             Fault::Silence | Fault::Invalid => {}
         }
     }

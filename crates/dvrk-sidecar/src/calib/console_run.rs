@@ -299,6 +299,190 @@ pub fn move_duration_s(d: &[f64; 3], ratio: f64) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The checks made on everything the console sends, shared by the procedures and the
+/// excitation: events (state, errors, the current move's busy and goal_reached), every
+/// `measured_js` (validity, effort limit) and silence.
+struct Watch {
+    effort_limit_nm: f64,
+    last_valid: Instant,
+    last_any: Instant,
+    saw_invalid: bool,
+    last_error: Option<String>,
+    last_t_ns: u64,
+    tool_type: Option<String>,
+}
+
+impl Watch {
+    fn new(effort_limit_nm: f64, tool_type: Option<String>) -> Self {
+        let now = Instant::now();
+        Self {
+            effort_limit_nm,
+            last_valid: now,
+            last_any: now,
+            saw_invalid: false,
+            last_error: None,
+            last_t_ns: 0,
+            tool_type,
+        }
+    }
+
+    /// Applies the events of one poll; a state other than ENABLED stops the run.
+    fn events(&mut self, polled: &Polled, mut moving: Option<&mut MoveWait>) -> Result<(), Stop> {
+        for ev in &polled.events {
+            match &ev.value {
+                ConsoleEvent::OperatingState(s) => {
+                    if s.state != "ENABLED" {
+                        return Err(Stop::StateLeft {
+                            state: s.state.clone(),
+                            error: self.last_error.clone(),
+                        });
+                    }
+                    if let Some(m) = moving.as_deref_mut()
+                        && ev.seq > m.cmd_seq
+                    {
+                        if s.is_busy {
+                            m.saw_busy = true;
+                        } else if m.saw_busy {
+                            m.ended = true;
+                        }
+                    }
+                }
+                ConsoleEvent::GoalReached(v) => {
+                    if let Some(m) = moving.as_deref_mut()
+                        && ev.seq > m.cmd_seq
+                    {
+                        m.goal = Some(*v);
+                    }
+                }
+                ConsoleEvent::Error(e) => {
+                    tracing::warn!("console error: {e}");
+                    self.last_error = Some(e.clone());
+                }
+                ConsoleEvent::Warning(w) => tracing::warn!("console warning: {w}"),
+                ConsoleEvent::ToolType(t) => {
+                    if self.tool_type.as_deref().is_some_and(|old| old != t) {
+                        tracing::warn!("instrument changed during the run: {t:?}");
+                    }
+                    self.tool_type = Some(t.clone());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// One `measured_js`: `Ok(None)` for an invalid one (zero stamp, short, not finite).
+    fn sample(&mut self, m: &JointStateMsg, now: Instant) -> Result<Option<Sample>, Stop> {
+        self.last_any = now;
+        let stamp_ns =
+            u64::try_from(i64::from(m.stamp.sec) * 1_000_000_000 + i64::from(m.stamp.nanosec))
+                .unwrap_or(0);
+        let t_ns = stamp_ns.max(self.last_t_ns);
+        let s = sample_of(m, t_ns);
+        if !s.valid {
+            self.saw_invalid = true;
+            return Ok(None);
+        }
+        self.last_t_ns = t_ns;
+        self.last_valid = now;
+        for j in 0..2 {
+            if s.effort[j].abs() > self.effort_limit_nm {
+                return Err(Stop::EffortLimit {
+                    joint: j + 1,
+                    effort: s.effort[j],
+                    limit: self.effort_limit_nm,
+                });
+            }
+        }
+        Ok(Some(s))
+    }
+
+    /// No valid `measured_js` for [`SILENCE_LIMIT`] stops the run.
+    fn silence(&self, now: Instant) -> Result<(), Stop> {
+        let since_valid = now.duration_since(self.last_valid);
+        if since_valid > SILENCE_LIMIT {
+            return Err(Stop::Silent {
+                for_ms: since_valid.as_millis(),
+                invalid: self.saw_invalid && now.duration_since(self.last_any) <= SILENCE_LIMIT,
+            });
+        }
+        Ok(())
+    }
+}
+
+impl MoveWait {
+    fn new(client: &ConsoleClient, now: Instant, d: &[f64; 3], ratio: f64) -> Self {
+        MoveWait {
+            cmd_seq: client.last_seq(),
+            sent: now,
+            saw_busy: false,
+            ended: false,
+            goal: None,
+            timeout_s: 2.0 * move_duration_s(d, ratio) + 3.0,
+        }
+    }
+
+    /// `Ok(true)` once the move is done, `Ok(false)` while it runs.
+    fn check(&self, client: &ConsoleClient, now: Instant) -> Result<bool, Stop> {
+        let waited = now.duration_since(self.sent).as_secs_f64();
+        if self.goal == Some(false) {
+            return Err(Stop::MoveInterrupted);
+        }
+        if self.ended && self.goal == Some(true) {
+            return Ok(true);
+        }
+        if !self.saw_busy && waited > 1.0 {
+            return Err(Stop::MoveNotStarted {
+                waited_s: waited,
+                warning: client.recent_warnings.back().cloned(),
+            });
+        }
+        if waited > self.timeout_s {
+            return Err(Stop::MoveTimeout {
+                timeout_s: self.timeout_s,
+            });
+        }
+        Ok(false)
+    }
+}
+
+
+fn set_ratio(client: &mut ConsoleClient, ratio: f64) -> anyhow::Result<()> {
+    if client.ratio_matched() {
+        client.set_ratio(ratio)?;
+    } else {
+        tracing::warn!(
+            "the console has no reader of trajectory_j/set_ratio: move_jp runs at its own speed"
+        );
+    }
+    Ok(())
+}
+
+/// Prints the operator's prompt; returns when to go on (`--yes`) or the channel of the Enter.
+fn ask_operator(
+    f: &Fixture,
+    opts: &ConsoleOptions,
+    now: Instant,
+) -> (Option<Instant>, Option<mpsc::Receiver<()>>) {
+    eprintln!("\n>>> {}", fixture_prompt(f));
+    if opts.yes {
+        eprintln!("    (--yes: continuing in {:.1} s)", opts.prompt_pause_s);
+        (
+            Some(now + Duration::from_secs_f64(opts.prompt_pause_s)),
+            None,
+        )
+    } else {
+        eprintln!("    Press Enter when done (Ctrl-C aborts).");
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            if std::io::stdin().lock().read_line(&mut line).is_ok() {
+                let _ = tx.send(());
+            }
+        });
+        (None, Some(rx))
+    }
+}
+
 /// Runs `plan` on the console's arm until done, aborted, or stopped.
 pub fn run_console<P: Plan>(
     plan: P,
@@ -319,24 +503,15 @@ pub fn run_console<P: Plan>(
         elapsed_s: 0.0,
         tool_type: client.last_tool_type.clone(),
     };
-    if client.ratio_matched() {
-        client.set_ratio(opts.ratio)?;
-    } else {
-        tracing::warn!(
-            "the console has no reader of trajectory_j/set_ratio: move_jp runs at its own speed"
-        );
-    }
+    set_ratio(client, opts.ratio)?;
     let mut polled = Polled::default();
-    let mut last_valid = Instant::now();
-    let mut last_any = Instant::now();
-    let mut saw_invalid = false;
+    let mut watch = Watch::new(rc.effort_limit_nm, client.last_tool_type.clone());
     let mut last_cmd: Option<[f64; 3]> = None;
     let mut wrist: Option<[f64; 3]> = None;
-    let mut last_t_ns = 0u64;
     let mut moving: Option<MoveWait> = None;
-    let mut last_error: Option<String> = None;
     // operator prompt: Some(deadline) with --yes, or a channel to stdin
     let mut prompt: Option<(Option<Instant>, Option<mpsc::Receiver<()>>)> = None;
+    let mut polls = 0u64;
     let reason = 'run: loop {
         if stop.load(Ordering::Relaxed) {
             break 'run Some(Stop::Interrupted);
@@ -345,72 +520,18 @@ pub fn run_console<P: Plan>(
         polled.events.clear();
         client.poll(&mut polled);
         let now = Instant::now();
-        for ev in &polled.events {
-            match &ev.value {
-                ConsoleEvent::OperatingState(s) => {
-                    if s.state != "ENABLED" {
-                        break 'run Some(Stop::StateLeft {
-                            state: s.state.clone(),
-                            error: last_error.clone(),
-                        });
-                    }
-                    if let Some(m) = &mut moving
-                        && ev.seq > m.cmd_seq
-                    {
-                        if s.is_busy {
-                            m.saw_busy = true;
-                        } else if m.saw_busy {
-                            m.ended = true;
-                        }
-                    }
-                }
-                ConsoleEvent::GoalReached(v) => {
-                    if let Some(m) = &mut moving
-                        && ev.seq > m.cmd_seq
-                    {
-                        m.goal = Some(*v);
-                    }
-                }
-                ConsoleEvent::Error(e) => {
-                    tracing::warn!("console error: {e}");
-                    last_error = Some(e.clone());
-                }
-                ConsoleEvent::Warning(w) => tracing::warn!("console warning: {w}"),
-                ConsoleEvent::ToolType(t) => {
-                    if run.tool_type.as_deref().is_some_and(|old| old != t) {
-                        tracing::warn!("instrument changed during the run: {t:?}");
-                    }
-                    run.tool_type = Some(t.clone());
-                }
-            }
-        }
-        if !polled.measured_js.is_empty() {
-            last_any = now;
+        if let Err(r) = watch.events(&polled, moving.as_mut()) {
+            break 'run Some(r);
         }
         for m in &polled.measured_js {
-            let stamp_ns =
-                u64::try_from(i64::from(m.stamp.sec) * 1_000_000_000 + i64::from(m.stamp.nanosec))
-                    .unwrap_or(0);
-            let t_ns = stamp_ns.max(last_t_ns);
-            let s = sample_of(m, t_ns);
             run.samples += 1;
-            if !s.valid {
-                saw_invalid = true;
-                continue;
-            }
-            last_t_ns = t_ns;
-            last_valid = now;
+            let s = match watch.sample(m, now) {
+                Err(r) => break 'run Some(r),
+                Ok(None) => continue,
+                Ok(Some(s)) => s,
+            };
             if wrist.is_none() {
                 wrist = Some([s.aux[0], s.aux[1], s.aux[2]]);
-            }
-            for j in 0..2 {
-                if s.effort[j].abs() > rc.effort_limit_nm {
-                    break 'run Some(Stop::EffortLimit {
-                        joint: j + 1,
-                        effort: s.effort[j],
-                        limit: rc.effort_limit_nm,
-                    });
-                }
             }
             if moving.is_some() || prompt.is_some() {
                 continue; // the console moves (or the operator acts); the runner waits
@@ -421,24 +542,7 @@ pub fn run_console<P: Plan>(
                 Status::Done => break 'run None,
                 Status::Aborted(r) => break 'run Some(Stop::Runner(r)),
                 Status::AwaitFixture(f) => {
-                    eprintln!("\n>>> {}", fixture_prompt(&f));
-                    if opts.yes {
-                        eprintln!("    (--yes: continuing in {:.1} s)", opts.prompt_pause_s);
-                        prompt = Some((
-                            Some(now + Duration::from_secs_f64(opts.prompt_pause_s)),
-                            None,
-                        ));
-                    } else {
-                        eprintln!("    Press Enter when done (Ctrl-C aborts).");
-                        let (tx, rx) = mpsc::channel();
-                        std::thread::spawn(move || {
-                            let mut line = String::new();
-                            if std::io::stdin().lock().read_line(&mut line).is_ok() {
-                                let _ = tx.send(());
-                            }
-                        });
-                        prompt = Some((None, Some(rx)));
-                    }
+                    prompt = Some(ask_operator(&f, opts, now));
                     continue;
                 }
                 Status::Running => {}
@@ -450,14 +554,7 @@ pub fn run_console<P: Plan>(
                 let target = runner.target();
                 let d: [f64; 3] = std::array::from_fn(|j| target[j] - base[j]);
                 if (0..3).any(|j| d[j].abs() > LARGE_MOVE[j]) {
-                    moving = Some(MoveWait {
-                        cmd_seq: client.last_seq(),
-                        sent: now,
-                        saw_busy: false,
-                        ended: false,
-                        goal: None,
-                        timeout_s: 2.0 * move_duration_s(&d, opts.ratio) + 3.0,
-                    });
+                    moving = Some(MoveWait::new(client, now, &d, opts.ratio));
                     client.move_jp(&full(&target))?;
                     run.moves += 1;
                     last_cmd = Some(target);
@@ -470,31 +567,17 @@ pub fn run_console<P: Plan>(
                 last_cmd = Some(out.setpoint);
             }
         }
-        // silence: no valid measured_js for too long
-        let since_valid = now.duration_since(last_valid);
-        if since_valid > SILENCE_LIMIT {
-            break 'run Some(Stop::Silent {
-                for_ms: since_valid.as_millis(),
-                invalid: saw_invalid && now.duration_since(last_any) <= SILENCE_LIMIT,
-            });
+        if let Err(r) = watch.silence(now) {
+            break 'run Some(r);
         }
         if let Some(m) = &moving {
-            let waited = now.duration_since(m.sent).as_secs_f64();
-            if m.goal == Some(false) {
-                break 'run Some(Stop::MoveInterrupted);
-            }
-            if m.ended && m.goal == Some(true) {
-                runner.target_reached_by_robot();
-                moving = None;
-            } else if !m.saw_busy && waited > 1.0 {
-                break 'run Some(Stop::MoveNotStarted {
-                    waited_s: waited,
-                    warning: client.recent_warnings.back().cloned(),
-                });
-            } else if waited > m.timeout_s {
-                break 'run Some(Stop::MoveTimeout {
-                    timeout_s: m.timeout_s,
-                });
+            match m.check(client, now) {
+                Err(r) => break 'run Some(r),
+                Ok(true) => {
+                    runner.target_reached_by_robot();
+                    moving = None;
+                }
+                Ok(false) => {}
             }
         }
         if let Some((deadline, rx)) = &prompt {
@@ -508,11 +591,13 @@ pub fn run_console<P: Plan>(
                 runner.fixture_ready();
             }
         }
-        if run.samples % 100 == 0 {
+        polls += 1;
+        if polls % 100 == 0 {
             on_progress(&runner);
         }
         std::thread::sleep(Duration::from_millis(1));
     };
+    run.tool_type = watch.tool_type.clone();
     if let Some(r) = &reason {
         let state_ok = !matches!(r, Stop::StateLeft { .. });
         if state_ok {
@@ -571,27 +656,7 @@ pub fn run_procedure(
         eprintln!("--dry-run: nothing was sent");
         return Ok(());
     }
-    let mut client = connect(arm)?;
-    let tool = client.last_tool_type.clone();
-    match tool.as_deref() {
-        Some("") => {
-            bail!("{arm}: no instrument mounted (tool_type is empty): mount one and run again")
-        }
-        Some("ERROR") => {
-            bail!("{arm}: the console reports tool_type ERROR: fix the instrument first")
-        }
-        Some(t) => eprintln!("instrument: {t}"),
-        None => eprintln!("instrument: not reported by the console (no tool_type)"),
-    }
-    ensure_ready(&mut client, a.enable)?;
-    if !a.yes {
-        eprint!("The arm will move. Type yes and Enter to start: ");
-        let mut line = String::new();
-        std::io::stdin().lock().read_line(&mut line)?;
-        if line.trim() != "yes" {
-            bail!("not confirmed: nothing was sent");
-        }
-    }
+    let mut client = prepare(arm, a.enable, a.yes)?;
     let opts = ConsoleOptions {
         arm: arm.to_owned(),
         yes: a.yes,
@@ -634,6 +699,195 @@ pub fn run_procedure(
             "{name} aborted: {reason}; motion commands stopped (one hold sent where the arm \
              was still ENABLED); the {} rows collected are kept",
             run.records.len()
+        ),
+    }
+}
+
+/// Connects, checks the instrument and the arm's state (enabling it only with `enable`), and
+/// asks the operator to confirm unless `yes`.
+fn prepare(arm: &str, enable: bool, yes: bool) -> anyhow::Result<ConsoleClient> {
+    let mut client = connect(arm)?;
+    match client.last_tool_type.as_deref() {
+        Some("") => bail!("{arm}: no instrument mounted (tool_type is empty): mount one and run again"),
+        Some("ERROR") => bail!("{arm}: the console reports tool_type ERROR: fix the instrument first"),
+        Some(t) => eprintln!("instrument: {t}"),
+        None => eprintln!("instrument: not reported by the console (no tool_type)"),
+    }
+    ensure_ready(&mut client, enable)?;
+    if !yes {
+        eprint!("The arm will move. Type yes and Enter to start: ");
+        let mut line = String::new();
+        std::io::stdin().lock().read_line(&mut line)?;
+        if line.trim() != "yes" {
+            bail!("not confirmed: nothing was sent");
+        }
+    }
+    Ok(client)
+}
+
+/// Share of the PSM's move limits the excitation may use.
+pub const EXCITATION_LIMIT_SHARE: f64 = 0.8;
+
+/// Peak |velocity| and |acceleration| of joints 1-2 of trajectory rows `[t, q1, q2, q3, v1,
+/// v2, v3]` (acceleration by finite differences of the velocity).
+pub fn peaks(rows: &[[f64; 7]]) -> (f64, f64) {
+    let mut v: f64 = 0.0;
+    let mut a: f64 = 0.0;
+    for w in rows.windows(2) {
+        let dt = w[1][0] - w[0][0];
+        for j in 4..6 {
+            v = v.max(w[1][j].abs());
+            if dt > 0.0 {
+                a = a.max(((w[1][j] - w[0][j]) / dt).abs());
+            }
+        }
+    }
+    (v, a)
+}
+
+/// `calibrate dynamics --robot ros2:ARM`: the excitation through `servo_jp`, rows from the
+/// console's `measured_js`.
+pub fn run_dynamics(
+    a: &super::dynamics_cmd::DynamicsArgs,
+    arm: &str,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    use super::dynamics_cmd::{TrajectoryArgs, to_csv, trajectory_scaled};
+    super::dynamics_cmd::check_schedule(&a.depths, a.seconds_per_depth)?;
+    if !(a.effort_limit_nm.is_finite() && a.effort_limit_nm > 0.0 && a.effort_limit_nm <= 3.0) {
+        bail!("--effort-limit-nm {}: must be in ]0, 3] N·m", a.effort_limit_nm);
+    }
+    if !(a.ratio > 0.0 && a.ratio <= 1.0) {
+        bail!("--ratio {}: must be in ]0, 1]", a.ratio);
+    }
+    let targs = TrajectoryArgs {
+        out: a.out.clone(),
+        depths: a.depths.clone(),
+        seconds_per_depth: a.seconds_per_depth,
+        rate_hz: 1000.0,
+        center: vec![0.0, 0.0],
+    };
+    let (v1, a1) = peaks(&trajectory_scaled(&targs, 1.0)?);
+    let vmax = std::f64::consts::FRAC_PI_2 * EXCITATION_LIMIT_SHARE;
+    let scale = (vmax / v1).min((vmax / a1).sqrt()).min(1.0);
+    let traj = trajectory_scaled(&targs, scale)?;
+    let (vp, ap) = peaks(&traj);
+    let duration = traj.last().map_or(0.0, |r| r[0]);
+    let domain = dvrk_bridge::console::ros_domain_id()?;
+    eprintln!("calibrate dynamics on {arm} through the dVRK console (DDS domain {domain})");
+    eprintln!(
+        "plan: free space (nothing may touch the instrument); move_jp to q1 = {:.3}, q2 = {:.3} \
+         rad, q3 = {:.3} m, then the multi-sine excitation of joints 1-2 at depths {:?} m, {} s \
+         each, through servo_jp at every measured_js; slowed to {scale:.2} of its simulator \
+         speed: peak {vp:.2} rad/s and {ap:.2} rad/s² (PSM limits 1.57 rad/s and 1.57 rad/s²); \
+         {duration:.0} s in all; effort limit {} N·m",
+        traj[0][1], traj[0][2], traj[0][3], a.depths, a.seconds_per_depth, a.effort_limit_nm
+    );
+    eprintln!("output: {}", a.out.display());
+    if a.dry_run {
+        eprintln!("--dry-run: nothing was sent");
+        return Ok(());
+    }
+    let mut client = prepare(arm, a.enable, a.yes)?;
+    set_ratio(&mut client, a.ratio)?;
+    let mut polled = Polled::default();
+    let mut watch = Watch::new(a.effort_limit_nm, client.last_tool_type.clone());
+    let mut rows: Vec<dvrk_compliance::DynamicsSample> = Vec::new();
+    let mut t0_ns: Option<u64> = None;
+    let mut wrist: Option<[f64; 3]> = None;
+    let mut moving: Option<MoveWait> = None;
+    let mut started: Option<Instant> = None;
+    let mut servos = 0u64;
+    let t_start = Instant::now();
+    let reason = 'run: loop {
+        if stop.load(Ordering::Relaxed) {
+            break 'run Some(Stop::Interrupted);
+        }
+        polled.measured_js.clear();
+        polled.events.clear();
+        client.poll(&mut polled);
+        let now = Instant::now();
+        if let Err(r) = watch.events(&polled, moving.as_mut()) {
+            break 'run Some(r);
+        }
+        for m in &polled.measured_js {
+            let s = match watch.sample(m, now) {
+                Err(r) => break 'run Some(r),
+                Ok(None) => continue,
+                Ok(Some(s)) => s,
+            };
+            let w = *wrist.get_or_insert([s.aux[0], s.aux[1], s.aux[2]]);
+            match (started, &moving) {
+                (None, None) => {
+                    // the move to the start of the excitation
+                    let first = &traj[0];
+                    let d = [first[1] - s.position[0], first[2] - s.position[1], first[3] - s.position[2]];
+                    moving = Some(MoveWait::new(&client, now, &d, a.ratio));
+                    client.move_jp(&[first[1], first[2], first[3], w[0], w[1], w[2]])?;
+                }
+                (Some(t0), _) => {
+                    let t0n = *t0_ns.get_or_insert(s.t_ns);
+                    rows.push(dvrk_compliance::DynamicsSample {
+                        t_s: s.t_ns.saturating_sub(t0n) as f64 * 1e-9,
+                        position: s.position,
+                        effort_nm: [s.effort[0], s.effort[1]],
+                    });
+                    let i = (now.duration_since(t0).as_secs_f64() * 1000.0) as usize;
+                    let Some(r) = traj.get(i) else {
+                        break 'run None;
+                    };
+                    client.servo_jp_with_velocity(
+                        &[r[1], r[2], r[3], w[0], w[1], w[2]],
+                        &[r[4], r[5], r[6], 0.0, 0.0, 0.0],
+                    )?;
+                    servos += 1;
+                }
+                (None, Some(_)) => {}
+            }
+        }
+        if let Err(r) = watch.silence(now) {
+            break 'run Some(r);
+        }
+        if let Some(m) = &moving {
+            match m.check(&client, now) {
+                Err(r) => break 'run Some(r),
+                Ok(true) => {
+                    moving = None;
+                    started = Some(now);
+                    eprintln!("at the start: excitation running for {duration:.0} s");
+                }
+                Ok(false) => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    if let Some(r) = &reason
+        && !matches!(r, Stop::StateLeft { .. })
+    {
+        let _ = client.hold();
+    }
+    let written = if rows.is_empty() && std::fs::symlink_metadata(&a.out).is_ok() {
+        eprintln!("no row collected: {} is left as it was", a.out.display());
+        false
+    } else {
+        super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+        true
+    };
+    eprintln!(
+        "dynamics: {} rows{} in {:.1} s ({servos} servo_jp)",
+        rows.len(),
+        if written {
+            format!(" written to {}", a.out.display())
+        } else {
+            String::new()
+        },
+        t_start.elapsed().as_secs_f64()
+    );
+    match reason {
+        None => Ok(()),
+        Some(r) => bail!(
+            "dynamics aborted: {r}; motion commands stopped; the {} rows collected are kept",
+            rows.len()
         ),
     }
 }

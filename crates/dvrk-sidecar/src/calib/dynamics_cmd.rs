@@ -29,9 +29,32 @@ pub const HEADER: &str = "t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm";
 #[derive(Clone, Debug, clap::Args)]
 pub struct DynamicsArgs {
     /// Simulator scenario (config/sim/*.toml): seed, time step, start pose, noise, transmission.
-    /// Its environment and motion are replaced by free space and the excitation.
+    /// Its environment and motion are replaced by free space and the excitation. Not with
+    /// --robot.
+    #[arg(long, required_unless_present = "robot", conflicts_with = "robot")]
+    pub config: Option<PathBuf>,
+    /// A real arm through the dVRK console's CRTK interface over DDS (`ros2:PSM1`): the
+    /// excitation is played through servo_jp at the console's measured_js rate, slowed so its
+    /// speed and acceleration stay within 80% of the PSM's move limits (90 deg/s, 90 deg/s²),
+    /// and rows are the console's measured_js.
+    #[arg(long, value_name = "ros2:ARM")]
+    pub robot: Option<String>,
+    /// With --robot: the operator prompt and the plan's confirmation are answered (never
+    /// enables an arm).
     #[arg(long)]
-    pub config: PathBuf,
+    pub yes: bool,
+    /// With --robot: print the plan and exit without sending anything.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// With --robot: ask the console to enable and home the arm first.
+    #[arg(long)]
+    pub enable: bool,
+    /// With --robot: effort limit of joints 1-2 that aborts (N·m).
+    #[arg(long, default_value_t = 1.5)]
+    pub effort_limit_nm: f64,
+    /// With --robot: trajectory_j/set_ratio for the move_jp to the start.
+    #[arg(long, default_value_t = 0.2)]
+    pub ratio: f64,
     /// Data file to write (CSV).
     #[arg(long)]
     pub out: PathBuf,
@@ -58,7 +81,7 @@ const EXCITATION: Motion = Motion::MultiSine {
 
 /// The depths and the time per depth of an excitation (`calibrate dynamics` and `calibrate
 /// trajectory` take the same options).
-fn check_schedule(depths: &[f64], seconds_per_depth: f64) -> anyhow::Result<()> {
+pub(crate) fn check_schedule(depths: &[f64], seconds_per_depth: f64) -> anyhow::Result<()> {
     if depths.is_empty() {
         bail!("--depths: give at least one insertion depth");
     }
@@ -79,7 +102,10 @@ pub fn record(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<Vec<Dynamic
     if !(a.rate_hz.is_finite() && (100.0..=20_000.0).contains(&a.rate_hz)) {
         bail!("--rate-hz {}: must be within 100..=20000", a.rate_hz);
     }
-    let base = load_scenario(&a.config)?;
+    let Some(config) = &a.config else {
+        bail!("--config SCENARIO (simulator) or --robot ros2:ARM (a real arm): one is needed");
+    };
+    let base = load_scenario(config)?;
     let period_ns = (1e9 / a.rate_hz).round() as u64;
     let cycles = (a.seconds_per_depth * a.rate_hz).round() as u64;
     let mut rows = Vec::new();
@@ -137,6 +163,11 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
             "--out {}: is a directory; give a file name",
             a.out.display()
         );
+    }
+    super::data::check_output_path(&a.out)?;
+    if let Some(robot) = &a.robot {
+        let arm = super::calibrate::robot_arm(robot)?;
+        return super::console_run::run_dynamics(a, &arm, stop);
     }
     let rows = record(a, stop)?;
     super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
@@ -283,6 +314,13 @@ fn fade(x: f64) -> (f64, f64) {
 /// centre. Rows `[t, q1, q2, q3, v1, v2, v3]`; it starts and ends still at the first and last
 /// depth.
 pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
+    trajectory_scaled(a, 1.0)
+}
+
+/// [`trajectory`] with the excitation (its sines and its fades) played `speed` times as fast:
+/// its velocities scale by `speed`, its accelerations by `speed²` (a real arm's console limits
+/// both). The moves between depths keep their 2 s.
+pub fn trajectory_scaled(a: &TrajectoryArgs, speed: f64) -> anyhow::Result<Vec<[f64; 7]>> {
     let Motion::MultiSine {
         amplitude,
         angular_frequency,
@@ -290,6 +328,10 @@ pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
     else {
         bail!("the excitation is not a multi-sine");
     };
+    if !(speed.is_finite() && speed > 0.0 && speed <= 1.0) {
+        bail!("excitation speed scale {speed}: must be in ]0, 1]");
+    }
+
     check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.rate_hz.is_finite() && (10.0..=20_000.0).contains(&a.rate_hz)) {
         bail!("--rate-hz {}: must be within 10..=20000", a.rate_hz);
@@ -322,10 +364,15 @@ pub fn trajectory(a: &TrajectoryArgs) -> anyhow::Result<Vec<[f64; 7]>> {
         let local = t - k as f64 * (seg + DEPTH_MOVE_S);
         let mut row = [t, center[0], center[1], a.depths[k], 0.0, 0.0, 0.0];
         if local <= seg {
-            let (g, dg) = fade(seg - local);
+            let (g, dg) = fade((seg - local) * speed);
+            let dg = dg * speed;
             for j in 0..2 {
-                let (q, v) =
-                    dvrk_sim::scenario::multi_sine(&amplitude[j], &angular_frequency[j], local);
+                let (q, v) = dvrk_sim::scenario::multi_sine(
+                    &amplitude[j],
+                    &angular_frequency[j],
+                    local * speed,
+                );
+                let v = v * speed;
                 row[1 + j] = center[j] + g * q;
                 row[4 + j] = g * v - dg * q;
             }
