@@ -378,7 +378,11 @@ impl ConsoleClient {
             hold: ep.writer("hold", dds_type::EMPTY, Command)?,
             state_command: ep.writer("state_command", dds_type::STRING_STAMPED, Command)?,
             set_ratio: ep.writer("trajectory_j/set_ratio", dds_type::FLOAT64, Command)?,
-            measured_js: ep.reader("measured_js", dds_type::JOINT_STATE, ConsoleQos::StreamReader)?,
+            measured_js: ep.reader(
+                "measured_js",
+                dds_type::JOINT_STATE,
+                ConsoleQos::StreamReader,
+            )?,
             operating_state: ep.reader("operating_state", dds_type::OPERATING_STATE, Event)?,
             goal_reached: ep.reader("goal_reached", dds_type::BOOL, Event)?,
             warning: ep.reader("warning", dds_type::STRING, Event)?,

@@ -445,7 +445,6 @@ impl MoveWait {
     }
 }
 
-
 fn set_ratio(client: &mut ConsoleClient, ratio: f64) -> anyhow::Result<()> {
     if client.ratio_matched() {
         client.set_ratio(ratio)?;
@@ -708,8 +707,12 @@ pub fn run_procedure(
 fn prepare(arm: &str, enable: bool, yes: bool) -> anyhow::Result<ConsoleClient> {
     let mut client = connect(arm)?;
     match client.last_tool_type.as_deref() {
-        Some("") => bail!("{arm}: no instrument mounted (tool_type is empty): mount one and run again"),
-        Some("ERROR") => bail!("{arm}: the console reports tool_type ERROR: fix the instrument first"),
+        Some("") => {
+            bail!("{arm}: no instrument mounted (tool_type is empty): mount one and run again")
+        }
+        Some("ERROR") => {
+            bail!("{arm}: the console reports tool_type ERROR: fix the instrument first")
+        }
         Some(t) => eprintln!("instrument: {t}"),
         None => eprintln!("instrument: not reported by the console (no tool_type)"),
     }
@@ -755,7 +758,10 @@ pub fn run_dynamics(
     use super::dynamics_cmd::{TrajectoryArgs, to_csv, trajectory_scaled};
     super::dynamics_cmd::check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.effort_limit_nm.is_finite() && a.effort_limit_nm > 0.0 && a.effort_limit_nm <= 3.0) {
-        bail!("--effort-limit-nm {}: must be in ]0, 3] N·m", a.effort_limit_nm);
+        bail!(
+            "--effort-limit-nm {}: must be in ]0, 3] N·m",
+            a.effort_limit_nm
+        );
     }
     if !(a.ratio > 0.0 && a.ratio <= 1.0) {
         bail!("--ratio {}: must be in ]0, 1]", a.ratio);
@@ -821,7 +827,11 @@ pub fn run_dynamics(
                 (None, None) => {
                     // the move to the start of the excitation
                     let first = &traj[0];
-                    let d = [first[1] - s.position[0], first[2] - s.position[1], first[3] - s.position[2]];
+                    let d = [
+                        first[1] - s.position[0],
+                        first[2] - s.position[1],
+                        first[3] - s.position[2],
+                    ];
                     moving = Some(MoveWait::new(&client, now, &d, a.ratio));
                     client.move_jp(&[first[1], first[2], first[3], w[0], w[1], w[2]])?;
                 }

@@ -1,0 +1,619 @@
+//! Calibrating through the dVRK console's CRTK interface over DDS (issue 18), end to end with
+//! real processes: `dvrk-sidecar sim --crtk PSM1` (the simulated PSM behind a console
+//! stand-in) and `dvrk-sidecar calibrate ... --robot ros2:PSM1` exactly as a lab types it, each
+//! pair in a DDS domain of its own (ROS_DOMAIN_ID), then `fit` on the files.
+//!
+//! - the issue's two command lines run, the console refuses or clips none of their moves, and
+//!   `fit` recovers the stand-in's stiffness within 5% at every clamp depth;
+//! - `divot` and `dynamics` run the same way and their files are read by `evaluate` and `fit`;
+//! - each abort cause (effort spike, e-stop, FAULT, silence, invalid data, refused move,
+//!   Ctrl-C) ends the run non-zero with the reason, keeps the rows, and no more than two motion
+//!   commands reach the console after the fault;
+//! - a DISABLED arm is refused with its state named and nothing sent; `--enable` enables and
+//!   homes it; `--dry-run` sends nothing.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{Proc, repo, scratch, sidecar_bin};
+
+/// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221).
+fn domain(offset: u16) -> u16 {
+    150 + (std::process::id() % 60) as u16 + offset
+}
+
+struct StandIn {
+    proc: Proc,
+    log: PathBuf,
+    started: Instant,
+}
+
+fn stand_in(test: &str, domain: u16, extra: &[&str]) -> StandIn {
+    let log = scratch(test).join("console.jsonl");
+    let started = Instant::now();
+    let proc = Proc::spawn(
+        "sim --crtk",
+        Command::new(sidecar_bin())
+            .args(["sim", "--crtk", "PSM1", "--scenario"])
+            .arg(repo().join("config/sim/clamp.toml"))
+            .arg("--command-log")
+            .arg(&log)
+            .args(extra)
+            .env("ROS_DOMAIN_ID", domain.to_string())
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    StandIn { proc, log, started }
+}
+
+/// The stand-in's log: (t_s, kind, detail) per line.
+fn console_log(path: &Path) -> Vec<(f64, String, String)> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .map(|v| {
+            (
+                v["t_s"].as_f64().unwrap_or(f64::NAN),
+                v["kind"].as_str().unwrap_or_default().to_owned(),
+                v["detail"].as_str().unwrap_or_default().to_owned(),
+            )
+        })
+        .collect()
+}
+
+/// Runs `dvrk-sidecar ARGS` with ROS_DOMAIN_ID; returns (success, stderr, seconds taken).
+fn run(domain: u16, args: &[&str], limit: Duration) -> (bool, String, f64) {
+    let (ok, err, secs, _) = run_until(domain, args, limit);
+    (ok, err, secs)
+}
+
+/// [`run`], and the instant the process was seen to exit.
+fn run_until(domain: u16, args: &[&str], limit: Duration) -> (bool, String, f64, Instant) {
+    let t0 = Instant::now();
+    let mut p = Proc::spawn(
+        "calibrate",
+        Command::new(sidecar_bin())
+            .args(args)
+            .current_dir(repo())
+            .env("ROS_DOMAIN_ID", domain.to_string())
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    // stderr is read on a thread so a chatty child never blocks on a full pipe
+    let mut err = p.child.as_mut().unwrap().stderr.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = std::io::Read::read_to_string(&mut err, &mut s);
+        s
+    });
+    let st = p
+        .wait_timeout(limit)
+        .unwrap_or_else(|| panic!("dvrk-sidecar {args:?} still running after {limit:?}"));
+    let end = Instant::now();
+    let text = reader.join().unwrap();
+    (st.success(), text, t0.elapsed().as_secs_f64(), end)
+}
+
+fn rows(path: &Path) -> usize {
+    std::fs::read_to_string(path)
+        .map(|t| t.lines().count().saturating_sub(1))
+        .unwrap_or(0)
+}
+
+/// The stand-in refused, clipped or over-stepped nothing.
+fn assert_clean(log: &[(f64, String, String)]) {
+    for (t, kind, detail) in log {
+        assert!(
+            kind != "warning" && !detail.contains("larger than one control cycle"),
+            "the console stand-in complained at {t} s: {kind} {detail}"
+        );
+    }
+}
+
+/// 1/K(L) of the stand-in's shaft (config/sim/clamp.toml, joint 1).
+fn truth_stiffness_j1(l: f64) -> f64 {
+    let c = [639.16, -432.35, 136.32, 3.12];
+    ((c[0] * l + c[1]) * l + c[2]) * l + c[3]
+}
+
+#[test]
+fn the_issues_command_lines_calibrate_through_the_console_and_fit_recovers_the_truth() {
+    let dir = scratch("console_item1");
+    // The lab's order: the torque-offset sweep with nothing touching the instrument, then the
+    // clamp-beam experiment with the clamp mounted (a stand-in whose operator clamps).
+    let d = domain(0);
+    let mut free = stand_in("console_item1_free", d, &[]);
+    let sweep = dir.join("sweep.csv");
+    let (ok, err, secs) = run(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.12",
+            "--out",
+            sweep.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(600),
+    );
+    assert!(ok, "torque-offset failed after {secs:.0} s: {err}");
+    let n_sweep = rows(&sweep);
+    eprintln!("torque-offset through the console: {n_sweep} rows in {secs:.0} s");
+    assert!(n_sweep >= 30, "{n_sweep} rows");
+    free.proc.terminate();
+    assert_clean(&console_log(&free.log));
+
+    let d = domain(1);
+    let mut clamped = stand_in("console_item1_clamp", d, &["--fixture", "clamp"]);
+    let clamp = dir.join("clamp.csv");
+    let (ok, err, secs) = run(
+        d,
+        &[
+            "calibrate",
+            "clamp",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.10,0.13,0.16,0.19",
+            "--torque-offset",
+            sweep.to_str().unwrap(),
+            "--out",
+            clamp.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(1800),
+    );
+    assert!(ok, "clamp failed after {secs:.0} s: {err}");
+    eprintln!(
+        "clamp through the console: {} rows in {secs:.0} s",
+        rows(&clamp)
+    );
+    clamped.proc.terminate();
+    let log = console_log(&clamped.log);
+    assert_clean(&log);
+    // every prompt was followed by the operator's clamp
+    assert_eq!(
+        log.iter()
+            .filter(|(_, k, d)| k == "note" && d.contains("clamped"))
+            .count(),
+        4 + 1,
+        "one clamp per depth (and the one where the arm started)"
+    );
+
+    // fit reads the files unchanged
+    let params = dir.join("params.toml");
+    let out = Command::new(sidecar_bin())
+        .args(["fit", "--clamp"])
+        .arg(&clamp)
+        .arg("--torque-offset")
+        .arg(&sweep)
+        .arg("--out")
+        .arg(&params)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "fit: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let fit: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let depths = fit["joints"][0]["depths"].as_array().unwrap();
+    assert_eq!(depths.len(), 4);
+    for dp in depths {
+        let l = dp["insertion_m"].as_f64().unwrap();
+        let k = dp["stiffness_nm_per_rad"].as_f64().unwrap();
+        let truth = truth_stiffness_j1(l);
+        eprintln!(
+            "L = {l:.3} m: fitted {k:.3} N·m/rad, truth {truth:.3} ({:+.2} %)",
+            100.0 * (k / truth - 1.0)
+        );
+        assert!((k / truth - 1.0).abs() < 0.05, "L {l}: {k} vs {truth}");
+    }
+    let backlash = fit["joints"][0]["backlash_rad"].as_f64().unwrap();
+    assert!((backlash / 0.003 - 1.0).abs() < 0.2, "backlash {backlash}");
+}
+
+#[test]
+fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read() {
+    let dir = scratch("console_divot_dyn");
+    let (d1, d2) = (domain(2), domain(3));
+    let mut divot_console = stand_in("console_divot", d1, &["--fixture", "divot"]);
+    let mut free_console = stand_in("console_dyn", d2, &[]);
+    let divot = dir.join("divot.csv");
+    let dynamics = dir.join("dynamics.csv");
+    let dyn_args = [
+        "calibrate",
+        "dynamics",
+        "--robot",
+        "ros2:PSM1",
+        "--depths",
+        "0.10,0.15",
+        "--seconds-per-depth",
+        "8",
+        "--out",
+        dynamics.to_str().unwrap(),
+        "--yes",
+    ];
+    let dyn_args: Vec<String> = dyn_args.iter().map(|a| (*a).to_owned()).collect();
+    let dyn_thread = std::thread::spawn(move || {
+        let args: Vec<&str> = dyn_args.iter().map(String::as_str).collect();
+        run(d2, &args, Duration::from_secs(300))
+    });
+    let (ok, err, secs) = run(
+        d1,
+        &[
+            "calibrate",
+            "divot",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "2",
+            "--out",
+            divot.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(900),
+    );
+    assert!(ok, "divot failed after {secs:.0} s: {err}");
+    eprintln!(
+        "divot through the console: {} rows in {secs:.0} s",
+        rows(&divot)
+    );
+    let (ok, err, secs) = dyn_thread.join().unwrap();
+    assert!(ok, "dynamics failed after {secs:.0} s: {err}");
+    eprintln!(
+        "dynamics through the console: {} rows in {secs:.0} s",
+        rows(&dynamics)
+    );
+    assert!(rows(&dynamics) > 1500, "{} rows", rows(&dynamics));
+    divot_console.proc.terminate();
+    free_console.proc.terminate();
+    assert_clean(&console_log(&divot_console.log));
+    let dyn_log = console_log(&free_console.log);
+    assert_clean(&dyn_log);
+    // the excitation came through servo_jp, within the speed limit between two commands
+    let servo: Vec<(f64, Vec<f64>)> = dyn_log
+        .iter()
+        .filter(|(_, k, d)| k == "motion" && d.starts_with("servo_jp"))
+        .map(|(t, _, d)| {
+            let v: Vec<f64> =
+                serde_json::from_str(d.trim_start_matches("servo_jp ")).unwrap_or_default();
+            (*t, v)
+        })
+        .collect();
+    assert!(servo.len() > 1500, "{} servo_jp", servo.len());
+    for w in servo.windows(2) {
+        for j in 0..2 {
+            let step = (w[1].1[j] - w[0].1[j]).abs();
+            // 80% of 90 deg/s over one 10 ms period, with room for a late period
+            assert!(step < 0.05, "servo_jp step {step} rad on joint {}", j + 1);
+        }
+    }
+
+    let repo = repo();
+    let cfg = repo.join("config/compliance/sim-psm.toml");
+    let out = Command::new(sidecar_bin())
+        .args(["evaluate", "--params"])
+        .arg(&cfg)
+        .arg("--data")
+        .arg(&divot)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "evaluate: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // `fit --dynamics` needs a clamp file too: one made on the simulator in process
+    let clamp_sim = dir.join("clamp_sim.csv");
+    let st = Command::new(sidecar_bin())
+        .current_dir(&repo)
+        .args([
+            "calibrate",
+            "clamp",
+            "--config",
+            "config/sim/clamp.toml",
+            "--joints",
+            "1",
+            "--depths",
+            "0.10,0.15,0.20",
+            "--quiet",
+            "--out",
+        ])
+        .arg(&clamp_sim)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let out = Command::new(sidecar_bin())
+        .args(["fit", "--clamp"])
+        .arg(&clamp_sim)
+        .arg("--dynamics")
+        .arg(&dynamics)
+        .arg("--out")
+        .arg(dir.join("p.toml"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "fit --dynamics: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// One fault against a torque-offset sweep: the run must end non-zero with `reason` in its
+/// message, keep its rows, and send at most two motion commands after the fault.
+fn fault_case(test: &str, offset: u16, fault: &str, at_s: f64, reason: &str) {
+    let d = domain(offset);
+    let fault_arg = format!("{fault}@{at_s}");
+    let mut console = stand_in(test, d, &["--fault", &fault_arg]);
+    let out = scratch(test).join("sweep.csv");
+    let (ok, err, _, end) = run_until(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.12",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(120),
+    );
+    // An upper bound of the exit's time on the stand-in's clock, which starts after spawning.
+    let ended = end.duration_since(console.started).as_secs_f64();
+    console.proc.terminate();
+    assert!(!ok, "{fault}: the run succeeded: {err}");
+    assert!(err.contains(reason), "{fault}: no {reason:?} in: {err}");
+    assert!(err.contains("rows collected are kept"), "{err}");
+    let kept = rows(&out);
+    assert!(kept >= 1, "{fault}: {kept} rows kept");
+    let log = console_log(&console.log);
+    let t_fault = log
+        .iter()
+        .find(|(_, k, _)| k == "fault")
+        .map(|(t, _, _)| *t)
+        .unwrap_or_else(|| panic!("{fault}: the stand-in logged no fault"));
+    let after: Vec<_> = log
+        .iter()
+        .filter(|(t, k, _)| *t > t_fault && k == "motion")
+        .collect();
+    eprintln!(
+        "{fault}@{at_s}: exit about {:.2} s after the fault, {} motion commands after it, {kept} rows kept",
+        ended - t_fault,
+        after.len()
+    );
+    assert!(
+        after.len() <= 2,
+        "{fault}: motion after the fault: {after:?}"
+    );
+    // the goal: non-zero within 5 s of the fault
+    assert!(ended - t_fault < 5.0, "{fault}: {:.1} s", ended - t_fault);
+}
+
+#[test]
+fn an_effort_spike_aborts() {
+    fault_case(
+        "console_fault_effort",
+        4,
+        "effort",
+        12.0,
+        "above --effort-limit-nm",
+    );
+}
+
+#[test]
+fn an_estop_aborts() {
+    fault_case(
+        "console_fault_estop",
+        5,
+        "estop",
+        12.0,
+        "operating state DISABLED",
+    );
+}
+
+#[test]
+fn a_console_fault_aborts() {
+    fault_case(
+        "console_fault_fault",
+        6,
+        "fault",
+        12.0,
+        "operating state FAULT",
+    );
+}
+
+#[test]
+fn a_silent_console_aborts() {
+    fault_case(
+        "console_fault_silence",
+        7,
+        "silence",
+        12.0,
+        "measured_js silent",
+    );
+}
+
+#[test]
+fn invalid_measured_js_aborts() {
+    fault_case(
+        "console_fault_invalid",
+        8,
+        "invalid",
+        12.0,
+        "measured_js invalid",
+    );
+}
+
+#[test]
+fn a_refused_move_aborts() {
+    fault_case(
+        "console_fault_refuse",
+        9,
+        "refuse",
+        12.0,
+        "did not start a move_jp",
+    );
+}
+
+#[test]
+fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
+    let d = domain(10);
+    let mut console = stand_in("console_disabled", d, &["--start", "disabled"]);
+    let out = scratch("console_disabled").join("sweep.csv");
+    std::fs::write(&out, "an earlier recording\n").unwrap();
+    let args = [
+        "calibrate",
+        "torque-offset",
+        "--robot",
+        "ros2:PSM1",
+        "--joints",
+        "1",
+        "--depths",
+        "0.12",
+        "--out",
+        out.to_str().unwrap(),
+        "--yes",
+    ];
+    let (ok, err, _) = run(d, &args, Duration::from_secs(60));
+    assert!(!ok);
+    assert!(
+        err.contains("PSM1 is DISABLED") && err.contains("nothing was sent"),
+        "{err}"
+    );
+    let log = console_log(&console.log);
+    assert!(
+        log.iter().all(|(_, k, _)| k != "motion" && k != "command"),
+        "sent to a disabled arm: {log:?}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(&out).unwrap(),
+        "an earlier recording\n",
+        "the earlier file must be untouched"
+    );
+
+    // --enable: enable and home, then the run starts; Ctrl-C ends it with one hold at most
+    let mut p = Proc::spawn(
+        "calibrate --enable",
+        Command::new(sidecar_bin())
+            .args(args)
+            .arg("--enable")
+            .env("ROS_DOMAIN_ID", d.to_string())
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let moved = common::eventually(Duration::from_secs(60), || {
+        console_log(&console.log)
+            .iter()
+            .any(|(_, k, d)| k == "motion" && d.starts_with("move_jp"))
+            .then_some(())
+    });
+    assert!(
+        moved.is_some(),
+        "no move after --enable: {:?}",
+        console_log(&console.log)
+    );
+    std::thread::sleep(Duration::from_secs(8));
+    p.signal(libc::SIGINT);
+    let st = p
+        .wait_timeout(Duration::from_secs(20))
+        .expect("exit after Ctrl-C");
+    let err = p.stderr_text();
+    assert!(!st.success());
+    assert!(err.contains("stopped by Ctrl-C"), "{err}");
+    console.proc.terminate();
+    let log = console_log(&console.log);
+    let cmds: Vec<&str> = log
+        .iter()
+        .filter(|(_, k, _)| k == "command")
+        .map(|(_, _, d)| d.as_str())
+        .collect();
+    assert!(
+        cmds.starts_with(&["state_command enable", "state_command home"]),
+        "{cmds:?}"
+    );
+    assert_eq!(cmds.last(), Some(&"hold"), "{cmds:?}");
+}
+
+#[test]
+fn dry_run_prints_the_plan_and_sends_nothing() {
+    // no console at all: the plan needs none
+    let out = scratch("console_dry").join("clamp.csv");
+    let (ok, err, _) = run(
+        domain(11),
+        &[
+            "calibrate",
+            "clamp",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.10,0.13",
+            "--out",
+            out.to_str().unwrap(),
+            "--dry-run",
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("plan: clamp") && err.contains("nothing was sent"),
+        "{err}"
+    );
+    assert!(err.contains("effort limit 1.5"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn bad_arguments_are_refused_before_anything_is_opened() {
+    let out = scratch("console_badargs").join("clamp.csv");
+    std::fs::write(&out, "an earlier recording\n").unwrap();
+    for (arg, value, expect) in [
+        ("--depths", "5.0", "--depths 5"),
+        ("--depths", "nan", "--depths NaN"),
+        ("--settle-s", "-1", "--settle-s -1"),
+        ("--robot", "ros3:PSM1", "expected ros2:ARM"),
+        ("--robot", "ros2:../PSM1", "--robot"),
+    ] {
+        let mut args = vec!["calibrate", "clamp", "--out", out.to_str().unwrap()];
+        if arg != "--robot" {
+            args.extend(["--robot", "ros2:PSM1"]);
+        }
+        args.extend([arg, value]);
+        let (ok, err, _) = run(domain(12), &args, Duration::from_secs(30));
+        assert!(!ok, "{args:?} accepted");
+        assert!(err.contains(expect), "{args:?}: {err}");
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            "an earlier recording\n"
+        );
+    }
+}
