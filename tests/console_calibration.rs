@@ -617,3 +617,91 @@ fn bad_arguments_are_refused_before_anything_is_opened() {
         );
     }
 }
+
+#[test]
+fn files_record_their_provenance_and_fit_refuses_two_instruments() {
+    let dir = scratch("console_provenance");
+    let repo = repo();
+    let clamp = dir.join("clamp.csv");
+    let st = Command::new(sidecar_bin())
+        .current_dir(&repo)
+        .args([
+            "calibrate",
+            "clamp",
+            "--config",
+            "config/sim/clamp.toml",
+            "--joints",
+            "1",
+            "--depths",
+            "0.10,0.13,0.16,0.19",
+            "--quiet",
+            "--out",
+        ])
+        .arg(&clamp)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let text = std::fs::read_to_string(&clamp).unwrap();
+    for key in [
+        "# arm: simulator",
+        "# instrument: LARGE_NEEDLE_DRIVER:400006",
+        "# date: 20",
+        "# command: dvrk-sidecar calibrate clamp",
+    ] {
+        assert!(
+            text.contains(key),
+            "no {key:?} in {}",
+            &text[..300.min(text.len())]
+        );
+    }
+    // fit carries it into the parameter file
+    let params = dir.join("p.toml");
+    let st = Command::new(sidecar_bin())
+        .args(["fit", "--clamp"])
+        .arg(&clamp)
+        .arg("--out")
+        .arg(&params)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let p = std::fs::read_to_string(&params).unwrap();
+    assert!(
+        p.contains("# instrument: LARGE_NEEDLE_DRIVER:400006"),
+        "{p}"
+    );
+    assert!(
+        p.contains("recorded 20") && p.contains("dvrk-sidecar calibrate clamp"),
+        "{p}"
+    );
+    // the same rows said to come from another instrument: refused, nothing written
+    let other = dir.join("other.csv");
+    std::fs::write(
+        &other,
+        text.replace("LARGE_NEEDLE_DRIVER:400006", "CADIERE_FORCEPS:400049"),
+    )
+    .unwrap();
+    let out2 = dir.join("mixed.toml");
+    let st = Command::new(sidecar_bin())
+        .args(["fit", "--clamp"])
+        .arg(&clamp)
+        .arg(&other)
+        .arg("--out")
+        .arg(&out2)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(!st.status.success());
+    assert!(
+        err.contains("CADIERE_FORCEPS:400049") && err.contains("one instrument"),
+        "{err}"
+    );
+    assert!(!out2.exists());
+}

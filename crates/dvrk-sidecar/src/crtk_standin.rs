@@ -28,7 +28,7 @@ use anyhow::{Context, Result, bail};
 use dvrk_bridge::cdr::RosTime;
 use dvrk_bridge::console::{ConsoleCommand, ConsoleServer, PSM_JOINT_NAMES};
 use dvrk_bridge::crtk::{JointStateMsg, OperatingStateMsg};
-use dvrk_sim::{Environment, Motion, Scenario, SimPsm, SimRng};
+use dvrk_sim::{Emulator, Environment, Motion, Scenario, SimPsm, SimRng};
 
 /// Classic PSM joint limits of the console (share/kinematic/PSM.json): yaw, pitch, insertion,
 /// roll, wrist pitch, wrist yaw.
@@ -93,6 +93,10 @@ pub struct CrtkArgs {
     /// Write every command received and every state change as JSON lines to this file.
     #[arg(long)]
     pub command_log: Option<PathBuf>,
+    /// Also answer the boards' UDP protocol of the same simulated arm on this address (e.g.
+    /// 127.0.0.1:1394), so a sidecar service reads the arm the console stand-in moves.
+    #[arg(long, value_name = "ADDR:PORT")]
+    pub boards: Option<std::net::SocketAddr>,
 }
 
 /// A fault to inject.
@@ -163,7 +167,11 @@ impl Axis {
 /// The console's state machine and trajectory generator around a simulated PSM. Pure: time is
 /// passed in, outputs are returned.
 pub struct ConsoleSim {
-    psm: SimPsm,
+    /// The simulated arm and its boards (answered on UDP with `--boards`).
+    emu: Emulator,
+    /// Physics steps taken, of `dt_ns` each.
+    steps: u64,
+    dt_ns: u64,
     state: &'static str,
     homed: bool,
     busy: bool,
@@ -191,7 +199,12 @@ pub enum Out {
 }
 
 impl ConsoleSim {
-    pub fn new(scenario: &Scenario, start: &str, fixture: &str) -> Self {
+    pub fn new(
+        scenario: &Scenario,
+        io: &dvrk_io::IoConfig,
+        start: &str,
+        fixture: &str,
+    ) -> Result<Self> {
         let mut sc = scenario.clone();
         sc.motion = Motion::Hold;
         let divot = match sc.environment {
@@ -203,7 +216,11 @@ impl ConsoleSim {
             },
         };
         sc.environment = Environment::Free;
-        let mut psm = sc.build_psm();
+        let mut emu = Emulator::new(&sc, io).context("building the emulated boards")?;
+        // the first call sets the emulator's epoch; physics steps follow one dt at a time
+        emu.advance_to(1);
+        let dt_ns = (sc.dt_s * 1e9).round().max(1.0) as u64;
+        let psm = emu.psm_mut();
         let q = psm.joint_state().position;
         let setpoint: [f64; 6] = std::array::from_fn(|j| q[j]);
         let enabled = start != "disabled";
@@ -211,8 +228,10 @@ impl ConsoleSim {
         if fixture == "divot" {
             psm.set_environment(divot);
         }
-        Self {
-            psm,
+        Ok(Self {
+            emu,
+            steps: 0,
+            dt_ns,
             state: if enabled { "ENABLED" } else { "DISABLED" },
             homed: start == "homed",
             busy: false,
@@ -227,7 +246,20 @@ impl ConsoleSim {
             effort_offset: 0.0,
             refuse: false,
             t: 0.0,
-        }
+        })
+    }
+
+    fn psm(&self) -> &SimPsm {
+        self.emu.psm()
+    }
+
+    fn psm_mut(&mut self) -> &mut SimPsm {
+        self.emu.psm_mut()
+    }
+
+    /// Answers one board request (the emulator of the same arm).
+    pub fn handle_board_request(&mut self, request: &[u8], reply: &mut [u8]) -> Option<usize> {
+        self.emu.handle(request, reply)
     }
 
     pub fn operating_state(&self, stamp: RosTime) -> OperatingStateMsg {
@@ -255,7 +287,7 @@ impl ConsoleSim {
                 self.busy = false;
                 self.homing_until = None;
             }
-            self.psm.set_amps_enabled(s == "ENABLED");
+            self.psm_mut().set_amps_enabled(s == "ENABLED");
             if s == "ENABLED" {
                 self.hold_here();
             }
@@ -264,16 +296,16 @@ impl ConsoleSim {
     }
 
     fn hold_here(&mut self) {
-        let q = self.psm.joint_state().position;
+        let q = self.psm().joint_state().position;
         self.setpoint = std::array::from_fn(|j| q[j]);
         self.traj = None;
         self.apply_setpoint(&[0.0; 6]);
     }
 
     fn apply_setpoint(&mut self, vel: &[f64; 6]) {
+        let sp = self.setpoint;
         for j in 0..6 {
-            self.psm
-                .set_setpoint_with_velocity(j, self.setpoint[j], vel[j]);
+            self.psm_mut().set_setpoint_with_velocity(j, sp[j], vel[j]);
         }
     }
 
@@ -304,7 +336,7 @@ impl ConsoleSim {
         if (goal_insertion - self.setpoint[2]).abs() > 1e-3 {
             if self.clamp_engaged {
                 self.clamp_engaged = false;
-                self.psm.set_environment(Environment::Free);
+                self.psm_mut().set_environment(Environment::Free);
                 out.push(Out::Note("operator: clamp released".into()));
             }
             self.insertion_moved = true;
@@ -467,9 +499,10 @@ impl ConsoleSim {
                     out.push(Out::State);
                 }
             }
-            self.psm.step(dt);
+            self.steps += 1;
+            self.emu.advance_to(1 + self.steps * self.dt_ns);
             if self.state == "ENABLED" {
-                let q = self.psm.joint_state().position;
+                let q = self.psm().joint_state().position;
                 for j in 0..3 {
                     let e = (self.setpoint[j] - q[j]).abs();
                     if e > TRACKING_ERROR_LIMIT[j] {
@@ -491,13 +524,13 @@ impl ConsoleSim {
         if self.fixture != "clamp" || self.clamp_engaged || !self.insertion_moved {
             return;
         }
-        let js = self.psm.joint_state();
+        let js = self.psm().joint_state();
         let still = self.traj.is_none() && (0..3).all(|j| js.velocity[j].abs() < 1e-3);
         match (still, self.still_since) {
             (false, _) => self.still_since = None,
             (true, None) => self.still_since = Some(self.t),
             (true, Some(t0)) if self.t - t0 >= 0.5 => {
-                self.psm.set_environment(Environment::Clamp);
+                self.psm_mut().set_environment(Environment::Clamp);
                 self.clamp_engaged = true;
                 self.insertion_moved = false;
                 out.push(Out::Note(format!(
@@ -511,7 +544,7 @@ impl ConsoleSim {
 
     /// `measured_js` now.
     pub fn measured(&self, stamp: RosTime, rng: &mut SimRng, noise: f64) -> JointStateMsg {
-        let js = self.psm.joint_state();
+        let js = self.psm().joint_state();
         let mut effort: Vec<f64> = (0..6).map(|j| js.effort[j]).collect();
         for e in effort.iter_mut().take(3) {
             *e += rng.normal(noise);
@@ -541,7 +574,7 @@ impl ConsoleSim {
 
     /// Ground truth of the shaft (for logs): joint 1-2 angles of the shaft.
     pub fn truth_q(&self) -> [f64; 2] {
-        let t = self.psm.truth();
+        let t = self.psm().truth();
         [t.q_true[0], t.q_true[1]]
     }
 }
@@ -568,7 +601,7 @@ fn command_name(c: &ConsoleCommand) -> String {
 }
 
 /// Runs the stand-in until SIGINT/SIGTERM.
-pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario) -> Result<()> {
+pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConfig) -> Result<()> {
     if !(args.rate_hz > 0.0 && args.rate_hz <= 2000.0) {
         bail!("--crtk-rate {}: must be in ]0, 2000] Hz", args.rate_hz);
     }
@@ -594,7 +627,19 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario) -> Result<()> {
     let mut server = ConsoleServer::new(arm, domain, &[])
         .with_context(|| format!("DDS endpoints of {arm} on domain {domain}"))?;
     let stop = crate::signals::StopFlag::install()?;
-    let mut sim = ConsoleSim::new(scenario, &args.start, &args.fixture);
+    let mut sim = ConsoleSim::new(scenario, io, &args.start, &args.fixture)?;
+    let boards = match args.boards {
+        Some(addr) => {
+            let s = std::net::UdpSocket::bind(addr)
+                .with_context(|| format!("--boards {addr}: binding the boards' UDP socket"))?;
+            s.set_read_timeout(Some(Duration::from_micros(200)))?;
+            tracing::info!(%addr, "answering the boards' protocol for the same arm");
+            Some(s)
+        }
+        None => None,
+    };
+    let mut rx = vec![0u8; 4096];
+    let mut tx = vec![0u8; 8192];
     let mut rng = SimRng::new(scenario.seed ^ 0x5eed);
     let dt = scenario.dt_s;
     let start = Instant::now();
@@ -681,7 +726,18 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario) -> Result<()> {
                 server.publish_js(&m, Some(&sim.setpoint_js(st)))?;
             }
         }
-        std::thread::sleep(Duration::from_micros(500));
+        match &boards {
+            Some(sock) => {
+                // the loop waits on the boards' socket: a request is answered at once
+                if let Ok((n, from)) = sock.recv_from(&mut rx) {
+                    sim.advance(start.elapsed().as_secs_f64(), dt, &mut outs);
+                    if let Some(m) = sim.handle_board_request(&rx[..n], &mut tx) {
+                        let _ = sock.send_to(&tx[..m], from);
+                    }
+                }
+            }
+            None => std::thread::sleep(Duration::from_micros(500)),
+        }
     }
     let q = sim.truth_q();
     tracing::info!(
@@ -696,6 +752,15 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn new_sim(start: &str, fixture: &str) -> ConsoleSim {
+        let io = crate::config::load_io(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../config/io/psm-classic.toml"),
+        )
+        .unwrap();
+        ConsoleSim::new(&scenario(), &io, start, fixture).unwrap()
+    }
 
     fn scenario() -> Scenario {
         let path =
@@ -712,7 +777,7 @@ mod tests {
 
     #[test]
     fn move_jp_is_busy_then_reaches_its_goal_within_the_limits() {
-        let mut sim = ConsoleSim::new(&scenario(), "homed", "none");
+        let mut sim = new_sim("homed", "none");
         let mut out = Vec::new();
         let mut goal = sim.setpoint;
         goal[0] += 0.3;
@@ -725,13 +790,13 @@ mod tests {
         assert!(sim.busy && out.is_empty(), "{out:?}");
         sim.advance(1.5, 1e-4, &mut out);
         assert_eq!(out, [Out::GoalReached(true), Out::State]);
-        assert!((sim.psm.joint_state().position[0] - goal[0]).abs() < 2e-3);
+        assert!((sim.psm().joint_state().position[0] - goal[0]).abs() < 2e-3);
     }
 
     #[test]
     fn moves_are_refused_unless_enabled_and_homed() {
         for start in ["disabled", "enabled"] {
-            let mut sim = ConsoleSim::new(&scenario(), start, "none");
+            let mut sim = new_sim(start, "none");
             let mut out = Vec::new();
             sim.command(&ConsoleCommand::MoveJp(js(sim.setpoint)), &mut out);
             assert!(
@@ -744,7 +809,7 @@ mod tests {
 
     #[test]
     fn fault_accepts_only_disable_and_unhome() {
-        let mut sim = ConsoleSim::new(&scenario(), "homed", "none");
+        let mut sim = new_sim("homed", "none");
         let mut out = Vec::new();
         sim.fault(Fault::PidFault, &mut out);
         assert_eq!(sim.state(), "FAULT");
@@ -757,7 +822,7 @@ mod tests {
 
     #[test]
     fn the_operator_clamps_after_an_insertion_move_and_releases_before_the_next() {
-        let mut sim = ConsoleSim::new(&scenario(), "homed", "clamp");
+        let mut sim = new_sim("homed", "clamp");
         let mut out = Vec::new();
         sim.advance(1.0, 1e-4, &mut out);
         assert!(sim.clamp_engaged, "{out:?}");

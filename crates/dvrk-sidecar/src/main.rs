@@ -135,3 +135,14 @@ fn run(cli: Cli) -> Result<()> {
         Command::Record(args) => bridge_cmd::run_record(&args),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// clap checks its own rules (unique argument ids, ...) only when a command is parsed:
+    /// check every subcommand here rather than in a user's terminal.
+    #[test]
+    fn the_command_line_definition_is_consistent() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
+    }
+}

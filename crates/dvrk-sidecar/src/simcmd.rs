@@ -51,7 +51,8 @@ pub struct SimArgs {
 pub fn run(args: &SimArgs) -> Result<()> {
     let scenario = config::load_scenario(&args.scenario)?;
     if let Some(arm) = &args.crtk.arm {
-        return crate::crtk_standin::run(&args.crtk, arm, &scenario);
+        let io = config::load_io(&args.io)?;
+        return crate::crtk_standin::run(&args.crtk, arm, &scenario, &io);
     }
     let io = config::load_io(&args.io)?;
     let mut emulator = dvrk_sim::Emulator::new(&scenario, &io)

@@ -511,7 +511,9 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
             .context("waiting for samples")?;
         silence.report(&update, names.topic(Topic::MeasuredJs).as_str());
         if records.len() > before {
-            let mut buf = Vec::new();
+            let mut buf = super::provenance::Provenance::now(&prefix, None)
+                .lines()
+                .into_bytes();
             data::write_rows(&mut buf, &to_rows(&records, &offsets))?;
             data::write_atomically(&a.out, &buf)?;
             let r = records[records.len() - 1];
@@ -632,18 +634,23 @@ fn build_plan(kind: SimKind, a: &SimArgs) -> (AnyPlan, String) {
     }
 }
 
-/// Writes the rows of a run; an existing file is left as it is when there is no row.
+/// The instrument the simulated PSM carries (its kinematics are the large needle driver's).
+pub const SIM_INSTRUMENT: &str = "LARGE_NEEDLE_DRIVER:400006";
+
+/// Writes the rows of a run after its provenance block; an existing file is left as it is when
+/// there is no row.
 fn write_records(
     kind: SimKind,
     a: &SimArgs,
     records: &[Record],
-    with_truth: bool,
+    prov: &super::provenance::Provenance,
 ) -> anyhow::Result<bool> {
+    let with_truth = a.robot.is_none();
     if records.is_empty() && std::fs::symlink_metadata(&a.out).is_ok() {
         eprintln!("no row collected: {} is left as it was", a.out.display());
         return Ok(false);
     }
-    let mut buf = Vec::new();
+    let mut buf = prov.lines().into_bytes();
     match kind {
         SimKind::Divot => {
             let mut rows = to_divot_rows(records);
@@ -695,7 +702,11 @@ fn run_sim_procedure(kind: SimKind, a: &SimArgs, stop: &AtomicBool) -> anyhow::R
     })?;
     bar.finish_and_clear();
 
-    write_records(kind, a, &run.records, true)?;
+    let prov = super::provenance::Provenance::now(
+        &format!("simulator ({})", config.display()),
+        Some(SIM_INSTRUMENT),
+    );
+    write_records(kind, a, &run.records, &prov)?;
     let simulated_s = run.samples as f64 * PERIOD_NS as f64 * 1e-9;
     eprintln!(
         "{name}: {} rows written to {} ({simulated_s:.1} s simulated)",
@@ -726,8 +737,9 @@ pub fn write_console_records(
     kind: SimKind,
     a: &SimArgs,
     records: &[Record],
+    prov: &super::provenance::Provenance,
 ) -> anyhow::Result<bool> {
-    write_records(kind, a, records, false)
+    write_records(kind, a, records, prov)
 }
 
 #[cfg(test)]

@@ -674,7 +674,8 @@ pub fn run_procedure(
         bar.set_position(u64::from(p.units_done));
     })?;
     bar.finish_and_clear();
-    let written = super::calibrate::write_console_records(kind, a, &run.records)?;
+    let prov = super::provenance::Provenance::now(arm, run.tool_type.as_deref());
+    let written = super::calibrate::write_console_records(kind, a, &run.records, &prov)?;
     eprintln!(
         "{name}: {} rows{} in {:.1} s ({} measured_js, {} move_jp, {} servo_jp)",
         run.records.len(),
@@ -880,7 +881,9 @@ pub fn run_dynamics(
         eprintln!("no row collected: {} is left as it was", a.out.display());
         false
     } else {
-        super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+        let prov = super::provenance::Provenance::now(arm, watch.tool_type.as_deref());
+        let text = prov.lines() + &to_csv(&rows);
+        super::data::write_atomically(&a.out, text.as_bytes())?;
         true
     };
     eprintln!(

@@ -80,6 +80,8 @@ fn reader(path: &Path) -> anyhow::Result<csv::Reader<Bounded>> {
     let file = open_regular(path, DATA_MAX_BYTES)?;
     Ok(csv::ReaderBuilder::new()
         .has_headers(true)
+        // the provenance block (`# arm: ...`, see provenance.rs)
+        .comment(Some(b'#'))
         .trim(csv::Trim::All)
         .from_reader(file))
 }

@@ -170,7 +170,15 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
         return super::console_run::run_dynamics(a, &arm, stop);
     }
     let rows = record(a, stop)?;
-    super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+    let prov = super::provenance::Provenance::now(
+        &format!(
+            "simulator ({})",
+            a.config.as_deref().unwrap_or(Path::new("")).display()
+        ),
+        Some(super::calibrate::SIM_INSTRUMENT),
+    );
+    let text = prov.lines() + &to_csv(&rows);
+    super::data::write_atomically(&a.out, text.as_bytes())?;
     let text = format!("wrote {} rows to {}\n", rows.len(), a.out.display());
     std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
         .context("writing to stdout")
@@ -421,12 +429,17 @@ pub fn run_trajectory(a: &TrajectoryArgs) -> anyhow::Result<()> {
 /// Reads a dynamics file; every error names the file, line and column.
 pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
     let text = crate::files::read_text(path, crate::files::DATA_MAX_BYTES)?;
-    let mut lines = text.lines().enumerate();
+    // the provenance block (`# arm: ...`) comes first
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .skip_while(|(_, l)| l.starts_with('#'));
     match lines.next() {
         Some((_, h)) if h.trim() == HEADER => {}
-        Some((_, h)) => bail!(
-            "{} line 1: header `{}`; a dynamics file starts with `{HEADER}`",
+        Some((i, h)) => bail!(
+            "{} line {}: header `{}`; a dynamics file starts with `{HEADER}`",
             path.display(),
+            i + 1,
             crate::files::quote(h.trim())
         ),
         None => bail!("{}: empty file", path.display()),

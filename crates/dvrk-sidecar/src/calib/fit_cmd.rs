@@ -75,6 +75,8 @@ pub struct FitOutcome {
 
 /// Reads the files and fits everything; writes nothing.
 pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
+    // one instrument per parameter set: refused before any fitting
+    inputs_provenance(args)?;
     let mut legacy_seen = 0;
     let clamp_rows = data::read_files(&args.clamp, &args.joint, &mut legacy_seen)?;
     let sweep_rows = data::read_files(&args.torque_offset, &args.joint, &mut legacy_seen)?;
@@ -395,11 +397,58 @@ pub fn report(outcome: &FitOutcome) -> String {
     s
 }
 
+/// The provenance of every input file, and the one instrument they name (if any); files of
+/// different instruments are refused.
+pub fn inputs_provenance(
+    args: &FitArgs,
+) -> anyhow::Result<(
+    Vec<(PathBuf, super::provenance::Provenance)>,
+    Option<String>,
+)> {
+    let files = args
+        .clamp
+        .iter()
+        .chain(args.torque_offset.iter())
+        .chain(args.dynamics.iter())
+        .map(|p| Ok((p.clone(), super::provenance::read(p)?)))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let instrument =
+        super::provenance::one_instrument(files.iter().map(|(p, v)| (p.as_path(), v)))?;
+    Ok((files, instrument))
+}
+
 /// Runs `fit`: computes everything first, then draws the figures, then writes the parameter file
 /// atomically, then prints.
 pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
     let outcome = compute(args)?;
+    let (inputs, instrument) = inputs_provenance(args)?;
     let mut text = String::new();
+    let mut arms: Vec<&str> = inputs
+        .iter()
+        .filter_map(|(_, p)| p.arm.as_deref())
+        .collect();
+    arms.sort_unstable();
+    arms.dedup();
+    text.push_str(&format!(
+        "# arm: {}\n# instrument: {}\n# date: {}\n# command: {}\n",
+        if arms.is_empty() {
+            "not recorded".to_owned()
+        } else {
+            arms.join(", ")
+        },
+        instrument.as_deref().unwrap_or("not recorded"),
+        super::provenance::utc_now(),
+        super::provenance::command_line()
+    ));
+    for (p, v) in &inputs {
+        if let Some(c) = &v.command {
+            text.push_str(&format!(
+                "# input {}: recorded {} by `{c}`\n",
+                p.display(),
+                v.date.as_deref().unwrap_or("at an unknown date")
+            ));
+        }
+    }
     text.push_str("# Fitted by `dvrk-sidecar fit` from:\n");
     for p in args
         .clamp

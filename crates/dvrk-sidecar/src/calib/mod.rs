@@ -9,6 +9,7 @@ pub mod evaluate;
 pub mod evaluate_motion;
 pub mod fit_cmd;
 pub mod plots;
+pub mod provenance;
 
 pub use calibrate::{CalibrateArgs, run_calibrate};
 pub use evaluate::{EvaluateArgs, run_evaluate};
