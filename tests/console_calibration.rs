@@ -20,6 +20,37 @@ use std::time::{Duration, Instant};
 
 use common::{Proc, repo, scratch, sidecar_bin};
 
+/// At most two of these tests run at once: each runs a simulated arm in real time (10 kHz
+/// physics) and a 0.3 s silence watchdog, which a machine of 2 cores shared by a dozen such
+/// processes would trip.
+struct Slots {
+    used: std::sync::Mutex<usize>,
+    freed: std::sync::Condvar,
+}
+
+static SLOTS: Slots = Slots {
+    used: std::sync::Mutex::new(0),
+    freed: std::sync::Condvar::new(),
+};
+
+struct Slot;
+
+fn slot() -> Slot {
+    let mut used = SLOTS.used.lock().unwrap_or_else(|e| e.into_inner());
+    while *used >= 2 {
+        used = SLOTS.freed.wait(used).unwrap_or_else(|e| e.into_inner());
+    }
+    *used += 1;
+    Slot
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        *SLOTS.used.lock().unwrap_or_else(|e| e.into_inner()) -= 1;
+        SLOTS.freed.notify_one();
+    }
+}
+
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221).
 fn domain(offset: u16) -> u16 {
     150 + (std::process::id() % 60) as u16 + offset
@@ -125,6 +156,7 @@ fn truth_stiffness_j1(l: f64) -> f64 {
 
 #[test]
 fn the_issues_command_lines_calibrate_through_the_console_and_fit_recovers_the_truth() {
+    let _slot = slot();
     let dir = scratch("console_item1");
     // The lab's order: the torque-offset sweep with nothing touching the instrument, then the
     // clamp-beam experiment with the clamp mounted (a stand-in whose operator clamps).
@@ -230,6 +262,7 @@ fn the_issues_command_lines_calibrate_through_the_console_and_fit_recovers_the_t
 
 #[test]
 fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read() {
+    let _slot = slot();
     let dir = scratch("console_divot_dyn");
     let (d1, d2) = (domain(2), domain(3));
     let mut divot_console = stand_in("console_divot", d1, &["--fixture", "divot"]);
@@ -363,6 +396,7 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
 /// One fault against a torque-offset sweep: the run must end non-zero with `reason` in its
 /// message, keep its rows, and send at most two motion commands after the fault.
 fn fault_case(test: &str, offset: u16, fault: &str, at_s: f64, reason: &str) {
+    let _slot = slot();
     let d = domain(offset);
     let fault_arg = format!("{fault}@{at_s}");
     let mut console = stand_in(test, d, &["--fault", &fault_arg]);
@@ -483,6 +517,7 @@ fn a_refused_move_aborts() {
 
 #[test]
 fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
+    let _slot = slot();
     let d = domain(10);
     let mut console = stand_in("console_disabled", d, &["--start", "disabled"]);
     let out = scratch("console_disabled").join("sweep.csv");
@@ -704,4 +739,83 @@ fn files_record_their_provenance_and_fit_refuses_two_instruments() {
         "{err}"
     );
     assert!(!out2.exists());
+}
+
+/// `--measure sidecar`: the rows come from a sidecar service reading the same arm's boards at
+/// 1.5 kHz, while the commands still go through the console; compared with the console's own
+/// 100 Hz rows of the same sweep.
+#[test]
+fn rows_from_the_sidecar_service_match_the_consoles() {
+    let _slot = slot();
+    let test = "console_measure_sidecar";
+    let d = domain(13);
+    let port = common::free_udp_port();
+    let boards = format!("127.0.0.1:{port}");
+    let mut console = stand_in(test, d, &["--boards", &boards]);
+    let prefix = format!("cs{}", std::process::id());
+    let cfg = common::write_config(
+        test,
+        &format!("udp:{boards}"),
+        "shared",
+        &prefix,
+        "clamp.toml",
+    );
+    let mut serve = common::serve(&cfg);
+    let dir = scratch(test);
+    let (side, cons) = (dir.join("sidecar.csv"), dir.join("console.csv"));
+    for (out, extra) in [
+        (
+            &side,
+            vec!["--measure", "sidecar", "--sidecar-prefix", &prefix],
+        ),
+        (&cons, vec![]),
+    ] {
+        let mut args = vec![
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.12",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ];
+        args.extend(extra);
+        let (ok, err, secs) = run(d, &args, Duration::from_secs(300));
+        assert!(ok, "{args:?} failed after {secs:.0} s: {err}");
+    }
+    serve.terminate();
+    console.proc.terminate();
+    assert_clean(&console_log(&console.log));
+    let effort = |p: &Path| -> Vec<(f64, f64)> {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .skip(1)
+            .map(|l| {
+                let f: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+                (f[3], f[4])
+            })
+            .collect()
+    };
+    let (a, b) = (effort(&side), effort(&cons));
+    assert_eq!(a.len(), b.len(), "the same plan gives the same rows");
+    let mut worst: f64 = 0.0;
+    let mut sum = 0.0;
+    for ((qa, ea), (qb, eb)) in a.iter().zip(&b) {
+        assert!((qa - qb).abs() < 2e-3, "angles {qa} vs {qb}");
+        worst = worst.max((ea - eb).abs());
+        sum += (ea - eb).abs();
+    }
+    eprintln!(
+        "sweep rows, sidecar (1.5 kHz) vs console (100 Hz): {} rows, effort differs by {:.4} N·m on average, {:.4} at most",
+        a.len(),
+        sum / a.len() as f64,
+        worst
+    );
+    assert!(worst < 0.05, "{worst}");
 }

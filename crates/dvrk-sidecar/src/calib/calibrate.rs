@@ -151,9 +151,15 @@ pub struct SimArgs {
     /// With --robot: trajectory_j/set_ratio of the console's move_jp (0 < ratio <= 1).
     #[arg(long, default_value_t = 0.2)]
     pub ratio: f64,
-    /// With --robot: where rows come from. `console`: its measured_js (100 Hz).
-    #[arg(long, default_value = "console", value_parser = ["console"])]
+    /// With --robot: where rows come from. `console`: its measured_js (100 Hz); `sidecar`: the
+    /// 1.5 kHz measured_js of a sidecar service running for that arm (commands still follow the
+    /// console's measured_js).
+    #[arg(long, default_value = "console", value_parser = ["console", "sidecar"])]
     pub measure: String,
+    /// With --measure sidecar: the service's prefix (default: the arm's name, as `serve` names
+    /// its topics).
+    #[arg(long)]
+    pub sidecar_prefix: Option<String>,
     /// With --robot and --yes: the pause after each operator prompt (s).
     #[arg(long, default_value_t = 2.0)]
     pub prompt_pause_s: f64,
@@ -774,6 +780,7 @@ mod tests {
             enable: false,
             ratio: 0.2,
             measure: "console".into(),
+            sidecar_prefix: None,
             prompt_pause_s: 2.0,
         }
     }

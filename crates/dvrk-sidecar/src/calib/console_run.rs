@@ -63,6 +63,8 @@ pub enum Stop {
         error: Option<String>,
     },
     Silent {
+        /// `console` or `sidecar`: whose measured_js.
+        source: &'static str,
         for_ms: u128,
         invalid: bool,
     },
@@ -96,9 +98,13 @@ impl std::fmt::Display for Stop {
                 }
                 Ok(())
             }
-            Stop::Silent { for_ms, invalid } => write!(
+            Stop::Silent {
+                source,
+                for_ms,
+                invalid,
+            } => write!(
                 f,
-                "measured_js {} for {for_ms} ms (limit {} ms)",
+                "{source} measured_js {} for {for_ms} ms (limit {} ms)",
                 if *invalid {
                     "invalid (zero stamp)"
                 } else {
@@ -401,6 +407,7 @@ impl Watch {
         let since_valid = now.duration_since(self.last_valid);
         if since_valid > SILENCE_LIMIT {
             return Err(Stop::Silent {
+                source: "console",
                 for_ms: since_valid.as_millis(),
                 invalid: self.saw_invalid && now.duration_since(self.last_any) <= SILENCE_LIMIT,
             });
@@ -482,12 +489,82 @@ fn ask_operator(
     }
 }
 
-/// Runs `plan` on the console's arm until done, aborted, or stopped.
+/// The 1.5 kHz samples of a sidecar service that reads the same arm (`--measure sidecar`).
+pub struct SidecarSource {
+    sub: dvrk_ipc::Subscription<dvrk_ipc::JointStateV2, dvrk_ipc::iceoryx2::service::ipc::Service>,
+    _node: dvrk_ipc::iceoryx2::node::Node<dvrk_ipc::iceoryx2::service::ipc::Service>,
+    service: String,
+    last_valid: Instant,
+    /// Samples taken (valid or not).
+    pub received: u64,
+}
+
+impl SidecarSource {
+    /// Subscribes to `<prefix>/measured_js` of a running service; fails when none publishes.
+    pub fn open(prefix: &str) -> anyhow::Result<Self> {
+        let (sub, names, node) = super::calibrate::subscribe_measured_js(prefix)?;
+        let service = names.topic(dvrk_ipc::Topic::MeasuredJs).as_str().to_owned();
+        let ok = dvrk_bridge::console::wait_until(
+            Duration::from_secs(5),
+            Duration::from_millis(10),
+            || sub.number_of_publishers() > 0,
+        );
+        if !ok {
+            bail!(
+                "--measure sidecar: no sidecar service publishes {service}; start `dvrk-sidecar \
+                 serve` for this arm (or give its prefix with --sidecar-prefix), or use \
+                 --measure console"
+            );
+        }
+        Ok(Self {
+            sub,
+            _node: node,
+            service,
+            last_valid: Instant::now(),
+            received: 0,
+        })
+    }
+
+    /// Every sample waiting, oldest first (invalid ones as `valid = false`).
+    fn drain(&mut self, out: &mut Vec<Sample>, now: Instant) -> anyhow::Result<()> {
+        while let Some(sample) = self
+            .sub
+            .subscriber()
+            .receive()
+            .map_err(|e| anyhow::anyhow!("receiving from {}: {e:?}", self.service))?
+        {
+            let m = *sample;
+            drop(sample);
+            self.received += 1;
+            let valid = m.header.valid != 0
+                && m.position[..3]
+                    .iter()
+                    .chain(&m.effort[..3])
+                    .all(|v| v.is_finite());
+            if valid {
+                self.last_valid = now;
+            }
+            out.push(Sample {
+                t_ns: m.header.sample_t_ns,
+                valid,
+                position: [m.position[0], m.position[1], m.position[2]],
+                effort: [m.effort[0], m.effort[1], m.effort[2]],
+                aux: [0.0; AUX],
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Runs `plan` on the console's arm until done, aborted, or stopped. Rows come from the
+/// console's `measured_js`, or from `sidecar` when given; commands are decided at each
+/// console `measured_js` (the console's rate) either way.
 pub fn run_console<P: Plan>(
     plan: P,
     rc: RunnerConfig,
     client: &mut ConsoleClient,
     opts: &ConsoleOptions,
+    mut sidecar: Option<&mut SidecarSource>,
     stop: &AtomicBool,
     mut on_progress: impl FnMut(&Runner<P>),
 ) -> anyhow::Result<ConsoleRun> {
@@ -506,11 +583,14 @@ pub fn run_console<P: Plan>(
     let mut polled = Polled::default();
     let mut watch = Watch::new(rc.effort_limit_nm, client.last_tool_type.clone());
     let mut last_cmd: Option<[f64; 3]> = None;
+    let mut last_position: Option<[f64; 3]> = None;
+    let mut setpoint: Option<[f64; 3]> = None;
     let mut wrist: Option<[f64; 3]> = None;
     let mut moving: Option<MoveWait> = None;
     // operator prompt: Some(deadline) with --yes, or a channel to stdin
     let mut prompt: Option<(Option<Instant>, Option<mpsc::Receiver<()>>)> = None;
     let mut polls = 0u64;
+    let mut side: Vec<Sample> = Vec::new();
     let reason = 'run: loop {
         if stop.load(Ordering::Relaxed) {
             break 'run Some(Stop::Interrupted);
@@ -522,6 +602,9 @@ pub fn run_console<P: Plan>(
         if let Err(r) = watch.events(&polled, moving.as_mut()) {
             break 'run Some(r);
         }
+        // the samples the runner averages: the console's, or the sidecar's
+        side.clear();
+        let mut tick = false;
         for m in &polled.measured_js {
             run.samples += 1;
             let s = match watch.sample(m, now) {
@@ -529,41 +612,74 @@ pub fn run_console<P: Plan>(
                 Ok(None) => continue,
                 Ok(Some(s)) => s,
             };
+            tick = true;
+            last_position = Some(s.position);
             if wrist.is_none() {
                 wrist = Some([s.aux[0], s.aux[1], s.aux[2]]);
+            }
+            if sidecar.is_none() {
+                side.push(s);
+            }
+        }
+        if let Some(src) = sidecar.as_deref_mut() {
+            src.drain(&mut side, now)?;
+            let since = now.duration_since(src.last_valid);
+            if since > SILENCE_LIMIT {
+                break 'run Some(Stop::Silent {
+                    source: "sidecar",
+                    for_ms: since.as_millis(),
+                    invalid: src.received > 0,
+                });
+            }
+        }
+        for s in &side {
+            if !s.valid {
+                continue;
+            }
+            for j in 0..2 {
+                if s.effort[j].abs() > rc.effort_limit_nm {
+                    break 'run Some(Stop::EffortLimit {
+                        joint: j + 1,
+                        effort: s.effort[j],
+                        limit: rc.effort_limit_nm,
+                    });
+                }
             }
             if moving.is_some() || prompt.is_some() {
                 continue; // the console moves (or the operator acts); the runner waits
             }
-            let out = runner.update(&s);
+            let out = runner.update(s);
             run.records.extend(out.record);
+            setpoint = Some(out.setpoint);
             match out.status {
                 Status::Done => break 'run None,
                 Status::Aborted(r) => break 'run Some(Stop::Runner(r)),
                 Status::AwaitFixture(f) => {
                     prompt = Some(ask_operator(&f, opts, now));
-                    continue;
+                    break;
                 }
                 Status::Running => {}
             }
-            let Some(w) = wrist else { continue };
+        }
+        // commands, at the console's rate
+        if tick
+            && moving.is_none()
+            && prompt.is_none()
+            && let (Some(w), Some(sp), Some(pos)) = (wrist, setpoint, last_position)
+        {
             let full = |q: &[f64; 3]| [q[0], q[1], q[2], w[0], w[1], w[2]];
-            let base = last_cmd.unwrap_or(s.position);
-            if runner.ramping() {
-                let target = runner.target();
-                let d: [f64; 3] = std::array::from_fn(|j| target[j] - base[j]);
-                if (0..3).any(|j| d[j].abs() > LARGE_MOVE[j]) {
-                    moving = Some(MoveWait::new(client, now, &d, opts.ratio));
-                    client.move_jp(&full(&target))?;
-                    run.moves += 1;
-                    last_cmd = Some(target);
-                    continue;
-                }
-            }
-            if last_cmd != Some(out.setpoint) {
-                client.servo_jp(&full(&out.setpoint))?;
+            let base = last_cmd.unwrap_or(pos);
+            let target = runner.target();
+            let d: [f64; 3] = std::array::from_fn(|j| target[j] - base[j]);
+            if runner.ramping() && (0..3).any(|j| d[j].abs() > LARGE_MOVE[j]) {
+                moving = Some(MoveWait::new(client, now, &d, opts.ratio));
+                client.move_jp(&full(&target))?;
+                run.moves += 1;
+                last_cmd = Some(target);
+            } else if last_cmd != Some(sp) {
+                client.servo_jp(&full(&sp))?;
                 run.servos += 1;
-                last_cmd = Some(out.setpoint);
+                last_cmd = Some(sp);
             }
         }
         if let Err(r) = watch.silence(now) {
@@ -574,6 +690,7 @@ pub fn run_console<P: Plan>(
                 Err(r) => break 'run Some(r),
                 Ok(true) => {
                     runner.target_reached_by_robot();
+                    setpoint = Some(runner.target());
                     moving = None;
                 }
                 Ok(false) => {}
@@ -624,7 +741,10 @@ pub fn run_procedure(
     };
     let (plan, text) = super::calibrate::plan_for(kind, a);
     let settle_s = a.settle_s.unwrap_or(0.3);
+    // rows average 0.2 s of samples: 20 of the console's 100 Hz, 300 of the sidecar's 1.5 kHz
+    let samples_per_step = if a.measure == "sidecar" { 300 } else { 20 };
     let rc = RunnerConfig {
+        samples_per_step,
         effort_limit_nm: a.effort_limit_nm,
         joint_limits: CONSOLE_JOINT_LIMITS,
         settle_s,
@@ -655,6 +775,13 @@ pub fn run_procedure(
         eprintln!("--dry-run: nothing was sent");
         return Ok(());
     }
+    // the sidecar's samples, if asked for: opened before anything moves
+    let mut sidecar = match a.measure.as_str() {
+        "sidecar" => Some(SidecarSource::open(
+            a.sidecar_prefix.as_deref().unwrap_or(arm),
+        )?),
+        _ => None,
+    };
     let mut client = prepare(arm, a.enable, a.yes)?;
     let opts = ConsoleOptions {
         arm: arm.to_owned(),
@@ -668,7 +795,7 @@ pub fn run_procedure(
     } else {
         indicatif::ProgressBar::new(1)
     };
-    let run = run_console(plan, rc, &mut client, &opts, stop, |r| {
+    let run = run_console(plan, rc, &mut client, &opts, sidecar.as_mut(), stop, |r| {
         let p = r.progress();
         bar.set_length(u64::from(p.units_total));
         bar.set_position(u64::from(p.units_done));
