@@ -417,10 +417,7 @@ pub fn find_instrument(name: &str) -> Result<&'static Instrument> {
     use dvrk_compliance::InstrumentError;
     match dvrk_compliance::instrument_from_tool_type(name) {
         Ok(i) => Ok(i),
-        Err(e @ InstrumentError::NotModelled { .. }) => {
-            Err(anyhow::anyhow!("instrument \"{name}\" is refused: {e}"))
-        }
-        Err(e) => {
+        Err(e @ (InstrumentError::UnknownName | InstrumentError::NotInIndex { .. })) => {
             let known: Vec<&str> = dvrk_compliance::instruments()
                 .iter()
                 .map(|i| i.name)
@@ -431,6 +428,7 @@ pub fn find_instrument(name: &str) -> Result<&'static Instrument> {
                 known.join(", ")
             ))
         }
+        Err(e) => Err(anyhow::anyhow!("instrument \"{name}\" is refused: {e}")),
     }
 }
 
