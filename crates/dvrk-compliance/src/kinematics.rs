@@ -83,6 +83,7 @@ fn add_scaled(p: &mut [f64; 3], k: f64, v: &[f64; 3]) {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PsmKinematics {
     insertion_offset_m: f64,
+    roll_theta_rad: f64,
     roll_d_m: f64,
     wrist: Wrist,
     /// `(sin, cos)` of alpha = +pi/2 (cos is 6.1e-17, as in cisst).
@@ -99,6 +100,7 @@ impl PsmKinematics {
         let t = &tool.tooltip_offset;
         Self {
             insertion_offset_m: arm.insertion_offset_m(),
+            roll_theta_rad: tool.roll_theta_rad,
             roll_d_m: tool.roll_d_m,
             wrist: tool.wrist,
             alpha_90: FRAC_PI_2.sin_cos(),
@@ -140,8 +142,8 @@ impl PsmKinematics {
         // 3 insertion (prismatic): alpha +pi/2, d = q3 + insertion offset.
         rot_x(&mut m, plus_90);
         add_scaled(&mut p, q[2] + self.insertion_offset_m, &m[2]);
-        // 4 roll: alpha 0, theta = q4, D = shaft length.
-        rot_z(&mut m, q[3].sin_cos());
+        // 4 roll: alpha 0, theta = q4 + theta_DH (0 except for the stapler), D = shaft length.
+        rot_z(&mut m, (q[3] + self.roll_theta_rad).sin_cos());
         add_scaled(&mut p, self.roll_d_m, &m[2]);
 
         match self.wrist {

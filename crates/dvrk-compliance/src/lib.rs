@@ -45,7 +45,10 @@ pub use dynamics::{
     DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, fit_dynamics,
     fit_dynamics_segmented,
 };
-pub use instruments::{Generation, Instrument, Wrist, instrument, instruments};
+pub use instruments::{
+    ANY_VERSION, Generation, Instrument, InstrumentError, ToolType, ToolTypeName, VersionRange,
+    Wrist, instrument, instrument_from_tool_type, instruments,
+};
 pub use kinematics::{ArmKind, PsmKinematics};
 pub use model::{Compensator, ComplianceConfig, Correction, JointModel, ModelKind};
 pub use params::{

@@ -167,7 +167,7 @@ fn si_insertion_offset() {
     assert_relative_eq!(dz, 0.0508, epsilon = 1e-9);
 }
 
-/// Every 8 mm instrument, on both arms: with q1 = q2 = q4 = q6 = 0 the wrist pitch swings the
+/// Every instrument with a two-link wrist, on both arms: with q1 = q2 = q4 = q6 = 0 the wrist pitch swings the
 /// wrist link A in the y-z plane: p = (0, -A sin q5, -(q3 + offset + D + A cos q5)).
 /// For LND 400006 at q3 = 0.12, q5 = 0.5 that is (0, -4.363, -112.386) mm, reference vector 7.
 #[test]
@@ -177,12 +177,16 @@ fn standard_wrist_geometry_per_family() {
             let Wrist::Standard { yaw_a_m: a } = i.wrist else {
                 continue;
             };
+            // The stapler 410298 has its own shaft: D = 0.41557, no wrist offset (A = 0).
             let expected_d = match i.generation {
+                _ if i.model == 410298 => 0.41557,
                 Generation::Classic => 0.4162,
                 Generation::S => 0.4670,
             };
             assert_eq!(i.roll_d_m, expected_d, "{}", i.name);
-            assert!([0.0091, 0.0107, 0.0112].contains(&a), "{}", i.name);
+            // Wrist A of the tool files: 0.0093 cautery hook/spatula, 0.01 Mega SutureCut.
+            let known_a = [0.0, 0.0091, 0.0093, 0.01, 0.0107, 0.0112];
+            assert!(known_a.contains(&a), "{}", i.name);
             let fk = PsmKinematics::new(arm, i);
             for (q3, q5) in [(0.12, 0.5), (0.2, -1.2), (0.05, 0.0)] {
                 let p = fk.forward(&[0.0, 0.0, q3, 0.0, q5, 0.0]).translation.vector;

@@ -35,7 +35,8 @@ pub struct SidecarParams {
     pub io: PathBuf,
     /// `classic` or `si`.
     pub arm: ArmKind,
-    /// Instrument, by its dVRK name (e.g. `LARGE_NEEDLE_DRIVER_400006`).
+    /// Instrument: its dVRK tool file name (e.g. `LARGE_NEEDLE_DRIVER_400006`) or the console's
+    /// `NAME:MODEL[min..max]` (e.g. `LARGE_NEEDLE_DRIVER:420006[12..]`).
     pub instrument: String,
     /// Compliance parameter file (see config/compliance/).
     pub compliance: PathBuf,
@@ -409,15 +410,26 @@ pub fn compliance_warnings(source: &Source, text: &str, file: &str) -> Vec<Strin
     w
 }
 
-/// Looks an instrument up by its dVRK name, listing the known ones when it is not found.
+/// Looks an instrument up by its tool file name (`LARGE_NEEDLE_DRIVER_400006`) or as the console
+/// writes it (`LARGE_NEEDLE_DRIVER:400006[..]`), and refuses one the project cannot use (no
+/// usable actuator-to-joint coupling), so neither `serve` nor `fk` runs with a wrong tip pose.
 pub fn find_instrument(name: &str) -> Result<&'static Instrument> {
-    dvrk_compliance::instrument(name).ok_or_else(|| {
-        let known: Vec<&str> = dvrk_compliance::instruments()
-            .iter()
-            .map(|i| i.name)
-            .collect();
-        anyhow::anyhow!("unknown instrument \"{name}\"; known: {}", known.join(", "))
-    })
+    use dvrk_compliance::InstrumentError;
+    match dvrk_compliance::instrument_from_tool_type(name) {
+        Ok(i) => Ok(i),
+        Err(e @ (InstrumentError::UnknownName | InstrumentError::NotInIndex { .. })) => {
+            let known: Vec<&str> = dvrk_compliance::instruments()
+                .iter()
+                .map(|i| i.name)
+                .collect();
+            Err(anyhow::anyhow!(
+                "unknown instrument \"{name}\": {e}; known (or as the console writes them, \
+                 NAME:MODEL[..]): {}",
+                known.join(", ")
+            ))
+        }
+        Err(e) => Err(anyhow::anyhow!("instrument \"{name}\" is refused: {e}")),
+    }
 }
 
 impl SidecarConfig {
@@ -470,11 +482,13 @@ impl SidecarConfig {
         let io_path = resolve(&p.io);
         let mut io = load_io(&io_path).with_context(|| format!("{here}: field `io`"))?;
         let instrument = find_instrument(&p.instrument)
-            .with_context(|| format!("{here}: field `instrument`"))?;
-        if let Some(coupling) = instrument.actuator_to_joint_position {
-            io.set_coupling(coupling)
-                .with_context(|| format!("{here}: coupling of instrument {}", instrument.name))?;
-        }
+            .with_context(|| format!("{here}: field `instrument` = \"{}\"", p.instrument))?;
+        // find_instrument checked the coupling; an instrument without one never gets here.
+        let coupling = instrument
+            .coupling()
+            .with_context(|| format!("{here}: field `instrument` = \"{}\"", p.instrument))?;
+        io.set_coupling(*coupling)
+            .with_context(|| format!("{here}: coupling of instrument {}", instrument.name))?;
         let kinematics = PsmKinematics::new(p.arm, instrument);
         let compliance_path = resolve(&p.compliance);
         let (compliance, compliance_text) = load_compliance_text(&compliance_path)
@@ -567,6 +581,34 @@ impl SidecarConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn instruments_by_file_name_or_console_tool_type() {
+        let by_file = find_instrument("LARGE_NEEDLE_DRIVER_400006").unwrap();
+        let by_console = find_instrument("LARGE_NEEDLE_DRIVER:400006[..]").unwrap();
+        assert!(std::ptr::eq(by_file, by_console));
+        let geared = find_instrument("MEGA_NEEDLE_DRIVER:420194[12..]").unwrap();
+        assert_eq!(geared.name, "MEGA_NEEDLE_DRIVER_420194_GEARED");
+        // Every instrument the config accepts has a coupling (it goes to the io conversion).
+        assert!(
+            find_instrument("CADIERE_FORCEPS_400049")
+                .unwrap()
+                .actuator_to_joint_position
+                .is_some()
+        );
+        // Refusals name the instrument and why.
+        let e = find_instrument("BANANA_400000").unwrap_err().to_string();
+        assert!(e.contains("unknown instrument \"BANANA_400000\""), "{e}");
+        let e = find_instrument("MEGA_NEEDLE_DRIVER:420194")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("MEGA_NEEDLE_DRIVER:420194") && e.contains("version"),
+            "{e}"
+        );
+        let e = find_instrument("ERROR").unwrap_err().to_string();
+        assert!(e.contains("ERROR"), "{e}");
+    }
 
     #[test]
     fn source_strings_follow_the_dvrk_spelling() {

@@ -10,7 +10,8 @@ use crate::config;
 
 #[derive(clap::Args)]
 pub struct FkArgs {
-    /// Instrument, by its dVRK name.
+    /// Instrument: its dVRK tool file name (LARGE_NEEDLE_DRIVER_400006) or as the console writes
+    /// it (LARGE_NEEDLE_DRIVER:420006[12..]). One the project cannot model is refused.
     #[arg(long, default_value = "LARGE_NEEDLE_DRIVER_400006")]
     tool: String,
     /// Arm kind.
@@ -84,8 +85,9 @@ pub fn fk(args: &FkArgs) -> Result<()> {
     } else {
         crate::outln!(
             stdout,
-            "tool {} on a {} PSM, RCM frame (local/measured_cp)",
+            "tool {} ({}) on a {} PSM, RCM frame (local/measured_cp)",
             tool.name,
+            tool.tool_type(),
             arm_name(args.arm)
         )?;
         crate::outln!(
