@@ -708,7 +708,7 @@ pub fn run_console<P: Plan>(
             }
         }
         polls += 1;
-        if polls % 100 == 0 {
+        if polls.is_multiple_of(100) {
             on_progress(&runner);
         }
         std::thread::sleep(Duration::from_millis(1));
@@ -866,10 +866,10 @@ pub fn peaks(rows: &[[f64; 7]]) -> (f64, f64) {
     let mut a: f64 = 0.0;
     for w in rows.windows(2) {
         let dt = w[1][0] - w[0][0];
-        for j in 4..6 {
-            v = v.max(w[1][j].abs());
+        for (now, before) in w[1][4..6].iter().zip(&w[0][4..6]) {
+            v = v.max(now.abs());
             if dt > 0.0 {
-                a = a.max(((w[1][j] - w[0][j]) / dt).abs());
+                a = a.max(((now - before) / dt).abs());
             }
         }
     }

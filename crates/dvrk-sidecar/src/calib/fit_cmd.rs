@@ -397,14 +397,12 @@ pub fn report(outcome: &FitOutcome) -> String {
     s
 }
 
+/// Each input file with its provenance.
+pub type InputFiles = Vec<(PathBuf, super::provenance::Provenance)>;
+
 /// The provenance of every input file, and the one instrument they name (if any); files of
 /// different instruments are refused.
-pub fn inputs_provenance(
-    args: &FitArgs,
-) -> anyhow::Result<(
-    Vec<(PathBuf, super::provenance::Provenance)>,
-    Option<String>,
-)> {
+pub fn inputs_provenance(args: &FitArgs) -> anyhow::Result<(InputFiles, Option<String>)> {
     let files = args
         .clamp
         .iter()
