@@ -35,6 +35,13 @@ FLAG_NAMES = (
     "IMPLAUSIBLE",
     "NO_SOURCE",
     "HELD",
+    "NOT_HOMED",
+    "ARM_NOT_ENABLED",
+    "CONSOLE_UNKNOWN",
+    "NO_INSTRUMENT",
+    "INSTRUMENT_UNSUPPORTED",
+    "NO_CALIBRATION",
+    "BASE_FRAME_STALE",
 )
 """Names of the bits of `Header.flags` (dvrk_ipc::flags), bit 0 first."""
 

@@ -30,7 +30,7 @@ use rustdds::{
 };
 
 use crate::cdr::{CdrWriter, RosTime};
-use crate::crtk::{self, JointStateMsg, OperatingStateMsg, dds_type};
+use crate::crtk::{self, JointStateMsg, OperatingStateMsg, PoseStampedMsg, dds_type};
 use crate::dds::{CdrBody, CdrBodyAdapter, MAX_DOMAIN_ID};
 use crate::error::BridgeError;
 
@@ -571,6 +571,103 @@ impl ConsoleClient {
     }
 }
 
+/// What a [`ConsoleWatcher`] poll brought: the newest of each.
+#[derive(Debug, Default)]
+pub struct Watched {
+    pub operating_state: Option<OperatingStateMsg>,
+    pub tool_type: Option<String>,
+    /// `measured_cp` (base frame) and `local/measured_cp` (RCM frame), newest of each.
+    pub measured_cp: Option<PoseStampedMsg>,
+    pub local_measured_cp: Option<PoseStampedMsg>,
+    /// Anything at all arrived (the console is alive).
+    pub heard: bool,
+    pub undecodable: u64,
+}
+
+/// A read-only client of one arm of the console: its state events, its instrument and its two
+/// tip poses. It writes nothing (a service that follows the console never commands it).
+pub struct ConsoleWatcher {
+    operating_state: Named<Reader>,
+    tool_type: Named<Reader>,
+    measured_cp: Named<Reader>,
+    local_measured_cp: Named<Reader>,
+    ep: Endpoints,
+    buf: Vec<RawBody>,
+}
+
+impl core::fmt::Debug for ConsoleWatcher {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ConsoleWatcher")
+            .field("arm", &self.ep.arm)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ConsoleWatcher {
+    pub fn new(arm: &str, domain: u16, interfaces: &[IpAddr]) -> Result<Self, BridgeError> {
+        let ep = Endpoints::new(arm, domain, interfaces)?;
+        use ConsoleQos::{Event, StreamReader};
+        Ok(Self {
+            operating_state: ep.reader("operating_state", dds_type::OPERATING_STATE, Event)?,
+            tool_type: ep.reader("tool_type", dds_type::STRING, Event)?,
+            measured_cp: ep.reader("measured_cp", dds_type::POSE_STAMPED, StreamReader)?,
+            local_measured_cp: ep.reader(
+                "local/measured_cp",
+                dds_type::POSE_STAMPED,
+                StreamReader,
+            )?,
+            ep,
+            buf: Vec::new(),
+        })
+    }
+
+    /// Drains every reader without blocking; keeps the newest of each (poses are paired by the
+    /// caller through their stamps).
+    pub fn poll(
+        &mut self,
+        out: &mut Watched,
+        cp: &mut Vec<PoseStampedMsg>,
+        local: &mut Vec<PoseStampedMsg>,
+    ) {
+        let mut buf = std::mem::take(&mut self.buf);
+        buf.clear();
+        self.operating_state.drain(&mut buf);
+        for b in &buf {
+            out.heard = true;
+            match OperatingStateMsg::decode(&b.bytes, b.big_endian) {
+                Ok(m) => out.operating_state = Some(m),
+                Err(_) => out.undecodable += 1,
+            }
+        }
+        buf.clear();
+        self.tool_type.drain(&mut buf);
+        for b in &buf {
+            out.heard = true;
+            match crtk::decode_string(&b.bytes, b.big_endian) {
+                Ok(m) => out.tool_type = Some(m),
+                Err(_) => out.undecodable += 1,
+            }
+        }
+        for (reader, dst) in [
+            (&mut self.measured_cp, &mut *cp),
+            (&mut self.local_measured_cp, &mut *local),
+        ] {
+            buf.clear();
+            reader.drain(&mut buf);
+            for b in &buf {
+                out.heard = true;
+                match PoseStampedMsg::decode(&b.bytes, b.big_endian) {
+                    Ok(m) => dst.push(m),
+                    Err(_) => out.undecodable += 1,
+                }
+            }
+        }
+        out.measured_cp = cp.last().cloned();
+        out.local_measured_cp = local.last().cloned();
+        self.buf = buf;
+    }
+}
+
 /// A command the console stand-in received.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ConsoleCommand {
@@ -597,6 +694,8 @@ impl ConsoleCommand {
 /// The console's side of one arm, for a stand-in.
 pub struct ConsoleServer {
     measured_js: Named<Writer>,
+    measured_cp: Named<Writer>,
+    local_measured_cp: Named<Writer>,
     setpoint_js: Named<Writer>,
     operating_state: Named<Writer>,
     goal_reached: Named<Writer>,
@@ -639,6 +738,8 @@ impl ConsoleServer {
         }
         Ok(Self {
             measured_js: ep.writer("measured_js", dds_type::JOINT_STATE, State)?,
+            measured_cp: ep.writer("measured_cp", dds_type::POSE_STAMPED, State)?,
+            local_measured_cp: ep.writer("local/measured_cp", dds_type::POSE_STAMPED, State)?,
             setpoint_js: ep.writer("setpoint_js", dds_type::JOINT_STATE, State)?,
             operating_state: ep.writer("operating_state", dds_type::OPERATING_STATE, Event)?,
             goal_reached: ep.writer("goal_reached", dds_type::BOOL, Event)?,
@@ -700,6 +801,20 @@ impl ConsoleServer {
         Ok(())
     }
 
+    /// Publishes `measured_cp` (base frame) and `local/measured_cp` (RCM frame) of one instant.
+    pub fn publish_cp(
+        &mut self,
+        measured_cp: &PoseStampedMsg,
+        local_measured_cp: &PoseStampedMsg,
+    ) -> Result<(), BridgeError> {
+        self.w.clear();
+        local_measured_cp.encode(&mut self.w);
+        self.local_measured_cp.send(&self.w)?;
+        self.w.clear();
+        measured_cp.encode(&mut self.w);
+        self.measured_cp.send(&self.w)
+    }
+
     pub fn publish_operating_state(&mut self, s: &OperatingStateMsg) -> Result<(), BridgeError> {
         self.w.clear();
         s.encode(&mut self.w);
@@ -742,6 +857,11 @@ impl ConsoleServer {
     /// A reader of `measured_js` has matched (the console publishes state only then).
     pub fn has_state_reader(&mut self) -> bool {
         self.measured_js.matched()
+    }
+
+    /// A reader of `measured_cp` or `local/measured_cp` has matched.
+    pub fn has_pose_reader(&mut self) -> bool {
+        self.measured_cp.matched() | self.local_measured_cp.matched()
     }
 }
 

@@ -12,6 +12,7 @@ use crate::cdr::{CdrWriter, RosTime};
 
 /// DDS type names as the ROS 2 rmw layers register them.
 pub mod dds_type {
+    pub const POSE_STAMPED: &str = "geometry_msgs::msg::dds_::PoseStamped_";
     pub const JOINT_STATE: &str = "sensor_msgs::msg::dds_::JointState_";
     pub const OPERATING_STATE: &str = "crtk_msgs::msg::dds_::OperatingState_";
     pub const STRING_STAMPED: &str = "crtk_msgs::msg::dds_::StringStamped_";
@@ -209,6 +210,46 @@ impl JointStateMsg {
     }
 }
 
+/// `geometry_msgs/PoseStamped`: position (m) and orientation quaternion (x, y, z, w).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PoseStampedMsg {
+    pub stamp: RosTime,
+    pub frame_id: String,
+    pub position: [f64; 3],
+    pub orientation_xyzw: [f64; 4],
+}
+
+impl PoseStampedMsg {
+    pub fn decode(body: &[u8], big_endian: bool) -> Result<Self, DecodeError> {
+        let mut r = CdrReader::new(body, big_endian);
+        let (stamp, frame_id) = r.header()?;
+        let mut position = [0.0; 3];
+        for v in &mut position {
+            *v = r.f64("pose.position")?;
+        }
+        let mut orientation_xyzw = [0.0; 4];
+        for v in &mut orientation_xyzw {
+            *v = r.f64("pose.orientation")?;
+        }
+        Ok(Self {
+            stamp,
+            frame_id,
+            position,
+            orientation_xyzw,
+        })
+    }
+
+    pub fn encode(&self, w: &mut CdrWriter) {
+        crate::cdr::pose_stamped(
+            w,
+            self.stamp,
+            &self.frame_id,
+            &self.position,
+            &self.orientation_xyzw,
+        );
+    }
+}
+
 /// `crtk_msgs/OperatingState`.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct OperatingStateMsg {
@@ -293,6 +334,19 @@ mod tests {
         let mut w = CdrWriter::new();
         js().encode(&mut w);
         assert_eq!(JointStateMsg::decode(w.body(), false).unwrap(), js());
+    }
+
+    #[test]
+    fn pose_stamped_round_trips() {
+        let p = PoseStampedMsg {
+            stamp: RosTime { sec: 3, nanosec: 4 },
+            frame_id: "ECM".into(),
+            position: [0.1, 0.2, 0.3],
+            orientation_xyzw: [0.0, 0.0, 0.6, 0.8],
+        };
+        let mut w = CdrWriter::new();
+        p.encode(&mut w);
+        assert_eq!(PoseStampedMsg::decode(w.body(), false).unwrap(), p);
     }
 
     #[test]

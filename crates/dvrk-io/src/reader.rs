@@ -123,6 +123,11 @@ impl<P: Port> ArmReader<P> {
     pub fn config(&self) -> &IoConfig {
         &self.cfg
     }
+    /// The conversion in use, to change the instrument's coupling between reads (the mounted
+    /// instrument changed).
+    pub fn config_mut(&mut self) -> &mut IoConfig {
+        &mut self.cfg
+    }
     pub fn mode(&self) -> AccessMode {
         self.mode
     }

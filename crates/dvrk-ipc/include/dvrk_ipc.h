@@ -103,6 +103,13 @@ extern "C" {
 #define DVRK_IPC_FLAG_IMPLAUSIBLE (1u << 11)         /* failed a plausibility check; valid = 0 */
 #define DVRK_IPC_FLAG_NO_SOURCE (1u << 12)           /* tap sees no console traffic; valid = 0 */
 #define DVRK_IPC_FLAG_HELD (1u << 13)                /* values held from the last valid sample */
+#define DVRK_IPC_FLAG_NOT_HOMED (1u << 14) /* arm not homed (console); valid = 0 */
+#define DVRK_IPC_FLAG_ARM_NOT_ENABLED (1u << 15) /* arm disabled/paused/fault: no correction */
+#define DVRK_IPC_FLAG_CONSOLE_UNKNOWN (1u << 16) /* console not heard: configured values */
+#define DVRK_IPC_FLAG_NO_INSTRUMENT (1u << 17) /* no instrument: compensated invalid */
+#define DVRK_IPC_FLAG_INSTRUMENT_UNSUPPORTED (1u << 18) /* instrument not modelled: compensated invalid */
+#define DVRK_IPC_FLAG_NO_CALIBRATION (1u << 19) /* no parameters for it: compensated = raw */
+#define DVRK_IPC_FLAG_BASE_FRAME_STALE (1u << 20) /* console base frame older than 1 s */
 #define DVRK_IPC_FLAG_FAULT_MASK (0x3fu)             /* bits 0..5 */
 
 /* ---- messages -------------------------------------------------------------------------------- */

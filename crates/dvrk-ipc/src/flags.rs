@@ -17,8 +17,15 @@
 //! | 11 | `IMPLAUSIBLE` | the sample failed a plausibility check (joint limits, jump between cycles, effort, pot/encoder agreement) | 0 |
 //! | 12 | `NO_SOURCE` | nothing to read: the passive tap sees no console traffic | 0 |
 //! | 13 | `HELD` | positions and poses are those of the last valid sample, held (see `held_sample_age_ns`) | 0 |
+//! | 14 | `NOT_HOMED` | the console says the arm is not homed: its encoders are not referenced | 0 |
+//! | 15 | `ARM_NOT_ENABLED` | the console says the arm is DISABLED, PAUSED or FAULT: the correction is withheld (compensated = raw) | as read |
+//! | 16 | `CONSOLE_UNKNOWN` | `follow_console` is on and nothing was heard from the console (yet, or for 1 s): configured values used | as read |
+//! | 17 | `NO_INSTRUMENT` | the console says no instrument is mounted: compensated messages invalid | compensated 0 |
+//! | 18 | `INSTRUMENT_UNSUPPORTED` | the console's instrument is ERROR or one the catalog cannot model: compensated messages invalid | compensated 0 |
+//! | 19 | `NO_CALIBRATION` | no parameter set for the mounted instrument: compensated = raw | — |
+//! | 20 | `BASE_FRAME_STALE` | the base frame from the console is older than 1 s (or none yet): the last one (or the configured one) is used | — |
 //!
-//! Bits 14..31 are reserved and 0. "as read" means the bit describes the hardware state and does
+//! Bits 21..31 are reserved and 0. "as read" means the bit describes the hardware state and does
 //! not by itself invalidate the sample; the publisher decides `valid` (0 when no usable
 //! position could be read). A consumer that needs a safe robot should still check
 //! [`FAULT_MASK`].
@@ -57,15 +64,30 @@ pub const NO_SOURCE: u32 = 1 << 12;
 /// sample, held while reads fail or are rejected (never zeros). Published with `valid = 0`.
 pub const HELD: u32 = 1 << 13;
 
+/// Issue 19: the console says the arm is not homed: its encoders are not referenced.
+pub const NOT_HOMED: u32 = 1 << 14;
+/// Issue 19: the console says the arm is DISABLED, PAUSED or FAULT: the correction is withheld (compensated = raw).
+pub const ARM_NOT_ENABLED: u32 = 1 << 15;
+/// Issue 19: `follow_console` is on and nothing was heard from the console (yet, or for 1 s): configured values used.
+pub const CONSOLE_UNKNOWN: u32 = 1 << 16;
+/// Issue 19: the console says no instrument is mounted: compensated messages invalid.
+pub const NO_INSTRUMENT: u32 = 1 << 17;
+/// Issue 19: the console's instrument is ERROR or one the catalog cannot model: compensated messages invalid.
+pub const INSTRUMENT_UNSUPPORTED: u32 = 1 << 18;
+/// Issue 19: no parameter set for the mounted instrument: compensated = raw.
+pub const NO_CALIBRATION: u32 = 1 << 19;
+/// Issue 19: the base frame from the console is older than 1 s (or none yet): the last one (or the configured one) is used.
+pub const BASE_FRAME_STALE: u32 = 1 << 20;
+
 /// Every defined bit.
-pub const ALL: u32 = (1 << 14) - 1;
+pub const ALL: u32 = (1 << 21) - 1;
 
 /// Bits that report a hardware or communication fault.
 pub const FAULT_MASK: u32 =
     BOARD_TIMEOUT | BOARD_ERROR | WATCHDOG_TIMEOUT | POWER_OFF | ENCODER_ERROR | AMP_FAULT;
 
 /// `(bit, name)` of every defined flag, in bit order (for printing; no allocation).
-pub const TABLE: [(u32, &str); 14] = [
+pub const TABLE: [(u32, &str); 21] = [
     (BOARD_TIMEOUT, "BOARD_TIMEOUT"),
     (BOARD_ERROR, "BOARD_ERROR"),
     (WATCHDOG_TIMEOUT, "WATCHDOG_TIMEOUT"),
@@ -80,6 +102,13 @@ pub const TABLE: [(u32, &str); 14] = [
     (IMPLAUSIBLE, "IMPLAUSIBLE"),
     (NO_SOURCE, "NO_SOURCE"),
     (HELD, "HELD"),
+    (NOT_HOMED, "NOT_HOMED"),
+    (ARM_NOT_ENABLED, "ARM_NOT_ENABLED"),
+    (CONSOLE_UNKNOWN, "CONSOLE_UNKNOWN"),
+    (NO_INSTRUMENT, "NO_INSTRUMENT"),
+    (INSTRUMENT_UNSUPPORTED, "INSTRUMENT_UNSUPPORTED"),
+    (NO_CALIBRATION, "NO_CALIBRATION"),
+    (BASE_FRAME_STALE, "BASE_FRAME_STALE"),
 ];
 
 /// Names of the bits set in `flags`, in bit order; reserved bits are skipped.

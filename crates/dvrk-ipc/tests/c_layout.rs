@@ -112,6 +112,13 @@ fn int_constants() -> Vec<(&'static str, u64)> {
         "DVRK_IPC_FLAG_IMPLAUSIBLE",
         "DVRK_IPC_FLAG_NO_SOURCE",
         "DVRK_IPC_FLAG_HELD",
+        "DVRK_IPC_FLAG_NOT_HOMED",
+        "DVRK_IPC_FLAG_ARM_NOT_ENABLED",
+        "DVRK_IPC_FLAG_CONSOLE_UNKNOWN",
+        "DVRK_IPC_FLAG_NO_INSTRUMENT",
+        "DVRK_IPC_FLAG_INSTRUMENT_UNSUPPORTED",
+        "DVRK_IPC_FLAG_NO_CALIBRATION",
+        "DVRK_IPC_FLAG_BASE_FRAME_STALE",
     ];
     assert_eq!(flag_macros.len(), flags::TABLE.len(), "a flag is missing");
     for (mac, (bit, name)) in flag_macros.iter().zip(flags::TABLE) {

@@ -36,8 +36,16 @@ pub struct SidecarParams {
     /// `classic` or `si`.
     pub arm: ArmKind,
     /// Instrument: its dVRK tool file name (e.g. `LARGE_NEEDLE_DRIVER_400006`) or the console's
-    /// `NAME:MODEL[min..max]` (e.g. `LARGE_NEEDLE_DRIVER:420006[12..]`).
+    /// `NAME:MODEL[min..max]` (e.g. `LARGE_NEEDLE_DRIVER:420006[12..]`), or `"console"`: the
+    /// one the dVRK console reports on `/<arm>/tool_type` (DDS domain `ROS_DOMAIN_ID`),
+    /// followed as it changes (implies `follow_console`).
     pub instrument: String,
+    /// Follow the dVRK console over DDS (ROS 2, domain `ROS_DOMAIN_ID`): its operating state
+    /// (samples invalid while not homed, no correction while not enabled) and its base frame
+    /// (`measured_cp` × `local/measured_cp`⁻¹). Default: on when `instrument = "console"`.
+    pub follow_console: Option<bool>,
+    /// The arm's name on the console (`PSM1`); default: the last segment of `prefix`.
+    pub console_arm: Option<String>,
     /// Compliance parameter file (see config/compliance/).
     pub compliance: PathBuf,
     /// Cycle rate: a number of Hz, or `"follow"` to run as fast as reads complete.
@@ -320,6 +328,15 @@ pub struct SidecarConfig {
     pub kinematics: PsmKinematics,
     pub compliance_path: PathBuf,
     pub compliance: ComplianceConfig,
+    /// The instrument the parameters were fitted for (their file's `# instrument:` line); None:
+    /// not recorded, used for any instrument.
+    pub compliance_instrument: Option<&'static Instrument>,
+    /// `instrument = "console"`.
+    pub instrument_from_console: bool,
+    /// Follow the console's state and base frame (and instrument when `instrument_from_console`).
+    pub follow_console: bool,
+    /// The arm's name on the console.
+    pub console_arm: String,
     pub rate: Rate,
     pub prefix: String,
     /// `measured_cp = base_frame × local/measured_cp`.
@@ -481,8 +498,47 @@ impl SidecarConfig {
 
         let io_path = resolve(&p.io);
         let mut io = load_io(&io_path).with_context(|| format!("{here}: field `io`"))?;
-        let instrument = find_instrument(&p.instrument)
-            .with_context(|| format!("{here}: field `instrument` = \"{}\"", p.instrument))?;
+        let compliance_path = resolve(&p.compliance);
+        let (compliance, compliance_text) = load_compliance_text(&compliance_path)
+            .with_context(|| format!("{here}: field `compliance`"))?;
+        // The instrument the parameters were fitted for (fit's `# instrument:` line).
+        let compliance_instrument = compliance_text
+            .lines()
+            .take_while(|l| l.starts_with('#'))
+            .find_map(|l| l.strip_prefix("# instrument:"))
+            .map(str::trim)
+            .filter(|s| !s.is_empty() && *s != "not recorded")
+            .map(|s| {
+                find_instrument(s).with_context(|| {
+                    format!("{}: its `# instrument:` line", compliance_path.display())
+                })
+            })
+            .transpose()?;
+        let instrument_from_console = p.instrument == "console";
+        let instrument = if instrument_from_console {
+            // Until the console says: the parameters' instrument (flagged meanwhile).
+            match compliance_instrument {
+                Some(i) => i,
+                None => find_instrument("LARGE_NEEDLE_DRIVER_400006")?,
+            }
+        } else {
+            find_instrument(&p.instrument)
+                .with_context(|| format!("{here}: field `instrument` = \"{}\"", p.instrument))?
+        };
+        let follow_console = p.follow_console.unwrap_or(instrument_from_console);
+        if instrument_from_console && !follow_console {
+            bail!(
+                "{here}: `instrument = \"console\"` needs `follow_console` (it is how the instrument is known)"
+            );
+        }
+        let console_arm = p
+            .console_arm
+            .clone()
+            .unwrap_or_else(|| p.prefix.rsplit('/').next().unwrap_or("PSM1").to_owned());
+        if follow_console {
+            dvrk_bridge::validate_arm(&console_arm)
+                .with_context(|| format!("{here}: field `console_arm` = \"{console_arm}\""))?;
+        }
         // find_instrument checked the coupling; an instrument without one never gets here.
         let coupling = instrument
             .coupling()
@@ -490,9 +546,6 @@ impl SidecarConfig {
         io.set_coupling(*coupling)
             .with_context(|| format!("{here}: coupling of instrument {}", instrument.name))?;
         let kinematics = PsmKinematics::new(p.arm, instrument);
-        let compliance_path = resolve(&p.compliance);
-        let (compliance, compliance_text) = load_compliance_text(&compliance_path)
-            .with_context(|| format!("{here}: field `compliance`"))?;
         let warnings = compliance_warnings(
             &source,
             &compliance_text,
@@ -565,6 +618,10 @@ impl SidecarConfig {
             kinematics,
             compliance_path,
             compliance,
+            compliance_instrument,
+            instrument_from_console,
+            follow_console,
+            console_arm,
             rate: p.rate,
             prefix: p.prefix,
             base_frame,

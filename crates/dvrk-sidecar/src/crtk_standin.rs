@@ -90,6 +90,20 @@ pub struct CrtkArgs {
     /// and no busy event, as the console does when it is not ready).
     #[arg(long, value_name = "KIND@SECONDS")]
     pub fault: Vec<String>,
+    /// A change the console makes on its own, at a time after start: `tool@S=NAME` (the
+    /// instrument: `tool_type` becomes NAME, e.g. `CADIERE_FORCEPS:400049[..]`, or empty for
+    /// a removed one, or ERROR), `base@S=x,y,z[,yaw]` (the base frame: translation in m, rotation
+    /// about z in rad), `unhome@S`, `home@S` (homes at once), `enable@S`, `disable@S`.
+    #[arg(long, value_name = "KIND@SECONDS[=VALUE]")]
+    pub event: Vec<String>,
+    /// Also read events from standard input, one `KIND[=VALUE]` per line (the kinds of
+    /// --event), applied at once: for tests that act when they are ready.
+    #[arg(long)]
+    pub events_stdin: bool,
+    /// The base frame at start: `x,y,z[,yaw]` (m, rad about z); measured_cp = base frame ×
+    /// local/measured_cp.
+    #[arg(long, default_value = "0,0,0,0")]
+    pub base_frame: String,
     /// Write every command received and every state change as JSON lines to this file.
     #[arg(long)]
     pub command_log: Option<PathBuf>,
@@ -131,6 +145,83 @@ pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
         .filter(|t: &f64| t.is_finite() && *t >= 0.0)
         .with_context(|| format!("--fault {s:?}: {at:?} is not a time in seconds >= 0"))?;
     Ok((kind, at))
+}
+
+/// A console event of `--event`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    Tool(String),
+    Base([f64; 4]),
+    Unhome,
+    Home,
+    Enable,
+    Disable,
+}
+
+/// `x,y,z[,yaw]`.
+pub fn parse_frame(s: &str) -> Result<[f64; 4]> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{s:?}: expected x,y,z[,yaw] numbers"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|a| a.is_finite()) => Ok([x, y, z, 0.0]),
+        [x, y, z, yaw] if v.iter().all(|a| a.is_finite()) => Ok([x, y, z, yaw]),
+        _ => bail!("{s:?}: expected 3 or 4 finite numbers x,y,z[,yaw]"),
+    }
+}
+
+pub fn parse_event(s: &str) -> Result<(Event, f64)> {
+    let (head, value) = match s.split_once('=') {
+        Some((h, v)) => (h, Some(v)),
+        None => (s, None),
+    };
+    let Some((kind, at)) = head.split_once('@') else {
+        bail!(
+            "--event {s:?}: expected KIND@SECONDS[=VALUE], e.g. tool@5=CADIERE_FORCEPS:400049[..]"
+        );
+    };
+    let at: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .with_context(|| format!("--event {s:?}: {at:?} is not a time in seconds >= 0"))?;
+    let ev = match (kind, value) {
+        ("tool", Some(v)) => Event::Tool(v.to_owned()),
+        ("base", Some(v)) => Event::Base(parse_frame(v).with_context(|| format!("--event {s:?}"))?),
+        ("unhome", None) => Event::Unhome,
+        ("home", None) => Event::Home,
+        ("enable", None) => Event::Enable,
+        ("disable", None) => Event::Disable,
+        _ => bail!(
+            "--event {s:?}: kinds are tool@S=NAME, base@S=x,y,z[,yaw], unhome@S, home@S, enable@S, disable@S"
+        ),
+    };
+    Ok((ev, at))
+}
+
+/// The pose of a base frame `[x, y, z, yaw]`.
+pub fn frame_pose(f: &[f64; 4]) -> nalgebra::Isometry3<f64> {
+    nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::new(f[0], f[1], f[2]),
+        nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), f[3]),
+    )
+}
+
+fn pose_msg(
+    stamp: RosTime,
+    frame: &str,
+    p: &nalgebra::Isometry3<f64>,
+) -> dvrk_bridge::crtk::PoseStampedMsg {
+    let t = p.translation.vector;
+    let q = p.rotation.coords;
+    dvrk_bridge::crtk::PoseStampedMsg {
+        stamp,
+        frame_id: frame.to_owned(),
+        position: [t.x, t.y, t.z],
+        orientation_xyzw: [q.x, q.y, q.z, q.w],
+    }
 }
 
 /// One joint's `move_jp` trajectory: bang-bang to a stop at the goal within the limits.
@@ -453,6 +544,29 @@ impl ConsoleSim {
         }
     }
 
+    /// Applies a console event (the instrument and base frame are kept by the caller).
+    pub fn event(&mut self, e: &Event, out: &mut Vec<Out>) {
+        match e {
+            Event::Unhome => {
+                self.homed = false;
+                out.push(Out::State);
+            }
+            Event::Home => {
+                self.homed = true;
+                out.push(Out::State);
+            }
+            Event::Enable => self.set_state("ENABLED", out),
+            Event::Disable => self.set_state("DISABLED", out),
+            Event::Tool(_) | Event::Base(_) => {}
+        }
+    }
+
+    /// Joint positions 1-6 now (measured).
+    pub fn q6(&self) -> [f64; 6] {
+        let q = self.psm().joint_state().position;
+        std::array::from_fn(|j| q[j])
+    }
+
     /// Injects a fault.
     pub fn fault(&mut self, f: Fault, out: &mut Vec<Out>) {
         match f {
@@ -579,6 +693,13 @@ impl ConsoleSim {
     }
 }
 
+/// The console's kinematics for its `tool_type` (none for an empty or unknown instrument).
+fn tool_kinematics(tool: &str) -> Option<dvrk_compliance::PsmKinematics> {
+    dvrk_compliance::instrument_from_tool_type(tool)
+        .ok()
+        .map(|i| dvrk_compliance::PsmKinematics::new(dvrk_compliance::ArmKind::Classic, i))
+}
+
 fn log_line(log: &mut Option<std::fs::File>, t: f64, kind: &str, detail: &str) {
     if let Some(f) = log {
         let line = serde_json::json!({"t_s": t, "kind": kind, "detail": detail});
@@ -617,6 +738,30 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
         .map(|s| parse_fault(s))
         .collect::<Result<_>>()?;
     faults.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut events: Vec<(Event, f64)> = args
+        .event
+        .iter()
+        .map(|s| parse_event(s))
+        .collect::<Result<_>>()?;
+    events.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut base = frame_pose(&parse_frame(&args.base_frame).context("--base-frame")?);
+    let mut tool = args.tool.clone();
+    let mut kin = tool_kinematics(&tool);
+    let stdin_events = if args.events_stdin {
+        let (tx, rx) = std::sync::mpsc::channel::<String>();
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::stdin().lock().lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Some(rx)
+    } else {
+        None
+    };
     let mut log = match &args.command_log {
         Some(p) => {
             Some(std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?)
@@ -671,6 +816,34 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
                 _ => sim.fault(f, &mut outs),
             }
         }
+        if let Some(rx) = &stdin_events {
+            while let Ok(line) = rx.try_recv() {
+                let line = line.trim();
+                let spec = match line.split_once('=') {
+                    Some((k, v)) => format!("{k}@0={v}"),
+                    None => format!("{line}@0"),
+                };
+                match parse_event(&spec) {
+                    Ok((e, _)) => events.insert(0, (e, 0.0)),
+                    Err(e) => tracing::warn!("stdin event {line:?}: {e:#}"),
+                }
+            }
+        }
+        while let Some((e, at)) = events.first().cloned()
+            && at <= now
+        {
+            events.remove(0);
+            log_line(&mut log, now, "event", &format!("{e:?}"));
+            match &e {
+                Event::Tool(t) => {
+                    tool = t.clone();
+                    kin = tool_kinematics(&tool);
+                    server.publish_tool_type(&tool)?;
+                }
+                Event::Base(f) => base = frame_pose(f),
+                _ => sim.event(&e, &mut outs),
+            }
+        }
         cmds.clear();
         let bad = server.poll(&mut cmds);
         if bad > 0 {
@@ -720,10 +893,20 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
             if next_pub < wall {
                 next_pub = wall + period;
             }
+            let st = if invalid { RosTime::default() } else { stamp() };
             if !silent && server.has_state_reader() {
-                let st = if invalid { RosTime::default() } else { stamp() };
                 let m = sim.measured(st, &mut rng, args.effort_noise_nm);
                 server.publish_js(&m, Some(&sim.setpoint_js(st)))?;
+            }
+            if !silent
+                && server.has_pose_reader()
+                && let Some(k) = &kin
+            {
+                let local = k.forward(&sim.q6());
+                server.publish_cp(
+                    &pose_msg(st, &format!("{arm}_base"), &(base * local)),
+                    &pose_msg(st, &format!("{arm}_rcm"), &local),
+                )?;
             }
         }
         match &boards {

@@ -31,12 +31,25 @@ pub struct CycleResult {
     pub compensated_position: [f64; 7],
     pub compensated_pose: Isometry3<f64>,
     pub valid: bool,
+    /// The compensated messages are valid too (false: no instrument, or one the service cannot
+    /// model; the raw messages keep `valid`).
+    pub compensated_valid: bool,
     pub flags: u32,
     /// |tau_ext| minus the threshold at which the correction of joints 1, 2 engages (N·m).
     pub tau_margin_nm: [f64; 2],
 }
 
 impl CycleResult {
+    /// The correction withheld: compensated = raw (joints and pose), no active flag.
+    pub fn withhold_correction(&mut self, raw_position: &[f64; 7]) {
+        self.compensated_position = *raw_position;
+        self.compensated_pose = self.raw_pose;
+        self.correction.position.copy_from_slice(&raw_position[..3]);
+        self.correction.delta_rad = [0.0; 2];
+        self.correction.active = [false; 2];
+        self.flags &= !(flags::CORRECTION_ACTIVE_J1 | flags::CORRECTION_ACTIVE_J2);
+    }
+
     /// Distance between the raw and the compensated tip positions (m).
     pub fn tip_displacement_m(&self) -> f64 {
         (self.raw_pose.translation.vector - self.compensated_pose.translation.vector).norm()
@@ -139,6 +152,7 @@ fn finish(
         compensated_position,
         compensated_pose: kin.forward(&comp_q6),
         valid: outcome == ReadOutcome::Ok && s.valid,
+        compensated_valid: true,
         flags: f,
         tau_margin_nm,
     }
@@ -210,6 +224,7 @@ pub fn held(last: Option<&Held>, current: &ArmSample, reason: u32) -> (ArmSample
                 compensated_position: [f64::NAN; 7],
                 compensated_pose: nan_pose,
                 valid: false,
+                compensated_valid: true,
                 flags: reason,
                 tau_margin_nm: [0.0; 2],
             };
@@ -295,7 +310,8 @@ fn arm_state(
     }
 }
 
-/// The header every message of a cycle carries.
+/// The header every message of a cycle carries (the compensated ones say
+/// `valid && compensated_valid`).
 fn header(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Header {
     Header {
         seq: t.seq,
@@ -311,7 +327,9 @@ fn header(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> Header {
 /// The first message of a cycle, `compensated/local/measured_cp`, as [`messages`] writes it:
 /// `serve` sends it before it writes the other eight.
 pub fn compensated_local_measured_cp(s: &ArmSample, r: &CycleResult, t: &CycleTiming) -> PoseV2 {
-    pose_msg(header(s, r, t), &r.compensated_pose)
+    let mut h = header(s, r, t);
+    h.valid = u32::from(r.valid && r.compensated_valid);
+    pose_msg(h, &r.compensated_pose)
 }
 
 /// Writes a cycle into its nine messages; every message carries the same header.
@@ -336,9 +354,13 @@ pub fn messages_from_first(
     t: &CycleTiming,
     base_frame: &Isometry3<f64>,
 ) -> CycleMessages {
-    let header = first.header;
+    let comp_header = first.header;
+    let header = Header {
+        valid: u32::from(r.valid),
+        ..comp_header
+    };
     let status = CompensationStatusV3 {
-        header,
+        header: comp_header,
         tau_ext_nm: r.correction.tau_ext_nm,
         delta_rad: r.correction.delta_rad,
         insertion_m: r.correction.insertion_m,

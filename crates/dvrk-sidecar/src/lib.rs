@@ -7,6 +7,7 @@
 pub mod bridge_cmd;
 pub mod calib;
 pub mod config;
+pub mod console_follow;
 pub mod crtk_standin;
 pub mod cycle;
 pub mod drive;

@@ -155,6 +155,9 @@ pub trait SampleSource {
     fn simulated(&self) -> bool {
         false
     }
+    /// Converts with another instrument's actuator-to-joint coupling from the next read on (the
+    /// console reported a new instrument). No allocation.
+    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool;
 }
 
 fn outcome(r: Result<(), dvrk_io::reader::ReadError>) -> ReadOutcome {
@@ -170,6 +173,9 @@ fn outcome(r: Result<(), dvrk_io::reader::ReadError>) -> ReadOutcome {
 impl<P: Port> SampleSource for ArmReader<P> {
     fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
         outcome(ArmReader::read(self, t_ns, out))
+    }
+    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
+        self.config_mut().set_coupling(*coupling).is_ok()
     }
 }
 
@@ -206,6 +212,9 @@ impl SampleSource for SimSource {
         let start = *self.start_ns.get_or_insert(t_ns);
         self.emulator().advance_to(t_ns - start);
         outcome(self.reader.read(t_ns, out))
+    }
+    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
+        self.reader.config_mut().set_coupling(*coupling).is_ok()
     }
     fn simulated(&self) -> bool {
         true
@@ -338,7 +347,9 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     pub source: Src,
     pub sample: ArmSample,
     pub model: &'a dvrk_compliance::ComplianceConfig,
-    pub kinematics: &'a dvrk_compliance::PsmKinematics,
+    /// The mounted instrument's kinematics (switched by [`Follow`] when the console reports
+    /// another instrument).
+    pub kinematics: dvrk_compliance::PsmKinematics,
     pub publisher: ArmPublisher<Svc>,
     pub counters: Counters,
     pub period_ns: u64,
@@ -354,6 +365,42 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     base_frame: nalgebra::Isometry3<f64>,
     last_duration_ns: u64,
     last_sample_t_ns: Option<u64>,
+    follow: Option<Follow>,
+}
+
+/// What the cycle keeps of the console it follows (crate::console_follow).
+pub struct Follow {
+    shared: std::sync::Arc<crate::console_follow::Shared>,
+    view: crate::console_follow::View,
+    arm: dvrk_compliance::ArmKind,
+    /// Follow `tool_type` (`instrument = "console"`).
+    instrument: bool,
+    /// The instrument applied (kinematics and coupling).
+    mounted: crate::console_follow::Mounted,
+    /// The model number the parameters are for (None: any).
+    params_model: Option<u32>,
+    /// The base frame configured, used until the console's arrives.
+    configured_base: nalgebra::Isometry3<f64>,
+}
+
+impl Follow {
+    pub fn new(
+        shared: std::sync::Arc<crate::console_follow::Shared>,
+        arm: dvrk_compliance::ArmKind,
+        instrument: bool,
+        params_model: Option<u32>,
+        configured_base: nalgebra::Isometry3<f64>,
+    ) -> Self {
+        Self {
+            shared,
+            view: crate::console_follow::View::default(),
+            arm,
+            instrument,
+            mounted: crate::console_follow::Mounted::NotYet,
+            params_model,
+            configured_base,
+        }
+    }
 }
 
 impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, Svc> {
@@ -368,7 +415,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             source,
             sample: ArmSample::default(),
             model,
-            kinematics,
+            kinematics: *kinematics,
             publisher,
             counters: Counters::default(),
             period_ns,
@@ -379,6 +426,99 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             base_frame: nalgebra::Isometry3::identity(),
             last_duration_ns: 0,
             last_sample_t_ns: None,
+            follow: None,
+        }
+    }
+
+    /// Follows the console (crate::console_follow): its state, base frame and, with
+    /// `Follow::instrument`, its instrument, read at the start of every cycle.
+    pub fn with_follow(mut self, follow: Follow) -> Self {
+        self.follow = Some(follow);
+        self
+    }
+
+    /// At a cycle's start: the console's newest view; a new instrument switches kinematics and
+    /// coupling now, between two reads. No lock, no allocation.
+    #[inline]
+    fn follow_begin(&mut self) {
+        use crate::console_follow::Mounted;
+        let Some(f) = self.follow.as_mut() else {
+            return;
+        };
+        if let Some(v) = f.shared.read() {
+            f.view = v;
+        }
+        if f.instrument && f.view.mounted != f.mounted {
+            f.mounted = f.view.mounted;
+            if let Mounted::Catalog(_) = f.mounted
+                && let Some(inst) = f.mounted.instrument()
+                && let Ok(c) = inst.coupling()
+            {
+                self.kinematics = dvrk_compliance::PsmKinematics::new(f.arm, inst);
+                self.source.set_coupling(c);
+            }
+        }
+        self.base_frame = f.view.base_frame().unwrap_or(f.configured_base);
+    }
+
+    /// After the correction: what the console's state makes of this cycle (see
+    /// crate::console_follow).
+    #[inline]
+    fn follow_end(
+        follow: Option<&Follow>,
+        sample: &ArmSample,
+        result: &mut cycle::CycleResult,
+        t_ns: u64,
+    ) {
+        use crate::console_follow::{Mounted, OpState, STALE_NS};
+        let Some(f) = follow else {
+            return;
+        };
+        let v = &f.view;
+        let heard = v.heard_ns != 0 && t_ns.saturating_sub(v.heard_ns) < STALE_NS;
+        if !heard {
+            result.flags |= flags::CONSOLE_UNKNOWN;
+        } else {
+            if !v.homed {
+                result.valid = false;
+                result.flags |= flags::NOT_HOMED;
+            }
+            if v.state != OpState::Enabled {
+                result.withhold_correction(&sample.position);
+                result.flags |= flags::ARM_NOT_ENABLED;
+            }
+        }
+        if v.base_ns == 0 || t_ns.saturating_sub(v.base_ns) >= STALE_NS {
+            result.flags |= flags::BASE_FRAME_STALE;
+        }
+        if f.instrument {
+            match f.mounted {
+                Mounted::NotYet => {
+                    result.compensated_valid = false;
+                    result.flags |= flags::CONSOLE_UNKNOWN;
+                }
+                Mounted::Removed => {
+                    result.compensated_valid = false;
+                    result.withhold_correction(&sample.position);
+                    result.flags |= flags::NO_INSTRUMENT;
+                }
+                Mounted::Unsupported => {
+                    result.compensated_valid = false;
+                    result.withhold_correction(&sample.position);
+                    result.flags |= flags::INSTRUMENT_UNSUPPORTED;
+                }
+                Mounted::Catalog(_) => {}
+            }
+        }
+        let mounted_model = match (f.instrument, f.mounted.instrument()) {
+            (true, Some(i)) => Some(i.model),
+            _ => None,
+        };
+        if let (Some(m), Some(p)) = (mounted_model, f.params_model)
+            && m != p
+        {
+            result.withhold_correction(&sample.position);
+            result.flags |= flags::NO_CALIBRATION;
         }
     }
 
@@ -410,6 +550,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
     /// message); never zeros, never a correction computed from a half-read sample.
     #[inline]
     pub fn cycle(&mut self, t_start: u64, clock: impl Fn() -> u64) -> u64 {
+        self.follow_begin();
         let c = &mut self.counters;
         let mut read = self.source.read(t_start, &mut self.sample);
         let t_sample = clock();
@@ -440,7 +581,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         let fresh = cycle::compute_dynamic(
             self.model,
             &mut self.compensator,
-            self.kinematics,
+            &self.kinematics,
             &self.sample,
             read,
         );
@@ -465,6 +606,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 ),
             )
         };
+        Self::follow_end(self.follow.as_ref(), &sample, &mut result, t_sample);
         if self.source.simulated() {
             result.flags |= flags::SIMULATED;
         }
@@ -548,6 +690,24 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     )
     .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io)
     .with_base_frame(cfg.base_frame);
+    if cfg.follow_console {
+        let domain = dvrk_bridge::console::ros_domain_id()?;
+        let shared = crate::console_follow::spawn(&cfg.console_arm, domain, stop.clone())?;
+        info!(
+            arm = %cfg.console_arm, domain,
+            instrument_from_console = cfg.instrument_from_console,
+            parameters_for = cfg.compliance_instrument.map_or("any instrument", |i| i.name),
+            "following the dVRK console over DDS: operating state, base frame{}",
+            if cfg.instrument_from_console { ", instrument" } else { "" }
+        );
+        pipe = pipe.with_follow(Follow::new(
+            shared,
+            cfg.arm,
+            cfg.instrument_from_console,
+            cfg.compliance_instrument.map(|i| i.model),
+            cfg.base_frame,
+        ));
+    }
     let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
     let mut hist = DurationHistogram::new();
     let (summaries, summary_rx) = sync_channel::<Summary>(1);

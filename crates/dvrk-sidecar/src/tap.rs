@@ -328,6 +328,10 @@ impl TapSource {
 }
 
 impl SampleSource for TapSource {
+    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
+        self.dec.config_mut().set_coupling(*coupling).is_ok()
+    }
+
     fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
         let mut got = false;
         let start = rt::monotonic_ns();

@@ -137,6 +137,10 @@ impl TapDecoder {
     pub fn config(&self) -> &IoConfig {
         &self.cfg
     }
+    /// The conversion in use, to change the instrument's coupling between replies.
+    pub fn config_mut(&mut self) -> &mut IoConfig {
+        &mut self.cfg
+    }
 
     pub fn counters(&self) -> TapCounters {
         self.counters

@@ -1,0 +1,205 @@
+//! Following the dVRK console (issue 19), end to end with real processes: the console stand-in
+//! (`sim --crtk PSM1 --boards ...`: the simulated arm's boards on UDP and its CRTK topics over
+//! DDS, in a domain of its own) drives both what `serve` reads and what the console says;
+//! `serve` runs with `instrument = "console"`; `echo` reads what it publishes. The test acts as
+//! the console's operator through the stand-in's stdin: homing, swap to an instrument with and
+//! without parameters, removal, ERROR, base-frame change, disable, and the console gone.
+
+mod common;
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{Proc, repo, scratch, sidecar_bin};
+
+fn flags(v: &serde_json::Value) -> Vec<String> {
+    v["header"]["flags"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|f| f.as_str().map(str::to_owned))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn latest(topic: &str) -> Option<serde_json::Value> {
+    common::echo_json(topic, 1, Duration::from_secs(10))
+        .into_iter()
+        .next()
+}
+
+/// Waits (up to 20 s) for a sample of `topic` that satisfies `ok`; returns it.
+fn until(topic: &str, what: &str, ok: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
+    let mut last = None;
+    let found = common::eventually(Duration::from_secs(20), || {
+        let v = latest(topic)?;
+        let good = ok(&v);
+        last = Some(v.clone());
+        good.then_some(v)
+    });
+    found.unwrap_or_else(|| panic!("{what}: never seen on {topic}; last sample: {last:?}"))
+}
+
+fn position(v: &serde_json::Value) -> [f64; 3] {
+    let p = &v["position_m"];
+    [0, 1, 2].map(|i| p[i].as_f64().unwrap_or(f64::NAN))
+}
+
+#[test]
+fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
+    let test = "console_follow";
+    let dir = scratch(test);
+    let domain = 100 + (std::process::id() % 40) as u16;
+    let port = common::free_udp_port();
+    let boards = format!("127.0.0.1:{port}");
+    let mut console = Proc::spawn(
+        "sim --crtk",
+        Command::new(sidecar_bin())
+            .args([
+                "sim",
+                "--crtk",
+                "PSM1",
+                "--events-stdin",
+                "--start",
+                "enabled",
+                "--scenario",
+            ])
+            .arg(repo().join("config/sim/clamp.toml"))
+            .args(["--boards", &boards])
+            .env("ROS_DOMAIN_ID", domain.to_string())
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    );
+    let mut stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
+    let mut say = |line: &str| {
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+    };
+
+    // parameters fitted for the large needle driver (fit's provenance line)
+    let params = dir.join("params.toml");
+    let text = std::fs::read_to_string(repo().join("config/compliance/sim-psm.toml")).unwrap();
+    std::fs::write(
+        &params,
+        format!("# instrument: LARGE_NEEDLE_DRIVER:400006\n{text}"),
+    )
+    .unwrap();
+    let prefix = format!("cf{}/PSM1", std::process::id());
+    let cfg = dir.join("sidecar.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "source = \"udp:{boards}\"\naccess = \"shared\"\nio = \"{}\"\narm = \"classic\"\n\
+             instrument = \"console\"\ncompliance = \"{}\"\nrate = 1500\nprefix = \"{prefix}\"\n",
+            repo().join("config/io/psm-classic.toml").display(),
+            params.display()
+        ),
+    )
+    .unwrap();
+    let mut serve = Proc::spawn(
+        "serve",
+        Command::new(sidecar_bin())
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env("ROS_DOMAIN_ID", domain.to_string())
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let js = format!("{prefix}/measured_js");
+    let cjs = format!("{prefix}/compensated/measured_js");
+    let cp = format!("{prefix}/measured_cp");
+    let local = format!("{prefix}/local/measured_cp");
+    let ccp = format!("{prefix}/compensated/local/measured_cp");
+
+    // 1. enabled but not homed: every sample invalid, NOT_HOMED
+    until(&js, "not homed", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"NOT_HOMED".to_owned())
+    });
+    // 2. homed: valid, the instrument from tool_type (the large needle driver, parameters for it)
+    say("home");
+    let v = until(&cjs, "homed and valid", |v| {
+        v["header"]["valid"] == true
+            && !flags(v)
+                .iter()
+                .any(|f| f.contains("HOMED") || f.contains("UNKNOWN"))
+    });
+    assert!(!flags(&v).contains(&"NO_CALIBRATION".to_owned()), "{v}");
+    // 3. an instrument without parameters: compensated = raw, NO_CALIBRATION
+    say("tool=CADIERE_FORCEPS:400049[..]");
+    let v = until(&ccp, "NO_CALIBRATION", |v| {
+        flags(v).contains(&"NO_CALIBRATION".to_owned())
+    });
+    assert_eq!(v["header"]["valid"], true);
+    let raw = latest(&local).unwrap();
+    let (a, b) = (position(&v), position(&raw));
+    assert!(
+        (0..3).all(|i| (a[i] - b[i]).abs() < 1e-4),
+        "compensated {a:?} vs raw {b:?}"
+    );
+    // 4. removed: compensated invalid (NO_INSTRUMENT), raw still valid
+    say("tool=");
+    until(&ccp, "NO_INSTRUMENT", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"NO_INSTRUMENT".to_owned())
+    });
+    let raw = until(&js, "raw valid without instrument", |v| {
+        v["header"]["valid"] == true
+    });
+    assert!(flags(&raw).contains(&"NO_INSTRUMENT".to_owned()));
+    // 5. ERROR: raw only, INSTRUMENT_UNSUPPORTED
+    say("tool=ERROR");
+    until(&ccp, "INSTRUMENT_UNSUPPORTED", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"INSTRUMENT_UNSUPPORTED".to_owned())
+    });
+    // 6. back to the instrument of the parameters: corrected again
+    say("tool=LARGE_NEEDLE_DRIVER:400006[..]");
+    until(&ccp, "back to a modelled instrument", |v| {
+        v["header"]["valid"] == true
+            && !flags(v)
+                .iter()
+                .any(|f| f.contains("INSTRUMENT") || f == "NO_CALIBRATION")
+    });
+    // 7. the base frame from the console: measured_cp = base x local/measured_cp
+    say("base=0.1,0.2,0.3,0.5");
+    let base = nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::new(0.1, 0.2, 0.3),
+        nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.5),
+    );
+    let expect = |l: [f64; 3]| base * nalgebra::Point3::new(l[0], l[1], l[2]);
+    let l = position(&latest(&local).unwrap());
+    until(&cp, "the console's base frame", |v| {
+        let p = position(v);
+        let e = expect(l);
+        !flags(v).contains(&"BASE_FRAME_STALE".to_owned())
+            && (p[0] - e.x).abs() < 1e-3
+            && (p[1] - e.y).abs() < 1e-3
+            && (p[2] - e.z).abs() < 1e-3
+    });
+    // 8. disabled: raw valid, the correction withheld (ARM_NOT_ENABLED)
+    say("disable");
+    let v = until(&ccp, "ARM_NOT_ENABLED", |v| {
+        flags(v).contains(&"ARM_NOT_ENABLED".to_owned())
+    });
+    assert!(
+        !flags(&v).iter().any(|f| f.starts_with("CORRECTION_ACTIVE")),
+        "{v}"
+    );
+    // 9. the console gone: CONSOLE_UNKNOWN, the last base frame flagged stale
+    drop(stdin);
+    console.terminate();
+    let v = until(&js, "CONSOLE_UNKNOWN", |v| {
+        flags(v).contains(&"CONSOLE_UNKNOWN".to_owned())
+    });
+    assert!(flags(&v).contains(&"BASE_FRAME_STALE".to_owned()), "{v}");
+
+    let (_, log) = serve.terminate();
+    assert!(log.contains("following the dVRK console"), "{log}");
+    assert!(
+        log.contains("CADIERE_FORCEPS") && log.contains("no instrument"),
+        "{log}"
+    );
+}
