@@ -80,12 +80,18 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
         stdin.flush().unwrap();
     };
 
-    // parameters fitted for the large needle driver (fit's provenance line)
+    // parameter sets for two instruments (the layout `fit --add` writes)
     let params = dir.join("params.toml");
     let text = std::fs::read_to_string(repo().join("config/compliance/sim-psm.toml")).unwrap();
+    let body = text
+        .replace("[[joint]]", "[[set.joint]]")
+        .replace("[joint.", "[set.joint.");
     std::fs::write(
         &params,
-        format!("# instrument: LARGE_NEEDLE_DRIVER:400006\n{text}"),
+        format!(
+            "[[set]]\ninstrument = \"LARGE_NEEDLE_DRIVER:400006\"\n{body}\n\
+             [[set]]\ninstrument = \"CADIERE_FORCEPS:400049\"\n{body}\n"
+        ),
     )
     .unwrap();
     let prefix = format!("cf{}/PSM1", std::process::id());
@@ -115,6 +121,7 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
     let cp = format!("{prefix}/measured_cp");
     let local = format!("{prefix}/local/measured_cp");
     let ccp = format!("{prefix}/compensated/local/measured_cp");
+    let status = format!("{prefix}/compensated/status");
 
     // 1. enabled but not homed: every sample invalid, NOT_HOMED
     until(&js, "not homed", |v| {
@@ -129,11 +136,23 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
                 .any(|f| f.contains("HOMED") || f.contains("UNKNOWN"))
     });
     assert!(!flags(&v).contains(&"NO_CALIBRATION".to_owned()), "{v}");
-    // 3. an instrument without parameters: compensated = raw, NO_CALIBRATION
+    // 3. a swap to an instrument with parameters of its own: corrected, its kinematics
     say("tool=CADIERE_FORCEPS:400049[..]");
+    let st = until(&status, "the forceps' parameter set", |v| {
+        v["source"]["instrument"] == "CADIERE_FORCEPS:400049[..]"
+    });
+    assert_eq!(st["source"]["parameter_set"], 2, "{st}");
+    assert_eq!(st["source"]["console_state"], "ENABLED", "{st}");
+    assert_eq!(st["source"]["homed"], true, "{st}");
+    let v = latest(&ccp).unwrap();
+    assert!(!flags(&v).contains(&"NO_CALIBRATION".to_owned()), "{v}");
+    // 3b. an instrument without parameters: compensated = raw, NO_CALIBRATION
+    say("tool=PROGRASP_FORCEPS:400093[..]");
     let v = until(&ccp, "NO_CALIBRATION", |v| {
         flags(v).contains(&"NO_CALIBRATION".to_owned())
     });
+    // its own kinematics: the ProGrasp's tip is 1.6 mm farther than the needle driver's
+    assert!(position(&v)[2] < -0.1235 - 0.001, "{v}");
     assert_eq!(v["header"]["valid"], true);
     let raw = latest(&local).unwrap();
     let (a, b) = (position(&v), position(&raw));

@@ -82,9 +82,10 @@ def _status_dict(s: msg.CompensationStatusV3) -> dict:
     """The status as a dict with the message's field names; pairs as numpy arrays."""
     out = {}
     for name, _ in msg.CompensationStatusV3._fields_:
-        if name not in ("header", "_reserved"):
+        if name != "header":
             v = getattr(s, name)
             out[name] = numpy.array(v) if isinstance(v, ctypes.Array) else v
+    out["source"] = msg.source_state_dict(s.source_state)
     return out
 
 

@@ -14,6 +14,8 @@ epoch (ROS time, Python's `time.time_ns()`).
 import ctypes
 import math
 
+from .instruments import INSTRUMENTS
+
 NUM_JOINTS = 6
 """Joints of `measured_js`; the jaw has its own topic (`jaw/measured_js`)."""
 
@@ -44,6 +46,35 @@ FLAG_NAMES = (
     "BASE_FRAME_STALE",
 )
 """Names of the bits of `Header.flags` (dvrk_ipc::flags), bit 0 first."""
+
+CONSOLE_STATES = ("UNKNOWN", "DISABLED", "ENABLED", "PAUSED", "FAULT")
+"""Codes of the console's operating state in `CompensationStatusV3.source_state` (bits 0-3)."""
+
+
+def source_state_dict(v: int) -> dict:
+    """`CompensationStatusV3.source_state` spelled out (dvrk_ipc msg.rs): the console's state,
+    whether it is homed and heard, the parameter set (its index in the file + 1; 0: the only
+    one), and the instrument code (0 not known yet, 1 removed, 2 not modelled, 3 + its index in
+    the service's instrument catalog)."""
+    code = v & 0xF
+    return {
+        "console_state": CONSOLE_STATES[code] if code < len(CONSOLE_STATES) else "UNKNOWN",
+        "homed": bool(v & (1 << 4)),
+        "console_heard": bool(v & (1 << 5)),
+        "parameter_set": (v >> 8) & 0xFF,
+        "instrument": _instrument_name((v >> 16) & 0xFFFF),
+    }
+
+
+def _instrument_name(code: int) -> str:
+    if code == 0:
+        return "not known"
+    if code == 1:
+        return "removed"
+    if code == 2:
+        return "not modelled"
+    i = code - 3
+    return INSTRUMENTS[i] if i < len(INSTRUMENTS) else f"#{i}"
 
 f64 = ctypes.c_double
 u64 = ctypes.c_uint64
@@ -128,7 +159,7 @@ class CompensationStatusV3(ctypes.Structure):
         ("read_failures_total", u64),
         ("overruns_total", u64),
         ("consecutive_read_failures", u32),
-        ("_reserved", u32),
+        ("source_state", u32),
         ("tau_margin_nm", f64 * 2),
         ("held_sample_age_ns", u64),
         ("publish_late_ns", u64),
@@ -266,13 +297,14 @@ def body_json(msg) -> dict:
     if isinstance(msg, CompensationStatusV3):
         out = {}
         for name, _ in CompensationStatusV3._fields_:
-            if name in ("header", "_reserved"):
+            if name == "header":
                 continue
             v = getattr(msg, name)
             if isinstance(v, ctypes.Array):
                 out[name] = _nums(v)
             else:
                 out[name] = _num(v) if isinstance(v, float) else v
+        out["source"] = source_state_dict(msg.source_state)
         return out
     raise TypeError(f"not a dvrk-sidecar message: {type(msg).__name__}")
 

@@ -82,10 +82,21 @@ class JsonShape(unittest.TestCase):
         j = msg.to_json("PSM1/compensated/status", msg.CompensationStatusV3(header=_header(), cycles_total=3))
         self.assertNotIn("_reserved", j)
         self.assertEqual(j["cycles_total"], 3)
-        self.assertEqual(len(j), 2 + len(msg.CompensationStatusV3._fields_) - 2)
+        # topic and header, every field but the header, and `source` spelled out
+        self.assertEqual(len(j), 2 + len(msg.CompensationStatusV3._fields_) - 1 + 1)
+        self.assertEqual(j["source"]["console_state"], "UNKNOWN")
 
     def test_reserved_flag_bits_are_skipped_as_in_rust(self):
-        self.assertEqual(msg.flag_names((1 << 0) | (1 << 20) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
+        self.assertEqual(msg.flag_names((1 << 0) | (1 << 25) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
+
+    def test_source_state_is_spelled_out(self):
+        v = 2 | (1 << 4) | (1 << 5) | (2 << 8) | ((3 + 1) << 16)
+        s = msg.source_state_dict(v)
+        self.assertEqual(s["console_state"], "ENABLED")
+        self.assertTrue(s["homed"] and s["console_heard"])
+        self.assertEqual(s["parameter_set"], 2)
+        self.assertEqual(s["instrument"], msg.INSTRUMENTS[1])
+        self.assertEqual(msg.source_state_dict(1 << 16)["instrument"], "removed")
 
 
 class Names(unittest.TestCase):

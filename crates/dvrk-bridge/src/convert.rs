@@ -249,6 +249,7 @@ impl Encoder {
         for x in [s.held_sample_age_ns, s.publish_late_ns, s.implausible_total] {
             w.u64(x);
         }
+        w.u32(s.source_state);
         &self.buf
     }
 }

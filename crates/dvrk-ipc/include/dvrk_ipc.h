@@ -178,7 +178,7 @@ typedef struct dvrk_CompensationStatusV3 {
     uint64_t read_failures_total;
     uint64_t overruns_total;
     uint32_t consecutive_read_failures;
-    uint32_t _reserved;
+    uint32_t source_state;        /* console state, parameter set, instrument (see msg.rs) */
     double tau_margin_nm[2];      /* |tau_ext| minus the engage threshold, joints 1, 2 (N.m) */
     uint64_t held_sample_age_ns;  /* 0 when fresh; age of the held valid sample otherwise */
     uint64_t publish_late_ns;     /* how late the cycle started after its deadline */

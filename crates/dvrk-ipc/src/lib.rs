@@ -70,7 +70,7 @@ pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
     ArmState, COMPENSATION_STATUS_V3_SIZE, CompensationStatusV3, CycleMessages, HEADER_SIZE,
     Header, JAW_NAME, JAW_STATE_V1_SIZE, JOINT_NAMES, JOINT_STATE_V2_SIZE, JawStateV1,
-    JointStateV2, Message, NUM_JOINTS, POSE_V2_SIZE, PoseV2,
+    JointStateV2, Message, NUM_JOINTS, POSE_V2_SIZE, PoseV2, pack_source_state,
 };
 pub use names::{
     CYCLE_FIRST_SUFFIX, CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames,

@@ -170,7 +170,7 @@ impl Default for PoseV2 {
 /// | `read_failures_total` | cycles whose read failed (published with `valid = 0`) since start |
 /// | `overruns_total` | cycles that took longer than the nominal period since start |
 /// | `consecutive_read_failures` | failed reads in a row up to and including this cycle (0 when this read succeeded) |
-/// | `_reserved` | 0 |
+/// | `source_state` | what produced the sample (issue 19), packed: bits 0-3 the console's operating state (0 unknown, 1 DISABLED, 2 ENABLED, 3 PAUSED, 4 FAULT), bit 4 homed, bit 5 the console heard (the service follows it), bits 8-15 the parameter set in use (its index in the file + 1; 0: the only set, or none), bits 16-31 the instrument (0 not known yet, 1 removed, 2 not modelled, 3 + its index in the catalog, `dvrk_compliance::instruments()`); 0 when the service does not follow a console |
 /// | `tau_margin_nm` | how far \|tau_ext\| of joints 1, 2 is above (> 0) or below (< 0) the threshold at which the correction engages (N·m); 0 when the sample is invalid |
 /// | `held_sample_age_ns` | 0 when this cycle's read succeeded; otherwise the age of the last valid sample whose positions and poses are held in the messages (`u64::MAX` when there was none yet) |
 /// | `publish_late_ns` | how late this cycle started after its scheduled deadline (0 in `follow` mode and when on time) |
@@ -189,11 +189,60 @@ pub struct CompensationStatusV3 {
     pub read_failures_total: u64,
     pub overruns_total: u64,
     pub consecutive_read_failures: u32,
-    pub _reserved: u32,
+    pub source_state: u32,
     pub tau_margin_nm: [f64; 2],
     pub held_sample_age_ns: u64,
     pub publish_late_ns: u64,
     pub implausible_total: u64,
+}
+
+/// Packs [`CompensationStatusV3::source_state`]: the console's operating state (0 unknown,
+/// 1 DISABLED, 2 ENABLED, 3 PAUSED, 4 FAULT), homed, heard, the parameter set (index + 1, 0:
+/// the only one or none) and the instrument code (0 not known yet, 1 removed, 2 not modelled,
+/// 3 + its catalog index).
+pub const fn pack_source_state(
+    console_state: u8,
+    homed: bool,
+    heard: bool,
+    parameter_set: u8,
+    instrument: u16,
+) -> u32 {
+    (console_state as u32 & 0xf)
+        | ((homed as u32) << 4)
+        | ((heard as u32) << 5)
+        | ((parameter_set as u32) << 8)
+        | ((instrument as u32) << 16)
+}
+
+impl CompensationStatusV3 {
+    /// The console's operating state as the console names it (`UNKNOWN` when not followed or
+    /// not heard).
+    pub fn console_state(&self) -> &'static str {
+        match self.source_state & 0xf {
+            1 => "DISABLED",
+            2 => "ENABLED",
+            3 => "PAUSED",
+            4 => "FAULT",
+            _ => "UNKNOWN",
+        }
+    }
+    /// The console says the arm is homed.
+    pub fn console_homed(&self) -> bool {
+        self.source_state & (1 << 4) != 0
+    }
+    /// The service hears the console.
+    pub fn console_heard(&self) -> bool {
+        self.source_state & (1 << 5) != 0
+    }
+    /// The parameter set in use (its index in the file + 1; 0: the file's only set, or none).
+    pub fn parameter_set(&self) -> u8 {
+        ((self.source_state >> 8) & 0xff) as u8
+    }
+    /// The instrument: 0 not known yet, 1 removed, 2 not modelled, 3 + its index in
+    /// `dvrk_compliance::instruments()`.
+    pub fn instrument_code(&self) -> u16 {
+        (self.source_state >> 16) as u16
+    }
 }
 
 /// The four states of one arm in one cycle, as the dVRK 2.x console names them: what
@@ -322,7 +371,7 @@ assert_layout!(PoseV2, size = POSE_V2_SIZE,
 assert_layout!(CompensationStatusV3, size = COMPENSATION_STATUS_V3_SIZE,
     header: Header, tau_ext_nm: [f64; 2], delta_rad: [f64; 2], insertion_m: f64,
     cycle_period_ns: u64, cycle_duration_ns: u64, cycles_total: u64, read_failures_total: u64,
-    overruns_total: u64, consecutive_read_failures: u32, _reserved: u32, tau_margin_nm: [f64; 2],
+    overruns_total: u64, consecutive_read_failures: u32, source_state: u32, tau_margin_nm: [f64; 2],
     held_sample_age_ns: u64, publish_late_ns: u64, implausible_total: u64);
 
 #[cfg(test)]

@@ -74,7 +74,7 @@ fn cycle(seq: u64) -> CycleMessages {
         read_failures_total: 3,
         overruns_total: 1,
         consecutive_read_failures: 0,
-        _reserved: 0,
+        source_state: 0,
         ..Default::default()
     };
     CycleMessages {

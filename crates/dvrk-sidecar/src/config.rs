@@ -328,9 +328,13 @@ pub struct SidecarConfig {
     pub kinematics: PsmKinematics,
     pub compliance_path: PathBuf,
     pub compliance: ComplianceConfig,
-    /// The instrument the parameters were fitted for (their file's `# instrument:` line); None:
-    /// not recorded, used for any instrument.
+    /// Every parameter set of the compliance file, one per instrument (see
+    /// [`crate::formats::compliance_sets_from_toml`]); `compliance` is the one for `instrument`.
+    pub compliance_sets: Vec<crate::formats::ParamSet>,
+    /// The instrument the first set was fitted for (None: not recorded, used for any).
     pub compliance_instrument: Option<&'static Instrument>,
+    /// The configured instrument has no parameter set: compensated = raw, NO_CALIBRATION.
+    pub no_calibration: bool,
     /// `instrument = "console"`.
     pub instrument_from_console: bool,
     /// Follow the console's state and base frame (and instrument when `instrument_from_console`).
@@ -499,21 +503,17 @@ impl SidecarConfig {
         let io_path = resolve(&p.io);
         let mut io = load_io(&io_path).with_context(|| format!("{here}: field `io`"))?;
         let compliance_path = resolve(&p.compliance);
-        let (compliance, compliance_text) = load_compliance_text(&compliance_path)
-            .with_context(|| format!("{here}: field `compliance`"))?;
-        // The instrument the parameters were fitted for (fit's `# instrument:` line).
-        let compliance_instrument = compliance_text
-            .lines()
-            .take_while(|l| l.starts_with('#'))
-            .find_map(|l| l.strip_prefix("# instrument:"))
-            .map(str::trim)
-            .filter(|s| !s.is_empty() && *s != "not recorded")
-            .map(|s| {
-                find_instrument(s).with_context(|| {
-                    format!("{}: its `# instrument:` line", compliance_path.display())
-                })
-            })
-            .transpose()?;
+        let compliance_text =
+            read_file(&compliance_path).with_context(|| format!("{here}: field `compliance`"))?;
+        // One set per instrument (fit's `# instrument:` line, or `[[set]]` tables).
+        let compliance_sets = crate::formats::compliance_sets_from_toml(&compliance_text)
+            .with_context(|| {
+                format!(
+                    "{here}: field `compliance`: {}: invalid compliance parameters",
+                    compliance_path.display()
+                )
+            })?;
+        let compliance_instrument = compliance_sets.first().and_then(|s| s.instrument);
         let instrument_from_console = p.instrument == "console";
         let instrument = if instrument_from_console {
             // Until the console says: the parameters' instrument (flagged meanwhile).
@@ -546,11 +546,25 @@ impl SidecarConfig {
         io.set_coupling(*coupling)
             .with_context(|| format!("{here}: coupling of instrument {}", instrument.name))?;
         let kinematics = PsmKinematics::new(p.arm, instrument);
-        let warnings = compliance_warnings(
+        // The set for the configured instrument (or one for any instrument).
+        let chosen = compliance_sets
+            .iter()
+            .position(|s| s.instrument.is_some_and(|i| i.model == instrument.model))
+            .or_else(|| compliance_sets.iter().position(|s| s.instrument.is_none()));
+        let no_calibration = chosen.is_none() && !instrument_from_console;
+        let compliance = compliance_sets[chosen.unwrap_or(0)].config.clone();
+        let mut warnings = compliance_warnings(
             &source,
             &compliance_text,
             &compliance_path.display().to_string(),
         );
+        if no_calibration {
+            warnings.push(format!(
+                "{}: no parameter set for instrument {}: compensated = raw, flagged NO_CALIBRATION",
+                compliance_path.display(),
+                instrument.name
+            ));
+        }
 
         let (base_frame, base_frame_origin) = match &p.base_frame {
             None => (
@@ -618,7 +632,9 @@ impl SidecarConfig {
             kinematics,
             compliance_path,
             compliance,
+            compliance_sets,
             compliance_instrument,
+            no_calibration,
             instrument_from_console,
             follow_console,
             console_arm,

@@ -76,7 +76,8 @@ pub enum Mounted {
 }
 
 impl Mounted {
-    fn code(self) -> u64 {
+    /// The code of `source_state` (0 not yet, 1 removed, 2 unsupported, 3 + catalog index).
+    pub fn code(self) -> u64 {
         match self {
             Mounted::NotYet => 0,
             Mounted::Removed => 1,
@@ -92,6 +93,14 @@ impl Mounted {
             2 => Mounted::Unsupported,
             c => Mounted::Catalog((c - 3).min(u64::from(u16::MAX)) as u16),
         }
+    }
+
+    /// A catalog entry.
+    pub fn of(i: &'static dvrk_compliance::Instrument) -> Self {
+        dvrk_compliance::instruments()
+            .iter()
+            .position(|x| std::ptr::eq(x, i))
+            .map_or(Mounted::Unsupported, |k| Mounted::Catalog(k as u16))
     }
 
     /// From the console's `tool_type`.

@@ -35,6 +35,9 @@ pub struct CycleResult {
     /// model; the raw messages keep `valid`).
     pub compensated_valid: bool,
     pub flags: u32,
+    /// [`dvrk_ipc::CompensationStatusV3::source_state`]: console state, parameter set,
+    /// instrument.
+    pub source_state: u32,
     /// |tau_ext| minus the threshold at which the correction of joints 1, 2 engages (N·m).
     pub tau_margin_nm: [f64; 2],
 }
@@ -154,6 +157,7 @@ fn finish(
         valid: outcome == ReadOutcome::Ok && s.valid,
         compensated_valid: true,
         flags: f,
+        source_state: 0,
         tau_margin_nm,
     }
 }
@@ -226,6 +230,7 @@ pub fn held(last: Option<&Held>, current: &ArmSample, reason: u32) -> (ArmSample
                 valid: false,
                 compensated_valid: true,
                 flags: reason,
+                source_state: 0,
                 tau_margin_nm: [0.0; 2],
             };
             (sample, result)
@@ -374,7 +379,7 @@ pub fn messages_from_first(
         held_sample_age_ns: t.held_sample_age_ns,
         publish_late_ns: t.publish_late_ns,
         implausible_total: t.implausible_total,
-        ..Default::default()
+        source_state: r.source_state,
     };
     CycleMessages {
         measured: arm_state(

@@ -366,6 +366,12 @@ pub struct Pipeline<'a, Src: SampleSource, Svc: iceoryx2::service::Service> {
     last_duration_ns: u64,
     last_sample_t_ns: Option<u64>,
     follow: Option<Follow>,
+    /// Parameter sets per instrument (empty: `model` for every instrument).
+    sets: &'a [crate::formats::ParamSet],
+    /// The set in use (None with `sets`: none for the mounted instrument, NO_CALIBRATION).
+    set_idx: Option<usize>,
+    /// The configured instrument's code in `source_state` (0: not given).
+    instrument_code: u16,
 }
 
 /// What the cycle keeps of the console it follows (crate::console_follow).
@@ -377,8 +383,6 @@ pub struct Follow {
     instrument: bool,
     /// The instrument applied (kinematics and coupling).
     mounted: crate::console_follow::Mounted,
-    /// The model number the parameters are for (None: any).
-    params_model: Option<u32>,
     /// The base frame configured, used until the console's arrives.
     configured_base: nalgebra::Isometry3<f64>,
 }
@@ -388,7 +392,6 @@ impl Follow {
         shared: std::sync::Arc<crate::console_follow::Shared>,
         arm: dvrk_compliance::ArmKind,
         instrument: bool,
-        params_model: Option<u32>,
         configured_base: nalgebra::Isometry3<f64>,
     ) -> Self {
         Self {
@@ -397,7 +400,6 @@ impl Follow {
             arm,
             instrument,
             mounted: crate::console_follow::Mounted::NotYet,
-            params_model,
             configured_base,
         }
     }
@@ -427,6 +429,30 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             last_duration_ns: 0,
             last_sample_t_ns: None,
             follow: None,
+            sets: &[],
+            set_idx: None,
+            instrument_code: 0,
+        }
+    }
+
+    /// Parameter sets per instrument; `initial` is the set of the configured instrument (None:
+    /// none, NO_CALIBRATION until an instrument with a set is mounted).
+    pub fn with_sets(
+        mut self,
+        sets: &'a [crate::formats::ParamSet],
+        initial: Option<usize>,
+    ) -> Self {
+        self.sets = sets;
+        self.set_idx = initial;
+        self
+    }
+
+    /// The parameters in use.
+    #[inline]
+    fn active_model(&self) -> &'a dvrk_compliance::ComplianceConfig {
+        match self.set_idx.and_then(|i| self.sets.get(i)) {
+            Some(s) => &s.config,
+            None => self.model,
         }
     }
 
@@ -456,9 +482,57 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             {
                 self.kinematics = dvrk_compliance::PsmKinematics::new(f.arm, inst);
                 self.source.set_coupling(c);
+                if !self.sets.is_empty() {
+                    let model = inst.model;
+                    let idx = self
+                        .sets
+                        .iter()
+                        .position(|s| s.instrument.is_some_and(|i| i.model == model))
+                        .or_else(|| self.sets.iter().position(|s| s.instrument.is_none()));
+                    if idx != self.set_idx {
+                        self.set_idx = idx;
+                        // the estimator's history belongs to the other parameters
+                        self.compensator.reset();
+                    }
+                }
             }
         }
         self.base_frame = f.view.base_frame().unwrap_or(f.configured_base);
+    }
+
+    /// [`dvrk_ipc::CompensationStatusV3::source_state`] of this cycle.
+    #[inline]
+    fn source_state(
+        follow: Option<&Follow>,
+        sets: usize,
+        set_idx: Option<usize>,
+        instrument_code: u16,
+        t_ns: u64,
+    ) -> u32 {
+        let set = match set_idx {
+            Some(i) if sets > 1 => (i + 1).min(255) as u8,
+            _ => 0,
+        };
+        match follow {
+            None => dvrk_ipc::pack_source_state(0, false, false, set, instrument_code),
+            Some(f) => {
+                let v = &f.view;
+                let heard = v.heard_ns != 0
+                    && t_ns.saturating_sub(v.heard_ns) < crate::console_follow::STALE_NS;
+                let instrument = if f.instrument {
+                    f.mounted.code().min(u64::from(u16::MAX)) as u16
+                } else {
+                    instrument_code
+                };
+                dvrk_ipc::pack_source_state(v.state as u8, v.homed, heard, set, instrument)
+            }
+        }
+    }
+
+    /// The configured instrument, for `source_state` when the console does not name it.
+    pub fn with_instrument(mut self, instrument: &'static dvrk_compliance::Instrument) -> Self {
+        self.instrument_code = crate::console_follow::Mounted::of(instrument).code() as u16;
+        self
     }
 
     /// After the correction: what the console's state makes of this cycle (see
@@ -510,16 +584,6 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 Mounted::Catalog(_) => {}
             }
         }
-        let mounted_model = match (f.instrument, f.mounted.instrument()) {
-            (true, Some(i)) => Some(i.model),
-            _ => None,
-        };
-        if let (Some(m), Some(p)) = (mounted_model, f.params_model)
-            && m != p
-        {
-            result.withhold_correction(&sample.position);
-            result.flags |= flags::NO_CALIBRATION;
-        }
     }
 
     /// Checks every successfully read sample with `check` (limits, jumps, currents) before it
@@ -551,6 +615,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
     #[inline]
     pub fn cycle(&mut self, t_start: u64, clock: impl Fn() -> u64) -> u64 {
         self.follow_begin();
+        let model = self.active_model();
         let c = &mut self.counters;
         let mut read = self.source.read(t_start, &mut self.sample);
         let t_sample = clock();
@@ -579,7 +644,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             c.window_read_failures += 1;
         }
         let fresh = cycle::compute_dynamic(
-            self.model,
+            model,
             &mut self.compensator,
             &self.kinematics,
             &self.sample,
@@ -607,6 +672,17 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             )
         };
         Self::follow_end(self.follow.as_ref(), &sample, &mut result, t_sample);
+        if !self.sets.is_empty() && self.set_idx.is_none() {
+            result.withhold_correction(&sample.position);
+            result.flags |= flags::NO_CALIBRATION;
+        }
+        result.source_state = Self::source_state(
+            self.follow.as_ref(),
+            self.sets.len(),
+            self.set_idx,
+            self.instrument_code,
+            t_sample,
+        );
         if self.source.simulated() {
             result.flags |= flags::SIMULATED;
         }
@@ -689,7 +765,23 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         period_ns,
     )
     .with_check(SampleCheck::new(plausibility_limits(cfg)), &cfg.io)
-    .with_base_frame(cfg.base_frame);
+    .with_base_frame(cfg.base_frame)
+    .with_instrument(cfg.instrument);
+    if cfg.compliance_sets.len() > 1 || cfg.compliance_instrument.is_some() {
+        let initial = cfg
+            .compliance_sets
+            .iter()
+            .position(|s| {
+                s.instrument
+                    .is_some_and(|i| i.model == cfg.instrument.model)
+            })
+            .or_else(|| {
+                cfg.compliance_sets
+                    .iter()
+                    .position(|s| s.instrument.is_none())
+            });
+        pipe = pipe.with_sets(&cfg.compliance_sets, initial);
+    }
     if cfg.follow_console {
         let domain = dvrk_bridge::console::ros_domain_id()?;
         let shared = crate::console_follow::spawn(&cfg.console_arm, domain, stop.clone())?;
@@ -704,7 +796,6 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             shared,
             cfg.arm,
             cfg.instrument_from_console,
-            cfg.compliance_instrument.map(|i| i.model),
             cfg.base_frame,
         ));
     }

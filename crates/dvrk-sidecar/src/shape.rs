@@ -85,13 +85,60 @@ pub fn status(topic: &str, m: &CompensationStatusV3) -> Value {
                 "read_failures_total": m.read_failures_total, "overruns_total": m.overruns_total,
                 "consecutive_read_failures": m.consecutive_read_failures,
                 "tau_margin_nm": m.tau_margin_nm, "held_sample_age_ns": m.held_sample_age_ns,
-                "publish_late_ns": m.publish_late_ns, "implausible_total": m.implausible_total }),
+                "publish_late_ns": m.publish_late_ns, "implausible_total": m.implausible_total,
+                "source_state": m.source_state, "source": source_json(m) }),
     )
+}
+
+/// `source_state` spelled out: the console's state, the parameter set, the instrument's name.
+fn source_json(m: &dvrk_ipc::CompensationStatusV3) -> serde_json::Value {
+    let instrument = match m.instrument_code() {
+        0 => "not known".to_owned(),
+        1 => "removed".to_owned(),
+        2 => "not modelled".to_owned(),
+        c => dvrk_compliance::instruments()
+            .get(usize::from(c - 3))
+            .map_or_else(|| format!("#{}", c - 3), |i| i.tool_type().to_string()),
+    };
+    json!({ "console_state": m.console_state(), "homed": m.console_homed(),
+            "console_heard": m.console_heard(), "parameter_set": m.parameter_set(),
+            "instrument": instrument })
+}
+
+/// The Python client's copy of the instrument catalog's names (python/dvrk_sidecar/instruments.py),
+/// in catalog order: what a `source_state` instrument code names.
+pub fn python_instruments() -> String {
+    let mut s = String::from(
+        "\"\"\"The service's instrument catalog, in order: `source_state` instrument code 3 + i names\n\
+         INSTRUMENTS[i]. Generated from dvrk_compliance::instruments() (a test of dvrk-sidecar\n\
+         checks it; DVRK_REGENERATE=1 rewrites it).\"\"\"\n\nINSTRUMENTS = (\n",
+    );
+    for i in dvrk_compliance::instruments() {
+        s.push_str(&format!("    \"{}\",\n", i.tool_type()));
+    }
+    s.push_str(")\n");
+    s
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_python_client_names_the_instruments_of_the_catalog() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../python/dvrk_sidecar/instruments.py");
+        let want = python_instruments();
+        if std::env::var_os("DVRK_REGENERATE").is_some() {
+            std::fs::write(&path, &want).unwrap();
+        }
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap_or_default(),
+            want,
+            "{} is out of date: DVRK_REGENERATE=1 cargo test -p dvrk-sidecar the_python_client",
+            path.display()
+        );
+    }
 
     #[test]
     fn every_message_has_topic_header_and_its_body() {

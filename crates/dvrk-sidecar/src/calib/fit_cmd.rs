@@ -23,6 +23,11 @@ pub enum ModelArg {
 /// `fit --clamp FILE... [--torque-offset FILE...] [--joint N] --out params.toml [--plots DIR] [--json]`
 #[derive(Clone, Debug, clap::Args)]
 pub struct FitArgs {
+    /// Add this fit to the parameter sets of `--out` (one `[[set]]` per instrument; the set of
+    /// the same instrument is replaced, the others kept) instead of replacing the file. The
+    /// data files must record their instrument (the procedures write it).
+    #[arg(long)]
+    pub add: bool,
     /// Clamp-beam data files (project CSV layout or dVRK 2017 clamp layout).
     #[arg(long, num_args = 1.., required = true)]
     pub clamp: Vec<PathBuf>,
@@ -397,6 +402,58 @@ pub fn report(outcome: &FitOutcome) -> String {
     s
 }
 
+/// The parameter sets of `out` (if it exists) with `set` (a one-set file's text) filed under
+/// `instrument`, replacing a set of the same instrument, as `[[set]]` tables.
+pub fn add_set(out: &std::path::Path, instrument: &str, set: &str) -> anyhow::Result<String> {
+    let inst = crate::config::find_instrument(instrument)?;
+    let mut sets: Vec<toml::Table> = Vec::new();
+    if out.exists() {
+        let text = crate::files::read_text(out, crate::files::CONFIG_MAX_BYTES)?;
+        // checks the file as serve would read it
+        let parsed = crate::formats::compliance_sets_from_toml(&text)
+            .with_context(|| format!("--add: {} is not a parameter file", out.display()))?;
+        let table: toml::Table = crate::files::from_toml(&text)?;
+        match table.get("set").and_then(|s| s.as_array()) {
+            Some(a) => sets.extend(a.iter().filter_map(|t| t.as_table().cloned())),
+            None => {
+                let Some(i) = parsed[0].instrument else {
+                    bail!(
+                        "--add: {} records no instrument (`# instrument:` line): its set cannot \
+                         be kept beside another",
+                        out.display()
+                    );
+                };
+                let mut t = table;
+                t.insert("instrument".into(), toml::Value::String(tool_name(i)));
+                sets.push(t);
+            }
+        }
+    }
+    let mut new: toml::Table = crate::files::from_toml(set)?;
+    new.insert("instrument".into(), toml::Value::String(tool_name(inst)));
+    sets.retain(|t| {
+        t.get("instrument")
+            .and_then(|v| v.as_str())
+            .and_then(|n| crate::config::find_instrument(n).ok())
+            .is_none_or(|i| i.model != inst.model)
+    });
+    sets.push(new);
+    let mut root = toml::Table::new();
+    root.insert(
+        "set".into(),
+        toml::Value::Array(sets.into_iter().map(toml::Value::Table).collect()),
+    );
+    Ok(format!(
+        "# parameter sets, one per instrument (`fit --add`)\n{}",
+        toml::to_string(&root)?
+    ))
+}
+
+/// An instrument as the console writes it (`NAME:MODEL[range]`).
+fn tool_name(i: &dvrk_compliance::Instrument) -> String {
+    i.tool_type().to_string()
+}
+
 /// Each input file with its provenance.
 pub type InputFiles = Vec<(PathBuf, super::provenance::Provenance)>;
 
@@ -471,7 +528,17 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
             d.joint, d.rms_before_nm, d.rms_after_nm
         ));
     }
-    text.push_str(&params_to_toml(&outcome.params));
+    if args.add {
+        let Some(inst) = instrument.as_deref() else {
+            bail!(
+                "--add: the data files record no instrument (`# instrument:` line), so the set \
+                 cannot be filed under one; fit without --add"
+            );
+        };
+        text.push_str(&add_set(&args.out, inst, &params_to_toml(&outcome.params))?);
+    } else {
+        text.push_str(&params_to_toml(&outcome.params));
+    }
     // Figures first: a figure that cannot be drawn (no font) fails the command before any
     // parameter file is written.
     if let Some(dir) = &args.plots {
@@ -515,6 +582,7 @@ mod tests {
 
     fn args(clamp: Vec<PathBuf>, sweep: Vec<PathBuf>, joint: Vec<u8>, out: PathBuf) -> FitArgs {
         FitArgs {
+            add: false,
             clamp,
             torque_offset: sweep,
             joint,
