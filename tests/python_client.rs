@@ -227,7 +227,7 @@ fn python_layouts_match_the_rust_types() {
             CompensationStatusV3::TYPE_NAME,
             fields!(CompensationStatusV3; header, tau_ext_nm, delta_rad, insertion_m,
                 cycle_period_ns, cycle_duration_ns, cycles_total, read_failures_total,
-                overruns_total, consecutive_read_failures, _reserved, tau_margin_nm,
+                overruns_total, consecutive_read_failures, source_state, tau_margin_nm,
                 held_sample_age_ns, publish_late_ns, implausible_total),
         ),
     ];
