@@ -36,6 +36,7 @@ const DYN: DynamicsParams = DynamicsParams {
     stick_velocity_rad_per_s: 0.002,
     residual_std_nm: 0.005,
     gate_sigmas: 4.0,
+    max_acceleration_rad_per_s2: None,
 };
 
 fn with_dynamics(kind: HysteresisKind) -> ComplianceConfig {
