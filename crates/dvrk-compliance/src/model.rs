@@ -141,6 +141,9 @@ pub const EFFORT_RATE_SAMPLES: usize = 8;
 /// a 21 rad/s² start changes the effort by about 0.3 N·m in 5 ms, sliding over tissue or the
 /// paper's push cycle by under 0.01 N·m.
 pub const TRANSIENT_EFFORT_CHANGE_NM: f64 = 0.035;
+/// Around a velocity reversal, this long (s) the friction's direction is uncertain: the filter's
+/// delay of 2 samples at 1.5 kHz, with a margin.
+pub const REVERSAL_WINDOW_S: f64 = 0.005;
 /// How long the correction is withheld after the last abrupt change (s): the filter's window
 /// (48 samples, 32 ms at 1.5 kHz) plus its delay, rounded up (issue 20 measured 30-45 ms of
 /// false contact after a velocity step).
@@ -428,10 +431,14 @@ fn erf(x: f64) -> f64 {
     let t = 1.0 / (1.0 + 0.327_591_1 * x.abs());
     let poly = t
         * (0.254_829_592
-            + t * (-0.284_496_736 + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
     let y = 1.0 - poly * (-x * x).exp();
     if x.is_nan() {
         f64::NAN
+    } else if x == 0.0 {
+        // The approximation gives 1e-9 at 0; no evidence is no correction.
+        0.0
     } else {
         y.copysign(x)
     }
@@ -587,16 +594,25 @@ impl Compensator {
             let st = &mut self.joints[j];
             let tr = &mut self.trust[j];
             let q = position[j];
-            let l_phys = if raw_l.is_finite() { raw_l.max(0.0) } else { 0.0 };
+            let l_phys = if raw_l.is_finite() {
+                raw_l.max(0.0)
+            } else {
+                0.0
+            };
             match &joint.dynamics {
                 Some(d) => {
                     tau_motion[j] = st.update(d, t_s, q, l_phys);
                     let a = st.acceleration();
                     let v = st.velocity();
+                    // Near a reversal the friction's direction is uncertain for the filter's
+                    // delay: the Coulomb term may be off by 2 F_c there.
+                    let reversal =
+                        v.abs() < d.stick_velocity_rad_per_s + a.abs() * REVERSAL_WINDOW_S;
                     sigma[j] = d
                         .residual_std_nm
                         .hypot(0.05 * d.inertia(l_phys) * a)
-                        .hypot(0.05 * d.viscous_nm_s_per_rad * v);
+                        .hypot(0.05 * d.viscous_nm_s_per_rad * v)
+                        .hypot(if reversal { 2.0 * d.coulomb_nm } else { 0.0 });
                     max_acc[j] = d
                         .max_acceleration_rad_per_s2
                         .unwrap_or(crate::dynamics::DEFAULT_MAX_ACCELERATION);
@@ -609,15 +625,21 @@ impl Compensator {
             if st.restarted() {
                 tr.after_gap = true;
             }
-            let step_limit = TRANSIENT_EFFORT_STEP_NM
-                .max(joint.dynamics.map_or(0.0, |d| 8.0 * d.residual_std_nm));
-            let effort_step =
-                tr.has_last_effort && (effort[j] - tr.last_effort).abs() > step_limit;
+            // A reversal steps the effort by the Coulomb friction twice over, which the model
+            // explains: that is not abrupt.
+            let coulomb_step = joint.dynamics.map_or(0.0, |d| 2.0 * d.coulomb_nm);
+            let step_limit = TRANSIENT_EFFORT_STEP_NM.max(
+                joint
+                    .dynamics
+                    .map_or(0.0, |d| 8.0 * d.residual_std_nm + coulomb_step),
+            );
+            let change_limit = TRANSIENT_EFFORT_CHANGE_NM + coulomb_step;
+            let effort_step = tr.has_last_effort && (effort[j] - tr.last_effort).abs() > step_limit;
             tr.last_effort = effort[j];
             tr.has_last_effort = effort[j].is_finite();
             // The change over the last EFFORT_RATE_SAMPLES (the oldest in the ring).
             let effort_change = tr.efforts_len == EFFORT_RATE_SAMPLES
-                && (effort[j] - tr.efforts[tr.efforts_head]).abs() > TRANSIENT_EFFORT_CHANGE_NM;
+                && (effort[j] - tr.efforts[tr.efforts_head]).abs() > change_limit;
             if effort[j].is_finite() && !st.restarted() {
                 tr.efforts[tr.efforts_head] = effort[j];
                 tr.efforts_head = (tr.efforts_head + 1) % EFFORT_RATE_SAMPLES;
@@ -638,7 +660,11 @@ impl Compensator {
             let st = &self.joints[j];
             let tr = &mut self.trust[j];
             let q = position[j];
-            let l_phys = if raw_l.is_finite() { raw_l.max(0.0) } else { 0.0 };
+            let l_phys = if raw_l.is_finite() {
+                raw_l.max(0.0)
+            } else {
+                0.0
+            };
             let tau_meas = effort[j] - joint.torque_offset.lookup(q);
             let (tau_motion, sigma_tau, max_acc) = (tau_motion[j], sigma[j], max_acc[j]);
             let mut flags = 0;
@@ -737,9 +763,12 @@ impl Compensator {
                     // Evidence beyond half the file's dead band: a torque that small is as
                     // likely a torque-offset or model error as contact (`tau_min` is the
                     // fitter's floor of both).
-                    let excess = (tau_shaft.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm).max(0.0);
-                    let m = erf(excess / (PLAY_EVIDENCE_SIGMAS * sigma_tau * core::f64::consts::SQRT_2))
-                        .copysign(tau_shaft);
+                    let excess =
+                        (tau_shaft.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm).max(0.0);
+                    let m = erf(
+                        excess / (PLAY_EVIDENCE_SIGMAS * sigma_tau * core::f64::consts::SQRT_2)
+                    )
+                    .copysign(tau_shaft);
                     (m * (play + k * tau_shaft.abs()), tau_shaft, m)
                 }
                 None => {
@@ -766,8 +795,8 @@ impl Compensator {
                 tr.last_trusted_tau
             };
             let k_hi = k * (1.0 + Z95 * rel_k);
-            let withheld = (0.95 * play).hypot(k_hi * (reference.abs() + distal.abs()))
-                + Z95 * k * sigma_tau;
+            let withheld =
+                (0.95 * play).hypot(k_hi * (reference.abs() + distal.abs())) + Z95 * k * sigma_tau;
             let bound = w * trusted + (1.0 - w) * withheld;
             if w >= 1.0 {
                 tr.last_trusted_tau = tau_shaft;

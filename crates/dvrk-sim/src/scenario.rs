@@ -263,7 +263,14 @@ pub enum Motion {
 
 /// The position offset and velocity of a [`Motion::StartStop`] joint with cruise speed `v` at
 /// time `t` (s): see there.
-pub fn start_stop(v: f64, move_s: f64, still_s: f64, ramp_s: f64, start_s: f64, t: f64) -> (f64, f64) {
+pub fn start_stop(
+    v: f64,
+    move_s: f64,
+    still_s: f64,
+    ramp_s: f64,
+    start_s: f64,
+    t: f64,
+) -> (f64, f64) {
     use core::f64::consts::PI;
     let t = t - start_s;
     if t < 0.0 {
