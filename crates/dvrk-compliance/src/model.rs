@@ -535,6 +535,7 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// - the distal angle is not measured: with the arm in free space it is observable only through
 ///   the distal inertia's tiny torque (3e-4 kg·m² times the acceleration, below the effort
 ///   noise), so the filter would mostly report its prior.
+///
 /// The design here keeps the identified least-squares model (its residual std is the torque
 /// noise) and adds explicit, testable rules for when it does not know, each with a flag; the
 /// bound is built from the same terms. A state observer remains the way to estimate the play's
