@@ -165,6 +165,8 @@ pub const STILL_TORQUE_SIGMA_NM: f64 = 0.02;
 pub const PLAY_EVIDENCE_SIGMAS: f64 = 3.0;
 /// The share of the file's `tau_min` below which a torque gives no evidence of contact.
 pub const PLAY_EVIDENCE_FLOOR: f64 = 0.25;
+/// Time constant (s) of the average of the shaft torque that is the evidence for the play's side.
+pub const EVIDENCE_TIME_S: f64 = 0.01;
 /// The 95% two-sided quantile of a normal distribution.
 const Z95: f64 = 1.959_964;
 
@@ -462,6 +464,11 @@ struct JointTrust {
     efforts: [f64; EFFORT_RATE_SAMPLES],
     efforts_head: usize,
     efforts_len: usize,
+    /// The shaft torque averaged over [`EVIDENCE_TIME_S`] (N·m): the evidence for the play's
+    /// side, in which contact persists and noise does not.
+    tau_average: f64,
+    /// Time (s) of the last sample, for the average's step.
+    last_t_s: f64,
 }
 
 impl Default for JointTrust {
@@ -476,6 +483,8 @@ impl Default for JointTrust {
             efforts: [0.0; EFFORT_RATE_SAMPLES],
             efforts_head: 0,
             efforts_len: 0,
+            tau_average: 0.0,
+            last_t_s: f64::NAN,
         }
     }
 }
@@ -764,12 +773,22 @@ impl Compensator {
                     // Evidence beyond half the file's dead band: a torque that small is as
                     // likely a torque-offset or model error as contact (`tau_min` is the
                     // fitter's floor of both).
-                    let excess =
-                        (tau_shaft.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm).max(0.0);
+                    let dt = t_s - tr.last_t_s;
+                    let alpha = if ready && dt > 0.0 && dt.is_finite() {
+                        (dt / EVIDENCE_TIME_S).min(1.0)
+                    } else {
+                        1.0
+                    };
+                    tr.tau_average += alpha * (tau_shaft - tr.tau_average);
+                    if !tr.tau_average.is_finite() {
+                        tr.tau_average = 0.0;
+                    }
+                    let evidence = tr.tau_average;
+                    let excess = (evidence.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm).max(0.0);
                     let m = erf(
                         excess / (PLAY_EVIDENCE_SIGMAS * sigma_tau * core::f64::consts::SQRT_2)
                     )
-                    .copysign(tau_shaft);
+                    .copysign(evidence);
                     (m * (play + k * tau_shaft.abs()), tau_shaft, m)
                 }
                 None => {
@@ -811,6 +830,7 @@ impl Compensator {
             out.weight[j] = w;
             out.bound_rad[j] = bound;
             out.flags |= flags;
+            tr.last_t_s = t_s;
         }
         out.tip_bound_m = tip_bound_m(raw_l, out.bound_rad);
         out
