@@ -505,29 +505,36 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// tau_ext   = tau_meas - tau_0(q) - tau_f(qd) - J(L) qdd         (dynamics model, as before)
 /// tau_shaft = tau_ext + J_2 L^2 qdd                               (what the shaft transmits:
 ///                                                                  contact plus the distal inertia)
-/// sigma     = hypot(residual_std, 0.05 J(L) qdd, 0.05 b qd)       (torque noise of the estimate)
-/// m         = erf(tau_shaft / (sigma sqrt 2))                     (evidence for the side of the play)
-/// delta_q   = w (delta m + K(L) tau_shaft)                        (0 <= w <= 1: the trust weight)
+/// sigma     = hypot(residual_std, 0.05 J(L) qdd, 0.05 b qd)       (torque noise of the estimate,
+///                                                                  plus 2 F_c near a reversal)
+/// tau_avg   = tau_shaft averaged over EVIDENCE_TIME_S (10 ms)     (contact persists, noise not)
+/// m         = erf(max(|tau_avg| - tau_min / 4, 0) / (3 sigma sqrt 2)) sgn(tau_avg)
+///                                                                 (evidence for the play's side)
+/// delta_q   = w m (delta + K(L) |tau_shaft|)                      (0 <= w <= 1: the trust weight)
 /// ```
 ///
 /// The hard gate of the paper (no correction below `tau_min`, all of it above) becomes the
-/// smooth `m`: the play's side is corrected as far as the torque's sign is known, and the
-/// elastic part `K tau` is linear in the torque, so light contact is corrected down to the noise
-/// floor and the correction grows from zero without a step. Joints without a dynamics model keep
-/// the file's formula (`model = "paper"` or `"continuous"`), but only while the arm is still.
+/// smooth `m`: the correction is made as far as the torque's sign is known, so light contact is
+/// corrected down to the noise floor and the correction grows from zero without a step (and
+/// reaches the paper's formula once `|tau_avg|` is several sigma past a quarter of `tau_min`).
+/// Joints without a dynamics model keep the file's formula (`model = "paper"` or
+/// `"continuous"`), but only while the arm is still.
 ///
 /// The weight `w` is the smallest of: 0 during the filter's warm-up (start, or after a gap);
-/// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`] or a window whose
-/// motion is not smooth, [`TRANSIENT_RESIDUAL_RAD`]) 0 for [`TRANSIENT_HOLD_S`], then fading
+/// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`], an effort change
+/// over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`], or a window whose motion
+/// is not smooth, [`TRANSIENT_RESIDUAL_RAD`]) 0 for [`TRANSIENT_HOLD_S`], then fading
 /// back in over [`FADE_S`]; 1 up to the largest acceleration the dynamics fit saw, falling to 0
 /// at [`ACCEL_CUTOFF_RATIO`] times it; 0 beyond the insertion margin. Each reason sets a bit
 /// of [`trust`] in [`Correction::flags`].
 ///
 /// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]):
-/// for the trusted part, the play (the other side is possible while `|m| < 0.9`) plus 1.96
-/// sigma of the elastic part (torque noise and a 3% stiffness uncertainty, growing to 18% at the
-/// end of the insertion margin); for the withheld part `1 - w`, the play plus `K` times the last
-/// trusted torque and the distal inertia's load, as if nothing were known about the transient.
+/// for the trusted part, 0.95 of the play's possible error (the other side is possible while
+/// `|m| < 0.9`) plus 1.96 sigma of the elastic part (torque noise and a 1% stiffness
+/// uncertainty, growing to 16% at the end of the insertion margin); for the withheld part
+/// `1 - w`, the play and `K` times the last trusted torque and the distal inertia's load, as if
+/// nothing were known about the transient. The tip bound takes both joints through the lever
+/// `L + TIP_LEVER_EXTRA_M` as a 2-D 95% radius.
 ///
 /// # Why not a state observer (Kalman filter)
 ///
