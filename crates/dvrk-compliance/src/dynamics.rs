@@ -62,10 +62,21 @@ pub struct DynamicsParams {
     pub stick_velocity_rad_per_s: f64,
     /// Standard deviation of the model's torque residual in free space (N·m).
     pub residual_std_nm: f64,
-    /// The gate: a correction needs `|tau_ext| > tau_min + gate_sigmas * residual_std_nm`.
+    /// The gate: a correction needs `|tau_ext| > tau_min + gate_sigmas * residual_std_nm`
+    /// (the paper's formula and the continuous ramp; the compensator's evidence weight uses
+    /// `residual_std_nm` itself).
     #[serde(default = "default_gate_sigmas")]
     pub gate_sigmas: f64,
+    /// The largest |acceleration| (rad/s²) in the fit's data (issue 20): beyond it the inertia
+    /// term is an extrapolation, and the compensator shrinks the correction. Absent in files
+    /// fitted before it existed; the compensator then assumes [`DEFAULT_MAX_ACCELERATION`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_acceleration_rad_per_s2: Option<f64>,
 }
+
+/// The acceleration range assumed for a dynamics model whose file does not state the fit's
+/// (rad/s²): the multi-sine of `calibrate dynamics` reaches 4 rad/s².
+pub const DEFAULT_MAX_ACCELERATION: f64 = 4.0;
 
 impl DynamicsParams {
     /// `J(L)` in kg·m².
@@ -95,6 +106,10 @@ pub struct DerivativeFilter {
     /// Next slot to write.
     head: usize,
     len: usize,
+    /// RMS of the last cubic fit's residual (rad): how far the window's motion is from smooth.
+    residual_rad: f64,
+    /// Whether the last push restarted the history (a gap, time going back, non-finite input).
+    restarted: bool,
 }
 
 impl Default for DerivativeFilter {
@@ -104,6 +119,8 @@ impl Default for DerivativeFilter {
             q: [0.0; WINDOW],
             head: 0,
             len: 0,
+            residual_rad: 0.0,
+            restarted: false,
         }
     }
 }
@@ -113,6 +130,19 @@ impl DerivativeFilter {
     pub fn reset(&mut self) {
         self.head = 0;
         self.len = 0;
+        self.residual_rad = 0.0;
+    }
+
+    /// RMS (rad) of the residual of the last cubic fit over the window: encoder quantization
+    /// (a few µrad) while the motion is smooth, far more across a velocity step.
+    pub fn residual_rad(&self) -> f64 {
+        self.residual_rad
+    }
+
+    /// Whether the last [`DerivativeFilter::push`] restarted the history after a gap, a time
+    /// that went back or a non-finite input (not at the very first sample).
+    pub fn restarted(&self) -> bool {
+        self.restarted
     }
 
     /// Whether the window is full, so the estimates are the filter's own (not start-up zeros).
@@ -125,7 +155,9 @@ impl DerivativeFilter {
     /// Non-finite inputs reset the filter; a time that does not increase, or one more than
     /// [`MAX_GAP_S`] after the last sample, restarts it at this sample.
     pub fn push(&mut self, t_s: f64, q: f64) -> (f64, f64) {
+        self.restarted = false;
         if !(t_s.is_finite() && q.is_finite()) {
+            self.restarted = true;
             self.reset();
             return (0.0, 0.0);
         }
@@ -133,6 +165,7 @@ impl DerivativeFilter {
             let last = self.t[(self.head + WINDOW - 1) % WINDOW];
             let gap = t_s - last;
             if gap.is_nan() || gap <= 0.0 || gap > MAX_GAP_S {
+                self.restarted = true;
                 self.reset();
             }
         }
@@ -169,7 +202,17 @@ impl DerivativeFilter {
         }
         match solve4(m, r) {
             // q(x) = c0 + c1 x + c2 x^2 + c3 x^3 with x = (t - t0) / span, at x = 0.
-            Some(c) => (c[1] / span, 2.0 * c[2] / (span * span)),
+            Some(c) => {
+                let mut ss = 0.0;
+                for k in 0..self.len {
+                    let i = (oldest + k) % WINDOW;
+                    let x = (self.t[i] - t0) / span;
+                    let e = self.q[i] - q0 - (((c[3] * x + c[2]) * x + c[1]) * x + c[0]);
+                    ss += e * e;
+                }
+                self.residual_rad = (ss / self.len as f64).sqrt();
+                (c[1] / span, 2.0 * c[2] / (span * span))
+            }
             None => (0.0, 0.0),
         }
     }
@@ -233,9 +276,27 @@ impl JointDynamicsState {
         p.friction(v, self.direction) + p.inertia(insertion_m) * a
     }
 
+    /// Feeds one sample to the filter alone (a joint without a dynamics model: its velocity
+    /// and acceleration still tell whether the arm is still).
+    pub fn observe(&mut self, t_s: f64, q: f64) {
+        let (v, a) = self.filter.push(t_s, q);
+        self.velocity = v;
+        self.acceleration = a;
+    }
+
     /// Whether the filter has a full window: until then the motion's torque is unknown.
     pub fn ready(&self) -> bool {
         self.filter.ready()
+    }
+
+    /// See [`DerivativeFilter::residual_rad`].
+    pub fn smoothness_residual_rad(&self) -> f64 {
+        self.filter.residual_rad()
+    }
+
+    /// See [`DerivativeFilter::restarted`].
+    pub fn restarted(&self) -> bool {
+        self.filter.restarted()
     }
 
     /// The filtered velocity (rad/s) of the last update.
@@ -344,6 +405,7 @@ mod tests {
             stick_velocity_rad_per_s: 0.002,
             residual_std_nm: 0.0,
             gate_sigmas: 0.0,
+            max_acceleration_rad_per_s2: None,
         };
         let mut s = JointDynamicsState::default();
         let dt = 1e-3;
@@ -456,6 +518,7 @@ pub fn fit_dynamics_segmented(
     let mut direction = 0.0;
     let mut rows: Vec<([f64; 4], f64)> = Vec::with_capacity(samples.len());
     let mut in_segment = 0;
+    let mut max_acc = 0.0f64;
     for (i, s) in samples.iter().enumerate() {
         if starts.contains(&i) {
             filter.reset();
@@ -477,6 +540,7 @@ pub fn fit_dynamics_segmented(
         let l = at.position[2];
         let y = at.effort_nm[j] - tau_0(at.position[j]);
         if y.is_finite() && v.is_finite() && a.is_finite() {
+            max_acc = max_acc.max(a.abs());
             rows.push(([a, l * l * a, v, direction], y));
         }
     }
@@ -575,6 +639,7 @@ pub fn fit_dynamics_segmented(
             stick_velocity_rad_per_s: stick,
             residual_std_nm: var.sqrt(),
             gate_sigmas,
+            max_acceleration_rad_per_s2: Some(max_acc),
         },
         rms_before_nm: (before / n).sqrt(),
         rms_after_nm: (after / n).sqrt(),
@@ -595,6 +660,7 @@ mod fit_tests {
             stick_velocity_rad_per_s: 0.002,
             residual_std_nm: 0.0,
             gate_sigmas: 4.0,
+            max_acceleration_rad_per_s2: None,
         };
         let dt = 1.0 / 1500.0;
         let mut samples = Vec::new();

@@ -59,7 +59,116 @@ pub struct Correction {
     /// the external torque is past the gate (negative: inside it); 0 for a joint without
     /// parameters. The status message carries it as `tau_margin_nm`.
     pub tau_margin_nm: [f64; 2],
+    /// Why the correction was withheld, shrunk or extrapolated: bits of [`trust`] (issue 20);
+    /// 0 when the full correction was applied with the estimator's full confidence.
+    pub flags: u32,
+    /// The share of the model's correction applied to joints 1 and 2 (0..=1): 1 when the
+    /// estimator trusts its torque, 0 while it withholds the correction (warm-up, a transient,
+    /// an insertion beyond the margin, a moving arm without a dynamics model), in between while
+    /// the correction fades back in or shrinks with the acceleration.
+    pub weight: [f64; 2],
+    /// 95% bound (rad) on the error of the compensated joints 1 and 2, `|q_hat - q_true|`
+    /// (the error of `delta_rad`): what the correction may still be off by. 0 for a joint without
+    /// parameters (nothing is modelled there, and nothing corrected).
+    pub bound_rad: [f64; 2],
+    /// 95% bound (m) on the compensated tip position's error from joints 1 and 2: the joint
+    /// bounds through the lever from the RCM to the tip, `(L + TIP_LEVER_EXTRA_M) *
+    /// hypot(bound_rad)`.
+    pub tip_bound_m: f64,
 }
+
+/// The bits of [`Correction::flags`] (issue 20): why the estimator does not give its full
+/// correction. A consumer may treat any of `WARMUP`, `TRANSIENT`, `STILL_ONLY` and
+/// `INSERTION_OUT_OF_RANGE` as "this sample is (partly) uncorrected"; the bound says by how much.
+pub mod trust {
+    /// The estimator's filter is filling its window (after start, or after a gap): no
+    /// correction.
+    pub const WARMUP: u32 = 1 << 0;
+    /// The history restarted after a gap in the samples (more than `MAX_GAP_S`), a time that
+    /// went back or a non-finite input; set with `WARMUP` until the window is full again.
+    pub const GAP: u32 = 1 << 1;
+    /// An abrupt change (the effort jumped, or the motion over the filter's window is not
+    /// smooth): the internal-torque estimate lags, so the correction is withheld for
+    /// `TRANSIENT_HOLD_S` and fades back in over `FADE_S`.
+    pub const TRANSIENT: u32 = 1 << 2;
+    /// The acceleration is beyond what the dynamics fit saw: the correction shrinks, to nothing
+    /// at `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration.
+    pub const ACCEL_OUT_OF_RANGE: u32 = 1 << 3;
+    /// The insertion is outside the fitted range but within `INSERTION_MARGIN_M` of it: K(L)
+    /// is extrapolated and its uncertainty grows with the distance.
+    pub const INSERTION_EXTRAPOLATED: u32 = 1 << 4;
+    /// The insertion is more than `INSERTION_MARGIN_M` outside the fitted range: no correction.
+    pub const INSERTION_OUT_OF_RANGE: u32 = 1 << 5;
+    /// A joint without a dynamics model while the arm moves: its effort holds inertia and
+    /// friction the model cannot remove, so it is corrected only while the arm is still.
+    pub const STILL_ONLY: u32 = 1 << 6;
+    /// The applied correction is less than the model's (some `weight < 1`).
+    pub const REDUCED: u32 = 1 << 7;
+    /// Every bit, with its name (for status tables and `echo`).
+    pub const TABLE: [(u32, &str); 8] = [
+        (WARMUP, "warmup"),
+        (GAP, "gap"),
+        (TRANSIENT, "transient"),
+        (ACCEL_OUT_OF_RANGE, "accel_out_of_range"),
+        (INSERTION_EXTRAPOLATED, "insertion_extrapolated"),
+        (INSERTION_OUT_OF_RANGE, "insertion_out_of_range"),
+        (STILL_ONLY, "still_only"),
+        (REDUCED, "reduced"),
+    ];
+}
+
+/// How far outside its fitted insertion range K(L) is extrapolated (m); beyond, no correction.
+pub const INSERTION_MARGIN_M: f64 = 0.01;
+/// Relative uncertainty (1 sigma) of K(L) inside the fitted range: the cubic of the default
+/// file fits its 14 depths to r² = 0.99999 (a few 0.1%); 1% leaves room for a real arm's
+/// scatter. A lab with the 2017 kind of data should expect more and can read it off `fit`.
+pub const STIFFNESS_REL_SIGMA: f64 = 0.01;
+/// Extra relative uncertainty of K(L) at the end of the extrapolation margin (grows linearly).
+pub const STIFFNESS_REL_SIGMA_AT_MARGIN: f64 = 0.15;
+/// The tip lies this far beyond the insertion L from the RCM (m): the wrist and jaws of an 8 mm
+/// instrument, rounded up, so the tip bound errs on the safe side.
+pub const TIP_LEVER_EXTRA_M: f64 = 0.01;
+/// RMS of the filter window's cubic residual above which the motion counts as abrupt (rad): 10x
+/// the quantization of a Classic PSM encoder (7.7 µrad per count, 2.2 µrad rms).
+pub const TRANSIENT_RESIDUAL_RAD: f64 = 2.0e-5;
+/// An effort change between two samples above which the effort counts as abrupt (N·m), at
+/// least; with a dynamics model, also at least 8 residual standard deviations.
+pub const TRANSIENT_EFFORT_STEP_NM: f64 = 0.05;
+/// The effort's change over this many samples (5.3 ms at 1.5 kHz) is watched too: a motion's
+/// start builds the effort over a few ms, faster than any contact the model corrects.
+pub const EFFORT_RATE_SAMPLES: usize = 8;
+/// An effort change over [`EFFORT_RATE_SAMPLES`] above which the effort counts as abrupt (N·m):
+/// a 21 rad/s² start changes the effort by about 0.3 N·m in 5 ms, sliding over tissue or the
+/// paper's push cycle by under 0.01 N·m.
+pub const TRANSIENT_EFFORT_CHANGE_NM: f64 = 0.035;
+/// Around a velocity reversal, this long (s) the friction's direction is uncertain: the filter's
+/// delay of 2 samples at 1.5 kHz, with a margin.
+pub const REVERSAL_WINDOW_S: f64 = 0.005;
+/// How long the correction is withheld after the last abrupt change (s): the filter's window
+/// (48 samples, 32 ms at 1.5 kHz) plus its delay, rounded up (issue 20 measured 30-45 ms of
+/// false contact after a velocity step).
+pub const TRANSIENT_HOLD_S: f64 = 0.05;
+/// How long a withheld correction takes to fade back in (s).
+pub const FADE_S: f64 = 0.05;
+/// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction.
+pub const ACCEL_CUTOFF_RATIO: f64 = 2.0;
+/// Below this speed (rad/s) and [`STILL_ACCELERATION`] a joint without a dynamics model counts
+/// as still.
+pub const STILL_VELOCITY: f64 = 0.01;
+/// See [`STILL_VELOCITY`] (rad/s²).
+pub const STILL_ACCELERATION: f64 = 0.5;
+/// Residual std (N·m) assumed for a joint without a dynamics model while still.
+pub const STILL_TORQUE_SIGMA_NM: f64 = 0.02;
+/// How many residual standard deviations make one "sigma" of evidence for the play's side:
+/// the residual is not white (model mismatch follows the motion), so a torque of one residual
+/// std is weaker evidence than white noise would make it.
+pub const PLAY_EVIDENCE_SIGMAS: f64 = 3.0;
+/// The share of the file's `tau_min` below which a torque gives no evidence of contact.
+pub const PLAY_EVIDENCE_FLOOR: f64 = 0.25;
+/// Time constant (s) of the average of the shaft torque that is the evidence for the play's side.
+pub const EVIDENCE_TIME_S: f64 = 0.01;
+/// The 95% two-sided quantile of a normal distribution.
+const Z95: f64 = 1.959_964;
 
 /// The validated model of one joint: backlash, dead band, inverse compliance cubic, insertion
 /// range and torque offset table.
@@ -240,6 +349,10 @@ impl ComplianceConfig {
             insertion_m: raw_insertion_m,
             insertion_clamped: false,
             tau_margin_nm: [0.0; 2],
+            flags: 0,
+            weight: [0.0; 2],
+            bound_rad: [0.0; 2],
+            tip_bound_m: 0.0,
         };
         let mut insertion_reported = false;
         for (j, joint) in self.joints.iter().enumerate() {
@@ -257,17 +370,196 @@ impl ComplianceConfig {
             out.delta_rad[j] = delta;
             out.active[j] = delta != 0.0;
             out.position[j] = position[j] - delta;
+            out.weight[j] = 1.0;
+            // The stateless formula has no noise model: its gate stands for 4 sigma.
+            let k = 1.0 / cubic(&joint.inverse_compliance_nm_per_rad, insertion_m);
+            let m = side_of_play(joint.play_rad(), delta, k, tau_ext);
+            out.bound_rad[j] = joint_bound(
+                joint.play_rad(),
+                m,
+                k,
+                joint.threshold_nm() / 4.0,
+                tau_ext,
+                STIFFNESS_REL_SIGMA,
+            );
         }
+        if out.insertion_clamped {
+            out.flags |= trust::INSERTION_EXTRAPOLATED;
+        }
+        out.tip_bound_m = tip_bound_m(raw_insertion_m, out.bound_rad);
         out
     }
 }
 
+/// The applied side of the play as a fraction `m` in -1..=1 of `delta`, from a correction
+/// `delta_q = m play + K tau`.
+fn side_of_play(play: f64, delta: f64, k: f64, tau: f64) -> f64 {
+    if play > 0.0 {
+        ((delta - k * tau) / play).clamp(-1.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// 95% bound (rad) on one joint's corrected error when the model is trusted: the play side
+/// (`m` = the applied fraction of `delta`; with probability `(1 - |m|) / 2` the shaft is on the
+/// other side, so below `|m| = 0.9` the bound must reach it) and 1.96 sigma of the elastic part
+/// (torque noise and the stiffness's uncertainty), in quadrature.
+fn joint_bound(play: f64, m: f64, k: f64, sigma_tau: f64, tau: f64, rel_k: f64) -> f64 {
+    let m = m.abs();
+    let play_part = if m < 0.9 {
+        play * (1.0 + m)
+    } else {
+        play * (1.0 - m)
+    };
+    let elastic = (k * sigma_tau).hypot(rel_k * k * tau);
+    // The play's error is spread over the play (uniform when the side is unknown): its 95%
+    // quantile is 0.95 of its width.
+    0.95 * play_part + Z95 * elastic
+}
+
+/// The 95% radius of a 2-D normal error over the norm of its two 95% half-widths:
+/// `sqrt(chi2_2(0.95)) / (1.96 sqrt 2)` = 2.448 / 2.772.
+const TIP_2D_FACTOR: f64 = 0.883;
+
+/// The tip bound (m) from the joint bounds: the lever from the RCM to the tip times their norm.
+pub fn tip_bound_m(insertion_m: f64, bound_rad: [f64; 2]) -> f64 {
+    TIP_2D_FACTOR * (insertion_m.max(0.0) + TIP_LEVER_EXTRA_M) * bound_rad[0].hypot(bound_rad[1])
+}
+
+/// `erf(x)` (Abramowitz and Stegun 7.1.26, |error| < 1.5e-7): the evidence for the side of the
+/// play, `E[sgn tau] = erf(tau / (sigma sqrt 2))` for a torque measured with noise `sigma`.
+fn erf(x: f64) -> f64 {
+    let t = 1.0 / (1.0 + 0.327_591_1 * x.abs());
+    let poly = t
+        * (0.254_829_592
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    let y = 1.0 - poly * (-x * x).exp();
+    if x.is_nan() {
+        f64::NAN
+    } else if x == 0.0 {
+        // The approximation gives 1e-9 at 0; no evidence is no correction.
+        0.0
+    } else {
+        y.copysign(x)
+    }
+}
+
+/// What the compensator remembers per joint besides its filter (issue 20): when the last abrupt
+/// change was, whether the arm moved, the last effort and the last trusted shaft torque.
+#[derive(Clone, Copy, Debug)]
+struct JointTrust {
+    last_effort: f64,
+    has_last_effort: bool,
+    /// Time (s) of the last abrupt change or of the warm-up; `-inf` before any.
+    last_transient_s: f64,
+    /// Time (s) the arm last moved (joints without a dynamics model).
+    last_moving_s: f64,
+    /// A gap restarted the filter and it has not filled since.
+    after_gap: bool,
+    /// The shaft torque (N·m) of the last sample the estimator trusted fully.
+    last_trusted_tau: f64,
+    /// The last [`EFFORT_RATE_SAMPLES`] efforts (ring), for the effort's change over a few ms.
+    efforts: [f64; EFFORT_RATE_SAMPLES],
+    efforts_head: usize,
+    efforts_len: usize,
+    /// The shaft torque averaged over [`EVIDENCE_TIME_S`] (N·m): the evidence for the play's
+    /// side, in which contact persists and noise does not.
+    tau_average: f64,
+    /// Time (s) of the last sample, for the average's step.
+    last_t_s: f64,
+}
+
+impl Default for JointTrust {
+    fn default() -> Self {
+        Self {
+            last_effort: 0.0,
+            has_last_effort: false,
+            last_transient_s: f64::NEG_INFINITY,
+            last_moving_s: f64::NEG_INFINITY,
+            after_gap: false,
+            last_trusted_tau: 0.0,
+            efforts: [0.0; EFFORT_RATE_SAMPLES],
+            efforts_head: 0,
+            efforts_len: 0,
+            tau_average: 0.0,
+            last_t_s: f64::NAN,
+        }
+    }
+}
+
+/// 0 before `start + hold`, 1 after `start + hold + fade`, linear in between.
+#[inline]
+fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
+    ((t_s - start_s - hold_s) / FADE_S).clamp(0.0, 1.0)
+}
+
 /// The model with its state: the internal-torque estimator of [`crate::dynamics`] in front of
-/// the paper's correction. For joints whose parameters have no `[joint.dynamics]` it is exactly
-/// [`ComplianceConfig::correct`]. Fixed-size state, no allocation per sample.
+/// the paper's correction, and the estimator's judgement of itself (issue 20). Fixed-size
+/// state, no allocation per sample.
+///
+/// # What it does per joint
+///
+/// ```text
+/// tau_ext   = tau_meas - tau_0(q) - tau_f(qd) - J(L) qdd         (dynamics model, as before)
+/// tau_shaft = tau_ext + J_2 L^2 qdd                               (what the shaft transmits:
+///                                                                  contact plus the distal inertia)
+/// sigma     = hypot(residual_std, 0.05 J(L) qdd, 0.05 b qd)       (torque noise of the estimate,
+///                                                                  plus 2 F_c near a reversal)
+/// tau_avg   = tau_shaft averaged over EVIDENCE_TIME_S (10 ms)     (contact persists, noise not)
+/// m         = erf(max(|tau_avg| - tau_min / 4, 0) / (3 sigma sqrt 2)) sgn(tau_avg)
+///                                                                 (evidence for the play's side)
+/// delta_q   = w m (delta + K(L) |tau_shaft|)                      (0 <= w <= 1: the trust weight)
+/// ```
+///
+/// The hard gate of the paper (no correction below `tau_min`, all of it above) becomes the
+/// smooth `m`: the correction is made as far as the torque's sign is known, so light contact is
+/// corrected down to the noise floor and the correction grows from zero without a step (and
+/// reaches the paper's formula once `|tau_avg|` is several sigma past a quarter of `tau_min`).
+/// Joints without a dynamics model keep the file's formula (`model = "paper"` or
+/// `"continuous"`), but only while the arm is still.
+///
+/// The weight `w` is the smallest of: 0 during the filter's warm-up (start, or after a gap);
+/// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`], an effort change
+/// over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`], or a window whose motion
+/// is not smooth, [`TRANSIENT_RESIDUAL_RAD`]) 0 for [`TRANSIENT_HOLD_S`], then fading
+/// back in over [`FADE_S`]; 1 up to the largest acceleration the dynamics fit saw, falling to 0
+/// at [`ACCEL_CUTOFF_RATIO`] times it; 0 beyond the insertion margin. Each reason sets a bit
+/// of [`trust`] in [`Correction::flags`].
+///
+/// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]):
+/// for the trusted part, 0.95 of the play's possible error (the other side is possible while
+/// `|m| < 0.9`) plus 1.96 sigma of the elastic part (torque noise and a 1% stiffness
+/// uncertainty, growing to 16% at the end of the insertion margin); for the withheld part
+/// `1 - w`, the play and `K` times the last trusted torque and the distal inertia's load, as if
+/// nothing were known about the transient. The tip bound takes both joints through the lever
+/// `L + TIP_LEVER_EXTRA_M` as a 2-D 95% radius.
+///
+/// # Why not a state observer (Kalman filter)
+///
+/// A Kalman-type observer over the motor angle, the distal angle and their rates, with the play,
+/// the stiffness and the distal dynamics, fed by the encoders and the effort, would give the
+/// estimate and its covariance in one place. It was weighed and not chosen, for now:
+/// - the play makes the model piecewise (a dead zone between two springs): a linear Kalman
+///   filter does not hold it, an extended one linearises across a kink, and the honest tools
+///   (a switching or particle filter) cost far more than a 1.5 kHz cycle should;
+/// - its covariance is only as good as its process noise, which would be tuned on the same
+///   simulator; the effort's real disturbances (PID transients, cable friction) are not white,
+///   and an observer that trusts a wrong model reports a small covariance exactly where it is
+///   wrong (the abrupt starts of issue 20);
+/// - the distal angle is not measured: with the arm in free space it is observable only through
+///   the distal inertia's tiny torque (3e-4 kg·m² times the acceleration, below the effort
+///   noise), so the filter would mostly report its prior.
+///
+/// The design here keeps the identified least-squares model (its residual std is the torque
+/// noise) and adds explicit, testable rules for when it does not know, each with a flag; the
+/// bound is built from the same terms. A state observer remains the way to estimate the play's
+/// side in free space once the distal part's gravity is in the model (issue 20 item 3, open).
 #[derive(Clone, Debug, Default)]
 pub struct Compensator {
     joints: [JointDynamicsState; 2],
+    trust: [JointTrust; 2],
 }
 
 impl Compensator {
@@ -283,12 +575,11 @@ impl Compensator {
         for j in &mut self.joints {
             j.reset();
         }
+        self.trust = Default::default();
     }
 
-    /// One sample at time `t_s` (s, monotonic): `tau_ext = tau_meas - tau_0(q) - tau_f - J qdd`
-    /// for joints with a dynamics model, then the gate and the correction. Until the filter's
-    /// window is full (48 samples after start or [`Compensator::reset`]) such a joint reports
-    /// `tau_ext = 0` and is not corrected.
+    /// One sample at time `t_s` (s, monotonic): the internal-torque model, the trust weight, the
+    /// evidence-weighted correction and its 95% bound (see the type's docs). Allocates nothing.
     pub fn correct(
         &mut self,
         config: &ComplianceConfig,
@@ -296,22 +587,260 @@ impl Compensator {
         position: &[f64; 3],
         effort: &[f64; 3],
     ) -> Correction {
-        let mut tau_ext = [0.0; 2];
+        let raw_l = position[2];
+        let mut out = Correction {
+            position: *position,
+            delta_rad: [0.0; 2],
+            tau_ext_nm: [0.0; 2],
+            active: [false; 2],
+            insertion_m: raw_l,
+            insertion_clamped: false,
+            tau_margin_nm: [0.0; 2],
+            flags: 0,
+            weight: [0.0; 2],
+            bound_rad: [0.0; 2],
+            tip_bound_m: 0.0,
+        };
+        // Pass 1: the filters, the dynamics model's torque and the abrupt-change detectors.
+        let mut tau_motion = [0.0; 2];
+        let mut sigma = [0.0; 2];
+        let mut max_acc = [0.0; 2];
+        let mut abrupt = [false; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
-            let mut tau = effort[j] - joint.torque_offset.lookup(position[j]);
-            if let Some(d) = &joint.dynamics {
-                let (l, _) = joint.clamp_insertion(position[2]);
-                tau -= self.joints[j].update(d, t_s, position[j], l);
-                if !self.joints[j].ready() {
-                    // The first WINDOW samples (after start or a reset): the motion's torque is
-                    // not known yet, so nothing is taken for contact.
-                    tau = 0.0;
+            let st = &mut self.joints[j];
+            let tr = &mut self.trust[j];
+            let q = position[j];
+            let l_phys = if raw_l.is_finite() {
+                raw_l.max(0.0)
+            } else {
+                0.0
+            };
+            match &joint.dynamics {
+                Some(d) => {
+                    tau_motion[j] = st.update(d, t_s, q, l_phys);
+                    let a = st.acceleration();
+                    let v = st.velocity();
+                    // Near a reversal the friction's direction is uncertain for the filter's
+                    // delay: the Coulomb term may be off by 2 F_c there.
+                    let reversal =
+                        v.abs() < d.stick_velocity_rad_per_s + a.abs() * REVERSAL_WINDOW_S;
+                    sigma[j] = d
+                        .residual_std_nm
+                        .hypot(0.05 * d.inertia(l_phys) * a)
+                        .hypot(0.05 * d.viscous_nm_s_per_rad * v)
+                        .hypot(if reversal { 2.0 * d.coulomb_nm } else { 0.0 });
+                    max_acc[j] = d
+                        .max_acceleration_rad_per_s2
+                        .unwrap_or(crate::dynamics::DEFAULT_MAX_ACCELERATION);
+                }
+                None => {
+                    st.observe(t_s, q);
+                    sigma[j] = STILL_TORQUE_SIGMA_NM.max(joint.tau_min_nm / 4.0);
                 }
             }
-            tau_ext[j] = tau;
+            if st.restarted() {
+                tr.after_gap = true;
+            }
+            // A reversal steps the effort by the Coulomb friction twice over, which the model
+            // explains: that is not abrupt.
+            let coulomb_step = joint.dynamics.map_or(0.0, |d| 2.0 * d.coulomb_nm);
+            let step_limit = TRANSIENT_EFFORT_STEP_NM.max(
+                joint
+                    .dynamics
+                    .map_or(0.0, |d| 8.0 * d.residual_std_nm + coulomb_step),
+            );
+            let change_limit = TRANSIENT_EFFORT_CHANGE_NM + coulomb_step;
+            let effort_step = tr.has_last_effort && (effort[j] - tr.last_effort).abs() > step_limit;
+            tr.last_effort = effort[j];
+            tr.has_last_effort = effort[j].is_finite();
+            // The change over the last EFFORT_RATE_SAMPLES (the oldest in the ring).
+            let effort_change = tr.efforts_len == EFFORT_RATE_SAMPLES
+                && (effort[j] - tr.efforts[tr.efforts_head]).abs() > change_limit;
+            if effort[j].is_finite() && !st.restarted() {
+                tr.efforts[tr.efforts_head] = effort[j];
+                tr.efforts_head = (tr.efforts_head + 1) % EFFORT_RATE_SAMPLES;
+                tr.efforts_len = (tr.efforts_len + 1).min(EFFORT_RATE_SAMPLES);
+            } else {
+                tr.efforts_len = 0;
+            }
+            abrupt[j] = st.ready()
+                && (effort_step
+                    || effort_change
+                    || st.smoothness_residual_rad() > TRANSIENT_RESIDUAL_RAD);
         }
-        config.correct_external(position, &tau_ext)
+
+        // Pass 2: the trust weight, the correction and its bound.
+        let mut insertion_reported = false;
+        for (j, joint) in config.joints.iter().enumerate() {
+            let Some(joint) = joint else { continue };
+            let st = &self.joints[j];
+            let tr = &mut self.trust[j];
+            let q = position[j];
+            let l_phys = if raw_l.is_finite() {
+                raw_l.max(0.0)
+            } else {
+                0.0
+            };
+            let tau_meas = effort[j] - joint.torque_offset.lookup(q);
+            let (tau_motion, sigma_tau, max_acc) = (tau_motion[j], sigma[j], max_acc[j]);
+            let mut flags = 0;
+            let ready = st.ready();
+            if !ready {
+                flags |= trust::WARMUP;
+                if tr.after_gap {
+                    flags |= trust::GAP;
+                }
+                tr.last_transient_s = t_s;
+            } else {
+                tr.after_gap = false;
+                if abrupt[j] {
+                    tr.last_transient_s = t_s;
+                }
+            }
+            let w_transient = if ready {
+                fade_in(t_s, tr.last_transient_s, TRANSIENT_HOLD_S)
+            } else {
+                0.0
+            };
+            if ready && w_transient < 1.0 {
+                flags |= trust::TRANSIENT;
+            }
+            let a = st.acceleration();
+            let v = st.velocity();
+            let w_motion = if joint.dynamics.is_some() {
+                let ratio = a.abs() / max_acc.max(1e-9);
+                if ratio > 1.0 {
+                    flags |= trust::ACCEL_OUT_OF_RANGE;
+                }
+                ((ACCEL_CUTOFF_RATIO - ratio) / (ACCEL_CUTOFF_RATIO - 1.0)).clamp(0.0, 1.0)
+            } else {
+                let still = ready
+                    && v.abs() < STILL_VELOCITY
+                    && a.abs() < STILL_ACCELERATION
+                    && w_transient >= 1.0;
+                if !still {
+                    tr.last_moving_s = t_s;
+                }
+                let w = fade_in(t_s, tr.last_moving_s, 0.0);
+                if w < 1.0 {
+                    flags |= trust::STILL_ONLY;
+                }
+                w
+            };
+
+            // The insertion: inside the range, extrapolated within the margin, or not at all.
+            let [lo, hi] = joint.insertion_range_m;
+            let outside = if raw_l < lo {
+                lo - raw_l
+            } else if raw_l > hi {
+                raw_l - hi
+            } else {
+                0.0
+            };
+            let (clamped_l, clamped) = joint.clamp_insertion(raw_l);
+            let mut l_k = raw_l;
+            let mut rel_k = STIFFNESS_REL_SIGMA;
+            let mut w_insertion = 1.0;
+            if outside > 0.0 {
+                let inv_k = cubic(&joint.inverse_compliance_nm_per_rad, raw_l);
+                let plausible = (crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[0]
+                    ..=crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[1])
+                    .contains(&inv_k);
+                if outside <= INSERTION_MARGIN_M && plausible {
+                    flags |= trust::INSERTION_EXTRAPOLATED;
+                    rel_k += STIFFNESS_REL_SIGMA_AT_MARGIN * outside / INSERTION_MARGIN_M;
+                } else {
+                    flags |= trust::INSERTION_OUT_OF_RANGE;
+                    w_insertion = 0.0;
+                    l_k = clamped_l;
+                    rel_k = 0.5;
+                }
+            } else if !raw_l.is_finite() {
+                flags |= trust::INSERTION_OUT_OF_RANGE;
+                w_insertion = 0.0;
+                l_k = clamped_l;
+            }
+            if !insertion_reported {
+                out.insertion_m = l_k;
+                insertion_reported = true;
+            }
+            out.insertion_clamped |= clamped;
+            let k = 1.0 / cubic(&joint.inverse_compliance_nm_per_rad, l_k);
+            let play = joint.play_rad();
+
+            // The correction the model would make with full trust.
+            let tau_ext = if ready { tau_meas - tau_motion } else { 0.0 };
+            let distal = joint
+                .dynamics
+                .map_or(0.0, |d| d.inertia_kg_m2[1] * l_phys * l_phys * a);
+            let (full, tau_shaft, m) = match &joint.dynamics {
+                Some(_) => {
+                    let tau_shaft = tau_ext + if ready { distal } else { 0.0 };
+                    // Evidence beyond half the file's dead band: a torque that small is as
+                    // likely a torque-offset or model error as contact (`tau_min` is the
+                    // fitter's floor of both).
+                    let dt = t_s - tr.last_t_s;
+                    let alpha = if ready && dt > 0.0 && dt.is_finite() {
+                        (dt / EVIDENCE_TIME_S).min(1.0)
+                    } else {
+                        1.0
+                    };
+                    tr.tau_average += alpha * (tau_shaft - tr.tau_average);
+                    if !tr.tau_average.is_finite() {
+                        tr.tau_average = 0.0;
+                    }
+                    let evidence = tr.tau_average;
+                    let excess = (evidence.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm).max(0.0);
+                    let m = erf(
+                        excess / (PLAY_EVIDENCE_SIGMAS * sigma_tau * core::f64::consts::SQRT_2)
+                    )
+                    .copysign(evidence);
+                    (m * (play + k * tau_shaft.abs()), tau_shaft, m)
+                }
+                None => {
+                    let full = joint.deflection_rad(config.model, tau_ext, l_k);
+                    (full, tau_ext, side_of_play(play, full, k, tau_ext))
+                }
+            };
+            let w = if ready {
+                w_transient.min(w_motion).min(w_insertion)
+            } else {
+                0.0
+            };
+            let w = if w.is_nan() { 0.0 } else { w };
+            if w < 1.0 {
+                flags |= trust::REDUCED;
+            }
+            let delta = w * full;
+
+            // The bound: trusted part and withheld part, weighted.
+            let trusted = joint_bound(play, m, k, sigma_tau, tau_shaft, rel_k);
+            let reference = if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
+                tau_shaft
+            } else {
+                tr.last_trusted_tau
+            };
+            let k_hi = k * (1.0 + Z95 * rel_k);
+            let withheld =
+                (0.95 * play).hypot(k_hi * (reference.abs() + distal.abs())) + Z95 * k * sigma_tau;
+            let bound = w * trusted + (1.0 - w) * withheld;
+            if w >= 1.0 {
+                tr.last_trusted_tau = tau_shaft;
+            }
+
+            out.tau_ext_nm[j] = tau_ext;
+            out.tau_margin_nm[j] = tau_ext.abs() - joint.threshold_nm();
+            out.delta_rad[j] = delta;
+            out.active[j] = delta != 0.0;
+            out.position[j] = q - delta;
+            out.weight[j] = w;
+            out.bound_rad[j] = bound;
+            out.flags |= flags;
+            tr.last_t_s = t_s;
+        }
+        out.tip_bound_m = tip_bound_m(raw_l, out.bound_rad);
+        out
     }
 
     /// The estimator state of joint `joint_index0` (0 = yaw, 1 = pitch).

@@ -251,10 +251,14 @@ impl ComplianceParams {
                 );
             }
             if let Some(d) = &j.dynamics {
+                let max_acc = d
+                    .max_acceleration_rad_per_s2
+                    .map(|a| format!(", max_acceleration_rad_per_s2 = {}", toml_float(a)))
+                    .unwrap_or_default();
                 let _ = writeln!(
                     s,
                     "dynamics = {{ inertia_kg_m2 = {}, viscous_nm_s_per_rad = {}, coulomb_nm = {}, \
-                     stick_velocity_rad_per_s = {}, residual_std_nm = {}, gate_sigmas = {} }}",
+                     stick_velocity_rad_per_s = {}, residual_std_nm = {}, gate_sigmas = {}{max_acc} }}",
                     toml_array(&d.inertia_kg_m2),
                     toml_float(d.viscous_nm_s_per_rad),
                     toml_float(d.coulomb_nm),
@@ -532,6 +536,11 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
                 MAX_TAU_MIN_NM,
             ),
             ("dynamics.gate_sigmas", d.gate_sigmas, 10.0),
+            (
+                "dynamics.max_acceleration_rad_per_s2",
+                d.max_acceleration_rad_per_s2.unwrap_or(0.0),
+                1000.0,
+            ),
         ] {
             check_finite(joint, field, &[value], false)?;
             if value < 0.0 {

@@ -184,6 +184,10 @@ fn joints_without_parameters_pass_through() {
             insertion_m: 0.3,
             insertion_clamped: false,
             tau_margin_nm: [0.0; 2],
+            flags: 0,
+            weight: [0.0; 2],
+            bound_rad: [0.0; 2],
+            tip_bound_m: 0.0,
         }
     );
 }

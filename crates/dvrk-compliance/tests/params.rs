@@ -522,6 +522,7 @@ fn any_joint() -> impl Strategy<Value = JointParams> {
                         stick_velocity_rad_per_s: vs,
                         residual_std_nm: std,
                         gate_sigmas: k,
+                        max_acceleration_rad_per_s2: None,
                     }),
                 }
             },

@@ -20,7 +20,7 @@
 //! capture_depth_m = 0.001
 //!
 //! [motion]
-//! kind = "push_cycle"            # hold | push_cycle | trajectory
+//! kind = "push_cycle"            # hold | push_cycle | trajectory | multi_sine | start_stop
 //! effort_amplitude_nm = [1.5, 1.5]
 //! period_s = 20.0
 //! insertion_force_n = 2.0
@@ -87,6 +87,17 @@ pub enum MotionParams {
         amplitude: [[f64; 3]; 2],
         #[serde(deserialize_with = "dvrk_compliance::exact::matrix")]
         angular_frequency: [[f64; 3]; 2],
+    },
+    /// Repeated abrupt starts and stops of joints 1 and 2 ([`Motion::StartStop`]).
+    StartStop {
+        #[serde(deserialize_with = "dvrk_compliance::exact::array")]
+        speed_rad_per_s: [f64; 2],
+        move_s: f64,
+        still_s: f64,
+        #[serde(default)]
+        ramp_s: f64,
+        #[serde(default)]
+        start_s: f64,
     },
 }
 
@@ -235,6 +246,63 @@ pub enum Motion {
         amplitude: [[f64; 3]; 2],
         angular_frequency: [[f64; 3]; 2],
     },
+    /// Still-move-still of joints 1 and 2 (issue 20): still until `start_s`, then moves of
+    /// `move_s` at `speed_rad_per_s` separated by `still_s` of rest, each move the opposite way
+    /// of the last, so the joint goes back and forth from the initial pose. The speed rises and
+    /// falls over `ramp_s` (`sin^2`, peak acceleration `pi/2 * speed / ramp_s`); `ramp_s = 0` is
+    /// a velocity step, an abrupt start and stop that only the controller smooths. File kind
+    /// `start_stop`.
+    StartStop {
+        speed_rad_per_s: [f64; 2],
+        move_s: f64,
+        still_s: f64,
+        ramp_s: f64,
+        start_s: f64,
+    },
+}
+
+/// The position offset and velocity of a [`Motion::StartStop`] joint with cruise speed `v` at
+/// time `t` (s): see there.
+pub fn start_stop(
+    v: f64,
+    move_s: f64,
+    still_s: f64,
+    ramp_s: f64,
+    start_s: f64,
+    t: f64,
+) -> (f64, f64) {
+    use core::f64::consts::PI;
+    let t = t - start_s;
+    if t < 0.0 {
+        return (0.0, 0.0);
+    }
+    let period = move_s + still_s;
+    let k = (t / period).floor();
+    let u = t - k * period;
+    // Moves alternate direction: after an odd number of moves the joint sits at +D.
+    let r = ramp_s;
+    let dist = v * (move_s - r);
+    let odd = (k as i64) % 2 == 1;
+    let (base, dir) = if odd { (dist, -1.0) } else { (0.0, 1.0) };
+    // Displacement and speed (as fractions of v) `u` into a move.
+    let rise = |x: f64| {
+        if r <= 0.0 {
+            x
+        } else {
+            0.5 * x - r / (2.0 * PI) * (PI * x / r).sin()
+        }
+    };
+    let (p, s) = if u >= move_s {
+        (move_s - r, 0.0)
+    } else if u < r {
+        (rise(u), (0.5 * PI * u / r).sin().powi(2))
+    } else if u <= move_s - r {
+        (0.5 * r + (u - r), 1.0)
+    } else {
+        let w = move_s - u;
+        (move_s - r - rise(w), (0.5 * PI * w / r).sin().powi(2))
+    };
+    (base + dir * v * p, dir * v * s)
 }
 
 /// The position offset and velocity of a [`Motion::MultiSine`] joint at time `t` (s).
@@ -605,6 +673,48 @@ impl Scenario {
                     angular_frequency,
                 }
             }
+            MotionParams::StartStop {
+                speed_rad_per_s,
+                move_s,
+                still_s,
+                ramp_s,
+                start_s,
+            } => {
+                check_positive("motion.move_s", move_s)?;
+                check_non_negative("motion.still_s", still_s)?;
+                check_non_negative("motion.ramp_s", ramp_s)?;
+                check_non_negative("motion.start_s", start_s)?;
+                if 2.0 * ramp_s > move_s {
+                    return Err(invalid(
+                        "motion.ramp_s",
+                        ramp_s,
+                        "must be at most half of move_s (a rise and a fall per move)",
+                    ));
+                }
+                for j in 0..2 {
+                    let field = format!("motion.speed_rad_per_s[{j}]");
+                    let v = check_finite(&field, speed_rad_per_s[j])?;
+                    if v.abs() > 3.0 {
+                        return Err(invalid(field, v, "must be within ±3 rad/s"));
+                    }
+                    let (lo, hi) = (physics.position_min[j], physics.position_max[j]);
+                    let end = p.initial_position[j] + v * (move_s - ramp_s);
+                    if !(lo..=hi).contains(&end) {
+                        return Err(invalid(
+                            field,
+                            v,
+                            "initial_position + speed * (move_s - ramp_s) leaves the joint limits",
+                        ));
+                    }
+                }
+                Motion::StartStop {
+                    speed_rad_per_s,
+                    move_s,
+                    still_s,
+                    ramp_s,
+                    start_s,
+                }
+            }
         };
         let noise = NoiseParams {
             current_noise_amps: check_non_negative(
@@ -705,6 +815,18 @@ impl MotionDriver {
                 for j in 0..2 {
                     let (q, v) = multi_sine(&amplitude[j], &angular_frequency[j], t_s);
                     psm.set_setpoint_with_velocity(j, self.anchor[j] + q, v);
+                }
+            }
+            Motion::StartStop {
+                speed_rad_per_s,
+                move_s,
+                still_s,
+                ramp_s,
+                start_s,
+            } => {
+                for (j, &v) in speed_rad_per_s.iter().enumerate() {
+                    let (q, qd) = start_stop(v, move_s, still_s, ramp_s, start_s, t_s);
+                    psm.set_setpoint_with_velocity(j, self.anchor[j] + q, qd);
                 }
             }
             Motion::Trajectory {
@@ -942,5 +1064,30 @@ pot_noise_volts = 0.0
         );
         // The tip stays in the divot (axial compression only, 0.1 mm).
         assert!(max_tip_move < 2e-4, "{max_tip_move}");
+    }
+
+    #[test]
+    fn start_stop_is_continuous_and_its_speed_is_the_derivative() {
+        for ramp in [0.0, 0.01, 0.1] {
+            let f = |t: f64| start_stop(0.4, 0.6, 0.5, ramp, 1.0, t);
+            let h = 1e-6;
+            let mut t: f64 = 0.0;
+            let mut last = f(0.0).0;
+            while t < 6.0 {
+                t += 1e-3;
+                let (q, v) = f(t);
+                assert!((q - last).abs() <= 0.4e-3 + 1e-12, "{ramp} {t}");
+                last = q;
+                let num = (f(t + h).0 - f(t - h).0) / (2.0 * h);
+                // A velocity step (ramp 0) has no derivative at the step itself.
+                if ramp > 0.0 || (num - v).abs() < 1e-3 {
+                    assert!((num - v).abs() < 1e-3, "{ramp} {t}: {num} {v}");
+                }
+                assert!(q > -1e-12 && q < 0.4 * 0.6 + 1e-12, "{ramp} {t}: {q}");
+            }
+            // Back at the start after every second move; still before start_s.
+            assert!(f(1.0 + 2.0 * 1.1 - 0.2).0.abs() < 1e-12);
+            assert_eq!(f(0.5), (0.0, 0.0));
+        }
     }
 }

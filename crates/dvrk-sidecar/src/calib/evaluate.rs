@@ -308,7 +308,8 @@ fn run_evaluate_scenario(
         let e = &result.tip_error_mm;
         format!(
             "tip error (mm): raw mean {:.3}, p95 {:.3}, max {:.3}; compensated mean {:.3}, p95 {:.3}, max {:.3}\n\
-             correction active: joint 1 {:.1}%, joint 2 {:.1}%; false activation: joint 1 {:.2}%, joint 2 {:.2}%\n",
+             correction active: joint 1 {:.1}%, joint 2 {:.1}%; false activation: joint 1 {:.2}%, joint 2 {:.2}%\n\
+             harm (compensated - raw, mm): max {:.3}, p99 {:.3}; 95% bound (mm): mean {:.3}, p95 {:.3}; coverage {:.1}%\n",
             e.raw.mean,
             e.raw.p95,
             e.raw.max,
@@ -319,6 +320,11 @@ fn run_evaluate_scenario(
             100.0 * result.correction_active_fraction[1],
             100.0 * result.false_activation_fraction[0],
             100.0 * result.false_activation_fraction[1],
+            result.harm_mm.max,
+            result.harm_mm.p99,
+            result.bound_mm.mean,
+            result.bound_mm.p95,
+            100.0 * result.coverage,
         )
     };
     std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())

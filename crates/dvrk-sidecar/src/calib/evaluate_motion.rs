@@ -8,6 +8,11 @@
 //!
 //! `false_activation_fraction[j]`: the share of valid cycles in which joint j's correction was
 //! active while the true torque the shaft transmitted was below that joint's `tau_min`.
+//!
+//! Issue 20 adds, per valid cycle: `harm_mm` {`max`, `p99`}, the compensated tip error minus the
+//! raw one (positive: the correction made that cycle worse); `bound_mm` {`mean`, `p95`}, the
+//! model's 95% bound on the compensated tip error; and `coverage`, the fraction of cycles whose
+//! compensated error is within that bound.
 
 use std::path::{Path, PathBuf};
 
@@ -36,12 +41,29 @@ pub struct TipErrors {
     pub compensated: ErrorStats,
 }
 
-/// The JSON of `evaluate --scenario`, exactly the issue's.
+/// Per-cycle harm (mm): compensated tip error minus raw tip error.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct HarmStats {
+    pub max: f64,
+    pub p99: f64,
+}
+
+/// The model's 95% bound on the compensated tip error (mm).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct BoundStats {
+    pub mean: f64,
+    pub p95: f64,
+}
+
+/// The JSON of `evaluate --scenario`, exactly the issues' (10 and 20).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct MotionEvaluation {
     pub tip_error_mm: TipErrors,
     pub correction_active_fraction: [f64; 2],
     pub false_activation_fraction: [f64; 2],
+    pub harm_mm: HarmStats,
+    pub bound_mm: BoundStats,
+    pub coverage: f64,
 }
 
 /// One cycle's errors, for the figure.
@@ -50,6 +72,8 @@ pub struct Trace {
     pub t_s: f64,
     pub raw_mm: f64,
     pub compensated_mm: f64,
+    /// The model's 95% bound on the compensated error.
+    pub bound_mm: f64,
 }
 
 fn stats(values: &mut [f64]) -> ErrorStats {
@@ -66,6 +90,15 @@ fn stats(values: &mut [f64]) -> ErrorStats {
         p95: values[rank - 1],
         max: values[n - 1],
     }
+}
+
+/// The nearest-rank `p` quantile of sorted `values` (0 for none).
+fn quantile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    let n = sorted.len();
+    sorted[((p * n as f64).ceil() as usize).clamp(1, n) - 1]
 }
 
 /// Runs `scenario` for `seconds` at `rate_hz` through emulator, reader, model and kinematics.
@@ -92,6 +125,8 @@ pub fn evaluate_scenario(
     let mut arm = ArmSample::default();
     let tau_min = [0, 1].map(|j| cfg.joint(j).map(|m| m.tau_min_nm()));
     let (mut raw, mut comp) = (Vec::new(), Vec::new());
+    let (mut harm, mut bound) = (Vec::new(), Vec::new());
+    let mut covered = 0u64;
     let mut traces = Vec::new();
     let (mut active, mut false_active) = ([0u64; 2], [0u64; 2]);
     let mut t_ns = 0u64;
@@ -110,12 +145,17 @@ pub fn evaluate_scenario(
         let true_tip = nalgebra::Vector3::from(truth.tip_position_m);
         let e_raw = (r.raw_pose.translation.vector - true_tip).norm() * 1e3;
         let e_comp = (r.compensated_pose.translation.vector - true_tip).norm() * 1e3;
+        let b = r.correction.tip_bound_m * 1e3;
         raw.push(e_raw);
         comp.push(e_comp);
+        harm.push(e_comp - e_raw);
+        bound.push(b);
+        covered += u64::from(e_comp <= b);
         traces.push(Trace {
             t_s: t_ns as f64 * 1e-9,
             raw_mm: e_raw,
             compensated_mm: e_comp,
+            bound_mm: b,
         });
         for j in 0..2 {
             if r.correction.active[j] {
@@ -133,6 +173,9 @@ pub fn evaluate_scenario(
         bail!("no valid sample in {cycles} cycles: the emulated boards never answered");
     }
     let frac = |c: [u64; 2]| c.map(|x| x as f64 / n as f64);
+    harm.sort_by(f64::total_cmp);
+    let bound_mean = bound.iter().sum::<f64>() / n as f64;
+    bound.sort_by(f64::total_cmp);
     Ok((
         MotionEvaluation {
             tip_error_mm: TipErrors {
@@ -141,6 +184,15 @@ pub fn evaluate_scenario(
             },
             correction_active_fraction: frac(active),
             false_activation_fraction: frac(false_active),
+            harm_mm: HarmStats {
+                max: harm[n - 1],
+                p99: quantile(&harm, 0.99),
+            },
+            bound_mm: BoundStats {
+                mean: bound_mean,
+                p95: quantile(&bound, 0.95),
+            },
+            coverage: covered as f64 / n as f64,
         },
         traces,
     ))
@@ -170,6 +222,12 @@ pub fn tip_error_figure(dir: &Path, font: &Path, traces: &[Trace]) -> anyhow::Re
                 kind: Kind::Line,
                 points: line(|t| t.compensated_mm),
             },
+            Series {
+                label: Some("95% bound of the compensated error".into()),
+                color: plotters::style::RGBColor(120, 120, 120),
+                kind: Kind::Line,
+                points: line(|t| t.bound_mm),
+            },
         ],
     };
     render(dir, "tip-error", font, &[panel], 1)
@@ -187,5 +245,9 @@ mod tests {
         assert_eq!(stats(&mut []), ErrorStats::default());
         let mut one = [3.0];
         assert_eq!(stats(&mut one).p95, 3.0);
+        let v: Vec<f64> = (1..=200).map(f64::from).collect();
+        assert_eq!(quantile(&v, 0.99), 198.0);
+        assert_eq!(quantile(&v, 0.95), 190.0);
+        assert_eq!(quantile(&[], 0.5), 0.0);
     }
 }

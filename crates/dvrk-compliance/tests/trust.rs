@@ -1,0 +1,246 @@
+//! Issue 20: the compensator knows when it does not know. Synthetic samples with known truth:
+//! warm-up and gaps, a velocity step, light contact growing from zero, the insertion margin, a
+//! file without a dynamics model, and the bound that comes with every sample.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic
+
+mod common;
+
+use dvrk_compliance::dynamics::{DynamicsParams, WINDOW};
+use dvrk_compliance::model::{FADE_S, INSERTION_MARGIN_M, TIP_LEVER_EXTRA_M, TRANSIENT_HOLD_S};
+use dvrk_compliance::{Compensator, ComplianceConfig, trust};
+
+/// Joint 1: 1/K = 20 N·m/rad, backlash 2 mrad; joint 2: 1/K = 100 L (K = 0.1 at 0.1 m), backlash
+/// 1 mrad; range [0.09, 0.22] m; tau_0 = 0.1 N·m; tau_min 0.05 N·m.
+const BASE: &str = r#"
+model = "paper"
+[[joint]]
+index = 1
+backlash_rad = 0.002
+tau_min_nm = 0.05
+inverse_compliance_nm_per_rad = [0.0, 0.0, 0.0, 20.0]
+insertion_range_m = [0.09, 0.22]
+torque_offset = { position_rad = [0.0], effort_nm = [0.1] }
+[[joint]]
+index = 2
+backlash_rad = 0.001
+tau_min_nm = 0.05
+inverse_compliance_nm_per_rad = [0.0, 0.0, 100.0, 0.0]
+insertion_range_m = [0.09, 0.22]
+torque_offset = { position_rad = [0.0], effort_nm = [0.1] }
+"#;
+
+const DYN: DynamicsParams = DynamicsParams {
+    inertia_kg_m2: [0.05, 0.02],
+    viscous_nm_s_per_rad: 0.2,
+    coulomb_nm: 0.0,
+    stick_velocity_rad_per_s: 0.002,
+    residual_std_nm: 0.005,
+    gate_sigmas: 4.0,
+    max_acceleration_rad_per_s2: Some(4.0),
+};
+
+fn config(dynamics: bool) -> ComplianceConfig {
+    let mut p = common::params(BASE).unwrap();
+    for j in &mut p.joint {
+        j.dynamics = dynamics.then_some(DYN);
+    }
+    ComplianceConfig::from_params(p).unwrap()
+}
+
+const DT: f64 = 1.0 / 1500.0;
+
+/// Feeds `n` still samples at insertion `l` with external torque `tau` on both joints, from
+/// sample `k0`; returns the last correction.
+fn still(
+    c: &mut Compensator,
+    cfg: &ComplianceConfig,
+    k0: usize,
+    n: usize,
+    l: f64,
+    tau: f64,
+) -> dvrk_compliance::Correction {
+    let mut out = None;
+    for k in k0..k0 + n {
+        out = Some(c.correct(
+            cfg,
+            k as f64 * DT,
+            &[0.1, -0.1, l],
+            &[0.1 + tau, 0.1 + tau, 0.0],
+        ));
+    }
+    out.unwrap()
+}
+
+#[test]
+fn warm_up_and_gaps_withhold_the_correction_and_say_so() {
+    let cfg = config(true);
+    let mut c = Compensator::new();
+    for k in 0..WINDOW - 1 {
+        let r = c.correct(&cfg, k as f64 * DT, &[0.1, -0.1, 0.12], &[0.6, 0.6, 0.0]);
+        assert_eq!(r.delta_rad, [0.0, 0.0], "sample {k}");
+        assert_ne!(r.flags & trust::WARMUP, 0);
+        assert_eq!(r.flags & trust::GAP, 0, "no gap at start");
+        assert_eq!(r.weight, [0.0, 0.0]);
+    }
+    // Held 0.5 N·m long after the window filled: the full correction, no flag.
+    let r = still(&mut c, &cfg, WINDOW, 600, 0.12, 0.5);
+    assert_eq!(r.flags, 0, "{r:?}");
+    assert_eq!(r.weight, [1.0, 1.0]);
+    // 0.002 + 0.5 / 20 = 0.027 rad (the play's evidence is complete at 0.5 N·m).
+    assert!((r.delta_rad[0] - 0.027).abs() < 1e-6, "{r:?}");
+    // A 50 ms gap restarts the filter: warm-up again, with GAP.
+    let t = (WINDOW + 600) as f64 * DT + 0.05;
+    let r = c.correct(&cfg, t, &[0.1, -0.1, 0.12], &[0.6, 0.6, 0.0]);
+    assert_eq!(
+        r.flags & (trust::WARMUP | trust::GAP),
+        trust::WARMUP | trust::GAP
+    );
+    assert_eq!(r.delta_rad, [0.0, 0.0]);
+}
+
+/// A velocity step in free space (0 to 0.5 rad/s within 2 ms, as a controller makes it), the
+/// effort holding the inertia's and the friction's torque: the filter lags, and the correction
+/// is withheld instead of taking the lag for contact.
+#[test]
+fn an_abrupt_start_is_not_taken_for_contact() {
+    let cfg = config(true);
+    let mut c = Compensator::new();
+    let l: f64 = 0.12;
+    let j = DYN.inertia(l);
+    let (mut q, mut v) = (0.0, 0.0);
+    let mut worst: f64 = 0.0;
+    let mut transient = 0;
+    let n = 3000;
+    for k in 0..n {
+        let t = k as f64 * DT;
+        // Still for 1 s, then a ramp over 3 samples to 0.5 rad/s (acceleration 375 rad/s²).
+        let target = if t < 1.0 { 0.0 } else { 0.5 };
+        let a = ((target - v) / DT).clamp(-375.0, 375.0);
+        v += a * DT;
+        q += v * DT;
+        let effort = 0.1 + j * a + DYN.viscous_nm_s_per_rad * v;
+        let r = c.correct(&cfg, t, &[q, 0.0, l], &[effort, 0.1, 0.0]);
+        if t > 0.5 {
+            worst = worst.max(r.delta_rad[0].abs());
+        }
+        if r.flags & trust::TRANSIENT != 0 {
+            transient += 1;
+        }
+    }
+    // The play alone would be 2 mrad, a 0.5 N·m false contact 27 mrad.
+    assert!(worst < 2e-4, "worst correction {worst} rad");
+    assert!(transient > 0, "the step was not flagged");
+    // Withheld while the step is in the filter's window, then for the hold and the fade: a few
+    // tenths of a second at most, not for the rest of the motion.
+    let max_flagged = (2.0 * (TRANSIENT_HOLD_S + FADE_S) / DT) as usize + 2 * WINDOW;
+    assert!(transient < max_flagged, "{transient} samples flagged");
+}
+
+/// Light contact: the correction grows from zero with the torque, without a step, and reaches
+/// the paper's formula once the torque is well above the noise.
+#[test]
+fn light_contact_grows_smoothly_from_zero() {
+    let cfg = config(true);
+    let mut last = 0.0;
+    let mut max_jump: f64 = 0.0;
+    let mut at_zero = f64::NAN;
+    for i in 0..=200 {
+        let tau = f64::from(i) * 0.001; // 0 to 0.2 N·m
+        let mut c = Compensator::new();
+        let r = still(&mut c, &cfg, 0, 400, 0.12, tau);
+        if i == 0 {
+            at_zero = r.delta_rad[0];
+        }
+        max_jump = max_jump.max((r.delta_rad[0] - last).abs());
+        assert!(r.delta_rad[0] >= last - 1e-12, "not monotonic at {tau}");
+        last = r.delta_rad[0];
+    }
+    assert_eq!(at_zero, 0.0);
+    // The paper's gate would jump by backlash + K tau_min = 0.002 + 0.0025 rad at once.
+    assert!(max_jump < 3e-4, "largest step {max_jump} rad per mN·m");
+    // At 0.2 N·m: the paper's 0.002 + 0.2 / 20 = 0.012 rad.
+    assert!((last - 0.012).abs() < 1e-5, "{last}");
+}
+
+#[test]
+fn insertion_is_extrapolated_within_the_margin_and_refused_beyond() {
+    let cfg = config(true);
+    let run = |l: f64| {
+        let mut c = Compensator::new();
+        still(&mut c, &cfg, 0, 400, l, 0.5)
+    };
+    let inside = run(0.09);
+    assert_eq!(inside.flags, 0, "{inside:?}");
+    // 5 mm below: joint 2's K = 1 / (100 * 0.085) is used, not the range end's 1 / 9.
+    let near = run(0.085);
+    assert_eq!(near.flags, trust::INSERTION_EXTRAPOLATED, "{near:?}");
+    assert!(
+        (near.delta_rad[1] - (0.001 + 0.5 / 8.5)).abs() < 1e-6,
+        "{near:?}"
+    );
+    assert!(near.bound_rad[1] > inside.bound_rad[1]);
+    // Beyond the margin: flagged, nothing corrected.
+    let far = run(0.09 - INSERTION_MARGIN_M - 0.005);
+    assert_ne!(far.flags & trust::INSERTION_OUT_OF_RANGE, 0, "{far:?}");
+    assert_eq!(far.delta_rad, [0.0, 0.0]);
+    assert!(far.bound_rad[1] > 0.5 / 9.0, "{far:?}");
+    let above = run(0.22 + INSERTION_MARGIN_M + 0.001);
+    assert_eq!(above.delta_rad, [0.0, 0.0]);
+}
+
+/// Without a dynamics model the effort holds the motion's torque: the correction acts only while
+/// the arm is still, and the flags say so.
+#[test]
+fn without_a_dynamics_model_only_a_still_arm_is_corrected() {
+    let cfg = config(false);
+    let mut c = Compensator::new();
+    let mut corrected_moving = 0;
+    let mut flagged_moving = 0;
+    let n = 3000;
+    for k in 0..n {
+        let t = k as f64 * DT;
+        // Moving (0.3 rad/s sine) for 1 s with 0.5 N·m of effort, then still.
+        let q = if t < 1.0 {
+            0.05 * (6.0 * t).sin()
+        } else {
+            0.05 * 6.0f64.sin()
+        };
+        let r = c.correct(&cfg, t, &[q, 0.0, 0.12], &[0.6, 0.6, 0.0]);
+        if t < 1.0 && k >= WINDOW {
+            corrected_moving += usize::from(r.delta_rad[0] != 0.0);
+            flagged_moving += usize::from(r.flags & trust::STILL_ONLY != 0);
+        }
+        if t > 1.2 {
+            assert_eq!(r.flags & trust::STILL_ONLY, 0, "t {t}: {r:?}");
+            assert!(
+                (r.delta_rad[0] - (0.002 + 0.5 / 20.0)).abs() < 1e-9,
+                "{r:?}"
+            );
+        }
+    }
+    assert_eq!(corrected_moving, 0);
+    assert_eq!(flagged_moving, 1500 - WINDOW);
+}
+
+#[test]
+fn every_sample_carries_a_bound_that_holds_the_tip_lever() {
+    let cfg = config(true);
+    let mut c = Compensator::new();
+    for tau in [0.0, 0.02, 0.5] {
+        let r = still(&mut c, &cfg, 0, 400, 0.15, tau);
+        for j in 0..2 {
+            assert!(r.bound_rad[j] > 0.0 && r.bound_rad[j].is_finite(), "{r:?}");
+        }
+        let lever = 0.15 + TIP_LEVER_EXTRA_M;
+        let norm = r.bound_rad[0].hypot(r.bound_rad[1]);
+        assert!(r.tip_bound_m > 0.8 * lever * norm && r.tip_bound_m <= lever * norm);
+        c.reset();
+    }
+    // With the side of the play unknown (no torque) the bound spans the play; in firm contact
+    // it shrinks to the elastic part's uncertainty.
+    let free = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.0);
+    let firm = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.5);
+    assert!(free.bound_rad[0] >= 0.95 * 0.002, "{free:?}");
+    assert!(firm.bound_rad[0] < free.bound_rad[0], "{firm:?} {free:?}");
+}

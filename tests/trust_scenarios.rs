@@ -1,0 +1,150 @@
+//! Issue 20 through the real binary: the scenarios of its table (config/sim/i20-*.toml) run
+//! through `evaluate --scenario --json` with the default parameter file, and the goals the model
+//! meets are checked:
+//! - every scenario: no cycle more than 0.5 mm worse than raw (`harm_mm.max <= 0.5`);
+//! - free motion: compensated mean at most raw + 0.02 mm;
+//! - contact: compensated mean at most 30% of raw sliding over a surface, 50% in the light
+//!   scanning contact, 10% in the divot push 5 mm below the fitted insertion range;
+//! - the 95% bound covers at least 90% of the cycles (the goal's upper limit, 99.5%, is not met
+//!   in free motion: see the closing note of issue 20);
+//! - `--json` keeps the keys of issue 10 and adds `harm_mm`, `bound_mm` and `coverage`; `--plots`
+//!   draws the bound.
+//!
+//! Runs are short (10-16 simulated seconds, well under a second each with the simulator built
+//! optimised in the test profile).
+
+mod common;
+
+use std::process::Command;
+
+use common::*;
+use serde_json::Value;
+
+const PARAMS: &str = "config/compliance/sim-psm.toml";
+
+fn evaluate(scenario: &str, seconds: &str, plots: Option<&str>) -> Value {
+    let mut args = vec![
+        "evaluate",
+        "--params",
+        PARAMS,
+        "--scenario",
+        scenario,
+        "--seconds",
+        seconds,
+        "--json",
+    ];
+    if let Some(dir) = plots {
+        args.extend(["--plots", dir]);
+    }
+    let out = Command::new(sidecar_bin())
+        .args(&args)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "evaluate {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+fn num(v: &Value, path: &[&str]) -> f64 {
+    let mut x = v;
+    for p in path {
+        x = &x[*p];
+    }
+    x.as_f64()
+        .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
+}
+
+/// The goals every scenario shares; returns (raw mean, compensated mean).
+fn common_goals(name: &str, v: &Value) -> (f64, f64) {
+    let harm = num(v, &["harm_mm", "max"]);
+    assert!(harm <= 0.5, "{name}: harm_mm.max {harm} > 0.5 mm: {v}");
+    assert!(num(v, &["harm_mm", "p99"]) <= harm);
+    let coverage = num(v, &["coverage"]);
+    assert!(coverage >= 0.90, "{name}: coverage {coverage} < 0.90: {v}");
+    let (mean, p95) = (num(v, &["bound_mm", "mean"]), num(v, &["bound_mm", "p95"]));
+    assert!(mean > 0.0 && p95 >= 0.0, "{name}: {v}");
+    (
+        num(v, &["tip_error_mm", "raw", "mean"]),
+        num(v, &["tip_error_mm", "compensated", "mean"]),
+    )
+}
+
+fn free_motion(name: &str, seconds: &str) {
+    let v = evaluate(&format!("config/sim/{name}.toml"), seconds, None);
+    let (raw, comp) = common_goals(name, &v);
+    assert!(
+        comp <= raw + 0.02,
+        "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
+    );
+}
+
+#[test]
+fn free_motion_from_rest_at_full_speed() {
+    free_motion("i20-free-from-rest", "10");
+}
+
+#[test]
+fn abrupt_starts_mid_run() {
+    free_motion("i20-abrupt-start", "12");
+}
+
+#[test]
+fn still_move_still_at_76_rad_per_s2() {
+    free_motion("i20-still-move-still-76", "10");
+}
+
+#[test]
+fn still_move_still_at_21_rad_per_s2() {
+    free_motion("i20-still-move-still-21", "10");
+}
+
+#[test]
+fn palpation_over_a_tilted_surface() {
+    let v = evaluate("config/sim/i20-palpation.toml", "10", None);
+    let (raw, comp) = common_goals("palpation", &v);
+    assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
+}
+
+#[test]
+fn ultrasound_scan_in_light_contact() {
+    let v = evaluate("config/sim/i20-ultrasound-scan.toml", "12", None);
+    let (raw, comp) = common_goals("scan", &v);
+    assert!(comp <= 0.5 * raw, "compensated {comp} > 50% of raw {raw}");
+}
+
+#[test]
+fn divot_push_below_the_fitted_range_and_the_keys_and_the_plot() {
+    let dir = std::env::temp_dir().join(format!("dvrk-i20-plots-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let v = evaluate(
+        "config/sim/i20-divot-shallow.toml",
+        "16",
+        Some(dir.to_str().unwrap()),
+    );
+    let (raw, comp) = common_goals("shallow divot", &v);
+    assert!(comp <= 0.1 * raw, "compensated {comp} > 10% of raw {raw}");
+    // The keys of issue 10, plus exactly harm_mm {max, p99}, bound_mm {mean, p95}, coverage.
+    let keys: Vec<&String> = v.as_object().unwrap().keys().collect();
+    assert_eq!(
+        keys,
+        [
+            "bound_mm",
+            "correction_active_fraction",
+            "coverage",
+            "false_activation_fraction",
+            "harm_mm",
+            "tip_error_mm"
+        ],
+        "{v}"
+    );
+    let sub = |k: &str| -> Vec<String> { v[k].as_object().unwrap().keys().cloned().collect() };
+    assert_eq!(sub("harm_mm"), ["max", "p99"]);
+    assert_eq!(sub("bound_mm"), ["mean", "p95"]);
+    let svg = std::fs::read_to_string(dir.join("tip-error.svg")).unwrap();
+    assert!(svg.contains("95% bound"), "the figure has no bound");
+    let _ = std::fs::remove_dir_all(&dir);
+}
