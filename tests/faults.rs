@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 use common::proxy::{FaultProxy, Faults, ProxyCounters};
 use common::*;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
-use dvrk_ipc::{CompensationStatusV3, JointStateV2, ServiceNames, Topic, flags, qos};
+use dvrk_ipc::{CompensationStatusV4, JointStateV2, ServiceNames, Topic, flags, qos};
 use dvrk_sidecar::rt::monotonic_ns;
 
 /// A liveness bound for recovery, not a speed claim (the goal, 100 ms, is recorded from the
@@ -47,7 +47,7 @@ struct Rec {
 /// Reads `measured_js` and `compensated/status` of `prefix` in a thread, every cycle.
 struct Collector {
     js: Arc<Mutex<Vec<Rec>>>,
-    status: Arc<Mutex<Vec<CompensationStatusV3>>>,
+    status: Arc<Mutex<Vec<CompensationStatusV4>>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
@@ -68,7 +68,7 @@ impl Collector {
                     .buffer_size(qos::SUBSCRIBER_MAX_BUFFER_SIZE)
                     .create()
                     .unwrap();
-            let st_sub = dvrk_ipc::open_topic::<CompensationStatusV3, Service>(
+            let st_sub = dvrk_ipc::open_topic::<CompensationStatusV4, Service>(
                 &node,
                 &names,
                 Topic::CompensatedStatus,
@@ -119,7 +119,7 @@ impl Collector {
         })
     }
 
-    fn stop(mut self) -> (Vec<Rec>, Vec<CompensationStatusV3>) {
+    fn stop(mut self) -> (Vec<Rec>, Vec<CompensationStatusV4>) {
         self.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.thread.take() {
             t.join().unwrap();

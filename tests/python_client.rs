@@ -20,7 +20,7 @@ use common::*;
 use dvrk_ipc::iceoryx2::prelude::ZeroCopySend;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    ArmPublisher, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2, Message,
+    ArmPublisher, CompensationStatusV4, CycleMessages, Header, JawStateV1, JointStateV2, Message,
     PoseV2, ServiceNames, create_node, domain_config, flags,
 };
 use serde_json::Value;
@@ -223,9 +223,9 @@ fn python_layouts_match_the_rust_types() {
             PoseV2::TYPE_NAME,
             fields!(PoseV2; header, position_m, orientation_xyzw, rotation),
         ),
-        rust_layout::<CompensationStatusV3>(
-            CompensationStatusV3::TYPE_NAME,
-            fields!(CompensationStatusV3; header, tau_ext_nm, delta_rad, insertion_m,
+        rust_layout::<CompensationStatusV4>(
+            CompensationStatusV4::TYPE_NAME,
+            fields!(CompensationStatusV4; header, tau_ext_nm, delta_rad, insertion_m,
                 cycle_period_ns, cycle_duration_ns, cycles_total, read_failures_total,
                 overruns_total, consecutive_read_failures, source_state, tau_margin_nm,
                 held_sample_age_ns, publish_late_ns, implausible_total),

@@ -133,7 +133,7 @@ fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV2, JointStateV2, Pos
 }
 
 #[test]
-fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
+fn compensated_values_follow_the_model_never_beyond_it() {
     let prefix = unique_prefix("model_eq");
     let cfg = write_config("model_eq", "sim", "shared", &prefix, "divot-push.toml");
     let mut serve = serve(&cfg);
@@ -143,30 +143,36 @@ fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
     .unwrap();
     let tool = dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap();
     let kin = dvrk_compliance::PsmKinematics::new(dvrk_compliance::ArmKind::Classic, tool);
-    let cycles = collect_pairs(&prefix, 300);
+    let cycles = collect_pairs(&prefix, 3000);
     let mut active = 0;
     for (raw, comp, raw_cp, comp_cp) in &cycles {
         assert_eq!(raw.header.valid, 1);
         let q = [raw.position[0], raw.position[1], raw.position[2]];
         let t = [raw.effort[0], raw.effort[1], raw.effort[2]];
         let c = model.correct(&q, &t);
-        assert_eq!(
-            &comp.position[..3],
-            &c.position[..],
-            "seq {}",
-            raw.header.seq
-        );
+        // The service's estimator (issue 20) applies the model's correction, a share of it
+        // (its evidence weight, or withheld while the arm moves without a dynamics model:
+        // STILL_ONLY), never more than it and never the other way.
+        for j in 0..2 {
+            let model_d = raw.position[j] - c.position[j];
+            let served_d = raw.position[j] - comp.position[j];
+            assert!(
+                served_d * model_d >= 0.0 && served_d.abs() <= model_d.abs() + 1e-12,
+                "seq {} joint {}: served correction {served_d} vs the model's {model_d}",
+                raw.header.seq,
+                j + 1
+            );
+            let active_flag = [flags::CORRECTION_ACTIVE_J1, flags::CORRECTION_ACTIVE_J2][j];
+            if comp.header.flags & active_flag == 0 {
+                assert_eq!(comp.position[j], raw.position[j], "seq {}", raw.header.seq);
+            }
+        }
+        assert_eq!(comp.position[2], c.position[2]);
         assert_eq!(&comp.position[3..], &raw.position[3..]);
         assert_eq!(comp.effort, raw.effort);
-        assert_eq!(
-            comp.header.flags & flags::CORRECTION_ACTIVE_J1 != 0,
-            c.active[0]
+        active += usize::from(
+            comp.header.flags & (flags::CORRECTION_ACTIVE_J1 | flags::CORRECTION_ACTIVE_J2) != 0,
         );
-        assert_eq!(
-            comp.header.flags & flags::CORRECTION_ACTIVE_J2 != 0,
-            c.active[1]
-        );
-        active += usize::from(c.active[0] || c.active[1]);
         let fk = |p: &[f64; 6]| {
             kin.forward(&[p[0], p[1], p[2], p[3], p[4], p[5]])
                 .translation
@@ -181,7 +187,7 @@ fn compensated_values_equal_the_model_applied_to_the_raw_sample() {
     }
     assert!(
         active > 0,
-        "the divot push should activate the correction in some of 300 cycles"
+        "the divot push should activate the correction in some of 3000 cycles"
     );
     let (st, log) = serve.terminate();
     assert!(st.success(), "{log}");

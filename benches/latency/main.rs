@@ -34,7 +34,7 @@ use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV3, JawStateV1, JointStateV2, Message, NOMINAL_PERIOD, PoseV2, ServiceNames,
+    CompensationStatusV4, JawStateV1, JointStateV2, Message, NOMINAL_PERIOD, PoseV2, ServiceNames,
     SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
 };
 use dvrk_sidecar::config::SidecarConfig;
@@ -64,7 +64,7 @@ fn main() -> Res<()> {
             } else if topic.carries::<JawStateV1>() {
                 sub_shm::<JawStateV1>(prefix, seconds, wait, topic)
             } else {
-                sub_shm::<CompensationStatusV3>(prefix, seconds, wait, topic)
+                sub_shm::<CompensationStatusV4>(prefix, seconds, wait, topic)
             }
         }
         Some("--sub-json") => sub_json(args[1].parse()?),

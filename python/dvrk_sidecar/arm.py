@@ -78,11 +78,11 @@ def pose_matrix(p: msg.PoseV2) -> numpy.ndarray:
     return m
 
 
-def _status_dict(s: msg.CompensationStatusV3) -> dict:
+def _status_dict(s: msg.CompensationStatusV4) -> dict:
     """The status as a dict with the message's field names; pairs as numpy arrays."""
     out = {}
-    for name, _ in msg.CompensationStatusV3._fields_:
-        if name != "header":
+    for name, _ in msg.CompensationStatusV4._fields_:
+        if name not in ("header", "_reserved"):
             v = getattr(s, name)
             out[name] = numpy.array(v) if isinstance(v, ctypes.Array) else v
     out["source"] = msg.source_state_dict(s.source_state)

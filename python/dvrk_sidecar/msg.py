@@ -44,15 +44,23 @@ FLAG_NAMES = (
     "INSTRUMENT_UNSUPPORTED",
     "NO_CALIBRATION",
     "BASE_FRAME_STALE",
+    "WARMUP",
+    "GAP",
+    "TRANSIENT",
+    "ACCEL_OUT_OF_RANGE",
+    "INSERTION_EXTRAPOLATED",
+    "INSERTION_OUT_OF_RANGE",
+    "STILL_ONLY",
+    "REDUCED",
 )
 """Names of the bits of `Header.flags` (dvrk_ipc::flags), bit 0 first."""
 
 CONSOLE_STATES = ("UNKNOWN", "DISABLED", "ENABLED", "PAUSED", "FAULT")
-"""Codes of the console's operating state in `CompensationStatusV3.source_state` (bits 0-3)."""
+"""Codes of the console's operating state in `CompensationStatusV4.source_state` (bits 0-3)."""
 
 
 def source_state_dict(v: int) -> dict:
-    """`CompensationStatusV3.source_state` spelled out (dvrk_ipc msg.rs): the console's state,
+    """`CompensationStatusV4.source_state` spelled out (dvrk_ipc msg.rs): the console's state,
     whether it is homed and heard, the parameter set (its index in the file + 1; 0: the only
     one), and the instrument code (0 not known yet, 1 removed, 2 not modelled, 3 + its index in
     the service's instrument catalog)."""
@@ -145,7 +153,7 @@ class PoseV2(ctypes.Structure):
         return "dvrk::PoseV2"
 
 
-class CompensationStatusV3(ctypes.Structure):
+class CompensationStatusV4(ctypes.Structure):
     """`compensated/status`, 176 bytes."""
 
     _fields_ = [
@@ -164,14 +172,18 @@ class CompensationStatusV3(ctypes.Structure):
         ("held_sample_age_ns", u64),
         ("publish_late_ns", u64),
         ("implausible_total", u64),
+        ("bound_rad", f64 * 2),
+        ("tip_bound_m", f64),
+        ("weight", f64 * 2),
+        ("_reserved", u64),
     ]
 
     @classmethod
     def type_name(cls) -> str:
-        return "dvrk::CompensationStatusV3"
+        return "dvrk::CompensationStatusV4"
 
 
-MESSAGE_TYPES = (HeaderV2, JointStateV2, JawStateV1, PoseV2, CompensationStatusV3)
+MESSAGE_TYPES = (HeaderV2, JointStateV2, JawStateV1, PoseV2, CompensationStatusV4)
 
 TOPICS = {
     "measured_js": JointStateV2,
@@ -182,7 +194,7 @@ TOPICS = {
     "compensated/jaw/measured_js": JawStateV1,
     "compensated/local/measured_cp": PoseV2,
     "compensated/measured_cp": PoseV2,
-    "compensated/status": CompensationStatusV3,
+    "compensated/status": CompensationStatusV4,
 }
 """The pub-sub topics under an arm's prefix, in the order of the Rust `Topic::ALL` (each cycle
 sends the compensated ones first, see `dvrk_ipc::PUBLISH_ORDER`), and their payload types."""
@@ -294,10 +306,10 @@ def body_json(msg) -> dict:
             "orientation_xyzw": _nums(msg.orientation_xyzw),
             "rotation": [r[0:3], r[3:6], r[6:9]],
         }
-    if isinstance(msg, CompensationStatusV3):
+    if isinstance(msg, CompensationStatusV4):
         out = {}
-        for name, _ in CompensationStatusV3._fields_:
-            if name == "header":
+        for name, _ in CompensationStatusV4._fields_:
+            if name in ("header", "_reserved"):
                 continue
             v = getattr(msg, name)
             if isinstance(v, ctypes.Array):
@@ -324,7 +336,7 @@ def _check_layouts() -> None:
         (JointStateV2, 192),
         (JawStateV1, 72),
         (PoseV2, 176),
-        (CompensationStatusV3, 176),
+        (CompensationStatusV4, 224),
     ):
         if ctypes.sizeof(t) != size or ctypes.alignment(t) != 8:
             raise ImportError(

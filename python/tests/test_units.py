@@ -20,8 +20,8 @@ class Layouts(unittest.TestCase):
         self.assertEqual(msg.JointStateV2.effort.offset, 144)
         self.assertEqual(msg.JawStateV1.effort.offset, 64)
         self.assertEqual(msg.PoseV2.rotation.offset, 104)
-        self.assertEqual(msg.CompensationStatusV3.consecutive_read_failures.offset, 128)
-        self.assertEqual(msg.CompensationStatusV3.implausible_total.offset, 168)
+        self.assertEqual(msg.CompensationStatusV4.consecutive_read_failures.offset, 128)
+        self.assertEqual(msg.CompensationStatusV4.implausible_total.offset, 168)
 
     def test_layouts_have_no_holes(self):
         for lay in msg.layouts():
@@ -35,7 +35,7 @@ class Layouts(unittest.TestCase):
         names = [lay["type_name"] for lay in msg.layouts()]
         self.assertEqual(
             names,
-            ["dvrk::HeaderV2", "dvrk::JointStateV2", "dvrk::JawStateV1", "dvrk::PoseV2", "dvrk::CompensationStatusV3"],
+            ["dvrk::HeaderV2", "dvrk::JointStateV2", "dvrk::JawStateV1", "dvrk::PoseV2", "dvrk::CompensationStatusV4"],
         )
         pose = msg.layout(msg.PoseV2)
         self.assertEqual(pose["fields"][0]["type"], "dvrk::HeaderV2")
@@ -79,15 +79,15 @@ class JsonShape(unittest.TestCase):
         self.assertEqual(set(j), {"topic", "header", "position_m", "orientation_xyzw", "rotation"})
 
     def test_status_has_its_field_names_without_reserved(self):
-        j = msg.to_json("PSM1/compensated/status", msg.CompensationStatusV3(header=_header(), cycles_total=3))
+        j = msg.to_json("PSM1/compensated/status", msg.CompensationStatusV4(header=_header(), cycles_total=3))
         self.assertNotIn("_reserved", j)
         self.assertEqual(j["cycles_total"], 3)
-        # topic and header, every field but the header, and `source` spelled out
-        self.assertEqual(len(j), 2 + len(msg.CompensationStatusV3._fields_) - 1 + 1)
+        # topic and header, every field but the header and _reserved, and `source` spelled out
+        self.assertEqual(len(j), 2 + len(msg.CompensationStatusV4._fields_) - 2 + 1)
         self.assertEqual(j["source"]["console_state"], "UNKNOWN")
 
     def test_reserved_flag_bits_are_skipped_as_in_rust(self):
-        self.assertEqual(msg.flag_names((1 << 0) | (1 << 25) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
+        self.assertEqual(msg.flag_names((1 << 0) | (1 << 30) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
 
     def test_source_state_is_spelled_out(self):
         v = 2 | (1 << 4) | (1 << 5) | (2 << 8) | ((3 + 1) << 16)

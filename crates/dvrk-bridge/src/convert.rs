@@ -1,7 +1,7 @@
 //! The pure core of the bridges: which ROS 2 topics exist, how a shared-memory message becomes
 //! their CDR payloads, ROS time from the monotonic stamps, and decimation. No I/O, no clock.
 
-use dvrk_ipc::{CompensationStatusV3, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, PoseV2};
+use dvrk_ipc::{CompensationStatusV4, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, PoseV2};
 
 use crate::cdr::{self, CdrWriter, RosTime};
 use crate::msgdefs::{COMPENSATION_STATUS, JOINT_STATE, MsgType, POSE_STAMPED};
@@ -221,7 +221,7 @@ impl Encoder {
     }
 
     /// `compensated/status`, field for field ([`crate::msgdefs::COMPENSATION_STATUS`]).
-    pub fn status(&mut self, s: &CompensationStatusV3) -> &CdrWriter {
+    pub fn status(&mut self, s: &CompensationStatusV4) -> &CdrWriter {
         let stamp = ros_time(&s.header);
         let w = &mut self.buf;
         w.clear();
@@ -250,6 +250,13 @@ impl Encoder {
             w.u64(x);
         }
         w.u32(s.source_state);
+        for &x in &s.bound_rad {
+            w.f64(x);
+        }
+        w.f64(s.tip_bound_m);
+        for &x in &s.weight {
+            w.f64(x);
+        }
         &self.buf
     }
 }

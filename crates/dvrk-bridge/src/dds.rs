@@ -4,7 +4,7 @@
 use std::convert::Infallible;
 use std::net::IpAddr;
 
-use dvrk_ipc::{CompensationStatusV3, JawStateV1, JointStateV2, PoseV2};
+use dvrk_ipc::{CompensationStatusV4, JawStateV1, JointStateV2, PoseV2};
 use rustdds::bytes::Bytes;
 use rustdds::no_key::{DataWriter, SerializerAdapter};
 use rustdds::policy::{Durability, History, Reliability};
@@ -194,7 +194,7 @@ impl Sink for DdsSink {
         self.write(Self::index(topic))
     }
 
-    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
+    fn status(&mut self, s: &CompensationStatusV4) -> Result<(), BridgeError> {
         self.encoder.status(s);
         self.write(Self::index(OutTopic::Status))
     }

@@ -6,7 +6,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use dvrk_ipc::{CompensationStatusV3, JawStateV1, JointStateV2, PoseV2};
+use dvrk_ipc::{CompensationStatusV4, JawStateV1, JointStateV2, PoseV2};
 use mcap::records::MessageHeader;
 
 use crate::convert::{Encoder, OutTopic};
@@ -209,7 +209,7 @@ impl Sink for McapSink {
         self.write(topic, &jaw.header)
     }
 
-    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
+    fn status(&mut self, s: &CompensationStatusV4) -> Result<(), BridgeError> {
         self.encoder.status(s);
         self.write(OutTopic::Status, &s.header)
     }

@@ -9,7 +9,7 @@ use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::port::subscriber::Subscriber;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV3, JawStateV1, JointStateV2, Message, NOMINAL_PERIOD, PoseV2, ServiceNames,
+    CompensationStatusV4, JawStateV1, JointStateV2, Message, NOMINAL_PERIOD, PoseV2, ServiceNames,
     Subscription, Topic, Update,
 };
 
@@ -27,7 +27,7 @@ pub trait Sink {
     /// The jaw of a valid cycle: [`OutTopic::JawMeasuredJs`] or [`OutTopic::RawJawMeasuredJs`].
     fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError>;
     /// The status of every cycle, valid or not.
-    fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError>;
+    fn status(&mut self, s: &CompensationStatusV4) -> Result<(), BridgeError>;
 }
 
 /// Silence after which the run logs that no samples arrive (once per silence).
@@ -216,10 +216,10 @@ impl StateSubs {
 pub struct ShmSource {
     names: ServiceNames,
     compensated: StateSubs,
-    status: Subscription<CompensationStatusV3, Service>,
+    status: Subscription<CompensationStatusV4, Service>,
     raw: Option<StateSubs>,
     /// Statuses waiting for the rest of their cycle.
-    statuses: Vec<CompensationStatusV3>,
+    statuses: Vec<CompensationStatusV4>,
     /// Seq of the newest status taken.
     last_status_seq: Option<u64>,
     /// Statuses dropped because the other topics stopped bringing their cycles.
@@ -258,7 +258,7 @@ impl ShmSource {
     pub fn new(shm_prefix: &str, node_name: &str, raw: bool) -> Result<Self, BridgeError> {
         let names = ServiceNames::new(shm_prefix)?;
         let node = dvrk_ipc::create_node::<Service>(node_name, None)?;
-        let status = Subscription::<CompensationStatusV3, Service>::new(
+        let status = Subscription::<CompensationStatusV4, Service>::new(
             &node,
             &names,
             Topic::CompensatedStatus,
@@ -566,7 +566,7 @@ mod tests {
         fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError> {
             self.add(topic, jaw.header.seq)
         }
-        fn status(&mut self, s: &CompensationStatusV3) -> Result<(), BridgeError> {
+        fn status(&mut self, s: &CompensationStatusV4) -> Result<(), BridgeError> {
             self.add(OutTopic::Status, s.header.seq)
         }
     }
@@ -598,7 +598,7 @@ mod tests {
         poses: HashMap<Topic, Publisher<Service, PoseV2, ()>>,
         joints: HashMap<Topic, Publisher<Service, JointStateV2, ()>>,
         jaws: HashMap<Topic, Publisher<Service, JawStateV1, ()>>,
-        status: Publisher<Service, CompensationStatusV3, ()>,
+        status: Publisher<Service, CompensationStatusV4, ()>,
         cycle: Notifier<Service>,
         _node: Node<Service>,
     }

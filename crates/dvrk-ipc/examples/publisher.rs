@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2,
+    ArmPublisher, ArmState, CompensationStatusV4, CycleMessages, Header, JawStateV1, JointStateV2,
     PoseV2, ServiceNames, Topic, create_node, domain_config, flags, monotonic_ns,
 };
 
@@ -142,7 +142,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 rotation,
             }
         };
-        let status = CompensationStatusV3 {
+        let status = CompensationStatusV4 {
             header,
             tau_ext_nm: [0.05, -0.08],
             delta_rad: delta,

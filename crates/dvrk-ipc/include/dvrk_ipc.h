@@ -16,7 +16,7 @@
  *   <prefix>/compensated/jaw/measured_js    dvrk_JawStateV1
  *   <prefix>/compensated/local/measured_cp  dvrk_PoseV2
  *   <prefix>/compensated/measured_cp        dvrk_PoseV2
- *   <prefix>/compensated/status             dvrk_CompensationStatusV3 "dvrk::CompensationStatusV3"
+ *   <prefix>/compensated/status             dvrk_CompensationStatusV4 "dvrk::CompensationStatusV4"
  *   <prefix>/cycle                          event, notified once per cycle after the nine messages
  *   <prefix>/cycle/first                    event, notified once per cycle right after its first
  *                                           message, compensated/local/measured_cp (the other
@@ -77,7 +77,7 @@ extern "C" {
 #define DVRK_IPC_TYPE_NAME_JOINT_STATE_V2 "dvrk::JointStateV2"
 #define DVRK_IPC_TYPE_NAME_JAW_STATE_V1 "dvrk::JawStateV1"
 #define DVRK_IPC_TYPE_NAME_POSE_V2 "dvrk::PoseV2"
-#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V3 "dvrk::CompensationStatusV3"
+#define DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V4 "dvrk::CompensationStatusV4"
 
 /* ---- joints ---------------------------------------------------------------------------------- */
 
@@ -110,6 +110,14 @@ extern "C" {
 #define DVRK_IPC_FLAG_INSTRUMENT_UNSUPPORTED (1u << 18) /* instrument not modelled: compensated invalid */
 #define DVRK_IPC_FLAG_NO_CALIBRATION (1u << 19) /* no parameters for it: compensated = raw */
 #define DVRK_IPC_FLAG_BASE_FRAME_STALE (1u << 20) /* console base frame older than 1 s */
+#define DVRK_IPC_FLAG_WARMUP (1u << 21) /* estimator warming up */
+#define DVRK_IPC_FLAG_GAP (1u << 22) /* gap restarted the estimator */
+#define DVRK_IPC_FLAG_TRANSIENT (1u << 23) /* abrupt change: correction held back */
+#define DVRK_IPC_FLAG_ACCEL_OUT_OF_RANGE (1u << 24) /* acceleration beyond the fit */
+#define DVRK_IPC_FLAG_INSERTION_EXTRAPOLATED (1u << 25) /* insertion extrapolated */
+#define DVRK_IPC_FLAG_INSERTION_OUT_OF_RANGE (1u << 26) /* insertion out of range: no correction */
+#define DVRK_IPC_FLAG_STILL_ONLY (1u << 27) /* no dynamics model: only while still */
+#define DVRK_IPC_FLAG_REDUCED (1u << 28) /* correction less than the model's */
 #define DVRK_IPC_FLAG_FAULT_MASK (0x3fu)             /* bits 0..5 */
 
 /* ---- messages -------------------------------------------------------------------------------- */
@@ -164,9 +172,9 @@ typedef struct dvrk_PoseV2 {
 
 /* Compensation and loop status. delta_rad = q - q_hat of joints 1, 2; *_total are counters since
  * the publisher started; cycle_duration_ns is the most recent completed cycle's work time. */
-typedef struct dvrk_CompensationStatusV3 {
+typedef struct dvrk_CompensationStatusV4 {
 #ifdef __cplusplus
-    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V3;
+    static constexpr const char* IOX2_TYPE_NAME = DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V4;
 #endif
     dvrk_Header header;
     double tau_ext_nm[2];
@@ -183,7 +191,11 @@ typedef struct dvrk_CompensationStatusV3 {
     uint64_t held_sample_age_ns;  /* 0 when fresh; age of the held valid sample otherwise */
     uint64_t publish_late_ns;     /* how late the cycle started after its deadline */
     uint64_t implausible_total;   /* samples rejected by the plausibility checks */
-} dvrk_CompensationStatusV3;
+    double bound_rad[2];          /* 95% bound on the compensated joints 1, 2 error (rad) */
+    double tip_bound_m;           /* 95% bound on the compensated tip position error (m) */
+    double weight[2];             /* share of the model's correction applied, joints 1, 2 */
+    uint64_t _reserved;
+} dvrk_CompensationStatusV4;
 
 /* ---- layout checks (the same numbers as the Rust const assertions) --------------------------- */
 
@@ -207,12 +219,13 @@ DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV2, position_m) == 48, "position_m offs
 DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV2, orientation_xyzw) == 72, "orientation offset");
 DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_PoseV2, rotation) == 104, "rotation offset");
 
-DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV3) == 176, "dvrk_CompensationStatusV3 size");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, insertion_m) == 80, "insertion_m offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, consecutive_read_failures) == 128,
+DVRK_IPC_STATIC_ASSERT(sizeof(dvrk_CompensationStatusV4) == 224, "dvrk_CompensationStatusV4 size");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV4, tip_bound_m) == 192, "tip_bound_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV4, insertion_m) == 80, "insertion_m offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV4, consecutive_read_failures) == 128,
                        "consecutive_read_failures offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, tau_margin_nm) == 136, "tau_margin_nm offset");
-DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV3, implausible_total) == 168,
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV4, tau_margin_nm) == 136, "tau_margin_nm offset");
+DVRK_IPC_STATIC_ASSERT(offsetof(dvrk_CompensationStatusV4, implausible_total) == 168,
                        "implausible_total offset");
 
 #ifdef __cplusplus

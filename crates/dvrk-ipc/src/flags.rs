@@ -24,8 +24,17 @@
 //! | 18 | `INSTRUMENT_UNSUPPORTED` | the console's instrument is ERROR or one the catalog cannot model: compensated messages invalid | compensated 0 |
 //! | 19 | `NO_CALIBRATION` | no parameter set for the mounted instrument: compensated = raw | — |
 //! | 20 | `BASE_FRAME_STALE` | the base frame from the console is older than 1 s (or none yet): the last one (or the configured one) is used | — |
+//! | 21 | `WARMUP` | the estimator is warming up (start, after a gap): correction withheld or partial | — |
+//! | 22 | `GAP` | a gap in the samples (or time going back) restarted the estimator | — |
+//! | 23 | `TRANSIENT` | an abrupt change of effort or motion: correction withheld, then faded back in | — |
+//! | 24 | `ACCEL_OUT_OF_RANGE` | acceleration beyond what the dynamics fit saw: correction scaled down | — |
+//! | 25 | `INSERTION_EXTRAPOLATED` | insertion within 10 mm outside the fitted range: stiffness extrapolated, bound widened | — |
+//! | 26 | `INSERTION_OUT_OF_RANGE` | insertion more than 10 mm outside the fitted range: no correction | — |
+//! | 27 | `STILL_ONLY` | parameters without a dynamics model: corrected only while the arm is still | — |
+//! | 28 | `REDUCED` | the correction applied is less than the model's (evidence weight below 1) | — |
 //!
-//! Bits 21..31 are reserved and 0. "as read" means the bit describes the hardware state and does
+//! Bits 29..31 are reserved and 0. Bits 21..28 are the compensation's own trust flags
+//! (`dvrk_compliance::trust`, shifted by [`TRUST_SHIFT`]). "as read" means the bit describes the hardware state and does
 //! not by itself invalidate the sample; the publisher decides `valid` (0 when no usable
 //! position could be read). A consumer that needs a safe robot should still check
 //! [`FAULT_MASK`].
@@ -78,16 +87,34 @@ pub const INSTRUMENT_UNSUPPORTED: u32 = 1 << 18;
 pub const NO_CALIBRATION: u32 = 1 << 19;
 /// Issue 19: the base frame from the console is older than 1 s (or none yet): the last one (or the configured one) is used.
 pub const BASE_FRAME_STALE: u32 = 1 << 20;
+/// Where the compensation's trust flags (`dvrk_compliance::trust`, 8 bits) sit.
+pub const TRUST_SHIFT: u32 = 21;
+/// Issue 20: the estimator is warming up (start, after a gap): correction withheld or partial.
+pub const WARMUP: u32 = 1 << 21;
+/// Issue 20: a gap in the samples (or time going back) restarted the estimator.
+pub const GAP: u32 = 1 << 22;
+/// Issue 20: an abrupt change of effort or motion: correction withheld, then faded back in.
+pub const TRANSIENT: u32 = 1 << 23;
+/// Issue 20: acceleration beyond what the dynamics fit saw: correction scaled down.
+pub const ACCEL_OUT_OF_RANGE: u32 = 1 << 24;
+/// Issue 20: insertion within 10 mm outside the fitted range: stiffness extrapolated, bound widened.
+pub const INSERTION_EXTRAPOLATED: u32 = 1 << 25;
+/// Issue 20: insertion more than 10 mm outside the fitted range: no correction.
+pub const INSERTION_OUT_OF_RANGE: u32 = 1 << 26;
+/// Issue 20: parameters without a dynamics model: corrected only while the arm is still.
+pub const STILL_ONLY: u32 = 1 << 27;
+/// Issue 20: the correction applied is less than the model's (evidence weight below 1).
+pub const REDUCED: u32 = 1 << 28;
 
 /// Every defined bit.
-pub const ALL: u32 = (1 << 21) - 1;
+pub const ALL: u32 = (1 << 29) - 1;
 
 /// Bits that report a hardware or communication fault.
 pub const FAULT_MASK: u32 =
     BOARD_TIMEOUT | BOARD_ERROR | WATCHDOG_TIMEOUT | POWER_OFF | ENCODER_ERROR | AMP_FAULT;
 
 /// `(bit, name)` of every defined flag, in bit order (for printing; no allocation).
-pub const TABLE: [(u32, &str); 21] = [
+pub const TABLE: [(u32, &str); 29] = [
     (BOARD_TIMEOUT, "BOARD_TIMEOUT"),
     (BOARD_ERROR, "BOARD_ERROR"),
     (WATCHDOG_TIMEOUT, "WATCHDOG_TIMEOUT"),
@@ -109,6 +136,14 @@ pub const TABLE: [(u32, &str); 21] = [
     (INSTRUMENT_UNSUPPORTED, "INSTRUMENT_UNSUPPORTED"),
     (NO_CALIBRATION, "NO_CALIBRATION"),
     (BASE_FRAME_STALE, "BASE_FRAME_STALE"),
+    (WARMUP, "WARMUP"),
+    (GAP, "GAP"),
+    (TRANSIENT, "TRANSIENT"),
+    (ACCEL_OUT_OF_RANGE, "ACCEL_OUT_OF_RANGE"),
+    (INSERTION_EXTRAPOLATED, "INSERTION_EXTRAPOLATED"),
+    (INSERTION_OUT_OF_RANGE, "INSERTION_OUT_OF_RANGE"),
+    (STILL_ONLY, "STILL_ONLY"),
+    (REDUCED, "REDUCED"),
 ];
 
 /// Names of the bits set in `flags`, in bit order; reserved bits are skipped.

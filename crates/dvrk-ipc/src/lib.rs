@@ -5,7 +5,7 @@
 //! everything both sides must agree on:
 //!
 //! - the `#[repr(C)]` message types ([`JointStateV2`], [`JawStateV1`], [`PoseV2`],
-//!   [`CompensationStatusV3`], all starting with the common [`Header`], which carries both the
+//!   [`CompensationStatusV4`], all starting with the common [`Header`], which carries both the
 //!   `CLOCK_MONOTONIC` and the `CLOCK_REALTIME` (ROS) time of the sample) and the [`flags`] bits,
 //!   mirrored for C and C++ in `include/dvrk_ipc.h`;
 //! - the service names under a prefix, the arm's name (default `PSM1`, see [`ServiceNames`]),
@@ -21,7 +21,7 @@
 //!   | `<prefix>/compensated/jaw/measured_js` | [`JawStateV1`] |
 //!   | `<prefix>/compensated/local/measured_cp` | [`PoseV2`] |
 //!   | `<prefix>/compensated/measured_cp` | [`PoseV2`] |
-//!   | `<prefix>/compensated/status` | [`CompensationStatusV3`] |
+//!   | `<prefix>/compensated/status` | [`CompensationStatusV4`] |
 //!   | `<prefix>/cycle` | event, notified once per cycle after the nine messages |
 //!   | `<prefix>/cycle/first` | event, notified once per cycle right after its first message, `compensated/local/measured_cp` ([`PUBLISH_ORDER`]) |
 //!
@@ -68,7 +68,7 @@ mod sys;
 pub use clock::monotonic_ns;
 pub use error::{IpcError, PublishError, SubscriptionError};
 pub use msg::{
-    ArmState, COMPENSATION_STATUS_V3_SIZE, CompensationStatusV3, CycleMessages, HEADER_SIZE,
+    ArmState, COMPENSATION_STATUS_V4_SIZE, CompensationStatusV4, CycleMessages, HEADER_SIZE,
     Header, JAW_NAME, JAW_STATE_V1_SIZE, JOINT_NAMES, JOINT_STATE_V2_SIZE, JawStateV1,
     JointStateV2, Message, NUM_JOINTS, POSE_V2_SIZE, PoseV2, pack_source_state,
 };

@@ -175,10 +175,14 @@ impl Default for PoseV2 {
 /// | `held_sample_age_ns` | 0 when this cycle's read succeeded; otherwise the age of the last valid sample whose positions and poses are held in the messages (`u64::MAX` when there was none yet) |
 /// | `publish_late_ns` | how late this cycle started after its scheduled deadline (0 in `follow` mode and when on time) |
 /// | `implausible_total` | samples rejected by the plausibility checks since start (published with `valid = 0` and `IMPLAUSIBLE`) |
+/// | `bound_rad` | 95% bound on the error of the compensated joints 1, 2 (rad): how far the true shaft angle may be from `compensated/measured_js` (NaN before the first valid sample) |
+/// | `tip_bound_m` | 95% bound on the compensated tip position's error from joints 1, 2 (m): widen a virtual fixture's margin by it, or distrust a sample when it exceeds the task's tolerance |
+/// | `weight` | share of the model's correction applied to joints 1, 2 (0 to 1; below 1 with `REDUCED`) |
+/// | `_reserved` | 0 |
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("dvrk::CompensationStatusV3")]
-pub struct CompensationStatusV3 {
+#[type_name("dvrk::CompensationStatusV4")]
+pub struct CompensationStatusV4 {
     pub header: Header,
     pub tau_ext_nm: [f64; 2],
     pub delta_rad: [f64; 2],
@@ -194,9 +198,13 @@ pub struct CompensationStatusV3 {
     pub held_sample_age_ns: u64,
     pub publish_late_ns: u64,
     pub implausible_total: u64,
+    pub bound_rad: [f64; 2],
+    pub tip_bound_m: f64,
+    pub weight: [f64; 2],
+    pub _reserved: u64,
 }
 
-/// Packs [`CompensationStatusV3::source_state`]: the console's operating state (0 unknown,
+/// Packs [`CompensationStatusV4::source_state`]: the console's operating state (0 unknown,
 /// 1 DISABLED, 2 ENABLED, 3 PAUSED, 4 FAULT), homed, heard, the parameter set (index + 1, 0:
 /// the only one or none) and the instrument code (0 not known yet, 1 removed, 2 not modelled,
 /// 3 + its catalog index).
@@ -214,7 +222,7 @@ pub const fn pack_source_state(
         | ((instrument as u32) << 16)
 }
 
-impl CompensationStatusV3 {
+impl CompensationStatusV4 {
     /// The console's operating state as the console names it (`UNKNOWN` when not followed or
     /// not heard).
     pub fn console_state(&self) -> &'static str {
@@ -278,7 +286,7 @@ pub struct CycleMessages {
     /// Joints 1 and 2 corrected by the compliance model, and the poses computed from them.
     pub compensated: ArmState,
     /// `compensated/status`.
-    pub status: CompensationStatusV3,
+    pub status: CompensationStatusV4,
 }
 
 impl CycleMessages {
@@ -295,7 +303,7 @@ mod sealed {
     impl Sealed for super::JointStateV2 {}
     impl Sealed for super::JawStateV1 {}
     impl Sealed for super::PoseV2 {}
-    impl Sealed for super::CompensationStatusV3 {}
+    impl Sealed for super::CompensationStatusV4 {}
 }
 
 /// The message types of this crate (sealed): what [`crate::Subscription`] and
@@ -330,14 +338,14 @@ macro_rules! impl_message {
 impl_message!(JointStateV2, "dvrk::JointStateV2");
 impl_message!(JawStateV1, "dvrk::JawStateV1");
 impl_message!(PoseV2, "dvrk::PoseV2");
-impl_message!(CompensationStatusV3, "dvrk::CompensationStatusV3");
+impl_message!(CompensationStatusV4, "dvrk::CompensationStatusV4");
 
 /// Sizes in bytes, identical in `dvrk_ipc.h`.
 pub const HEADER_SIZE: usize = 48;
 pub const JOINT_STATE_V2_SIZE: usize = 192;
 pub const JAW_STATE_V1_SIZE: usize = 72;
 pub const POSE_V2_SIZE: usize = 176;
-pub const COMPENSATION_STATUS_V3_SIZE: usize = 176;
+pub const COMPENSATION_STATUS_V4_SIZE: usize = 224;
 
 // Compile-time layout checks: size, alignment and every field offset. Each offset equals the end of
 // the previous field, so there is no implicit padding anywhere (the checks fail to compile if a
@@ -368,11 +376,12 @@ assert_layout!(JawStateV1, size = JAW_STATE_V1_SIZE,
     header: Header, position: f64, velocity: f64, effort: f64);
 assert_layout!(PoseV2, size = POSE_V2_SIZE,
     header: Header, position_m: [f64; 3], orientation_xyzw: [f64; 4], rotation: [f64; 9]);
-assert_layout!(CompensationStatusV3, size = COMPENSATION_STATUS_V3_SIZE,
+assert_layout!(CompensationStatusV4, size = COMPENSATION_STATUS_V4_SIZE,
     header: Header, tau_ext_nm: [f64; 2], delta_rad: [f64; 2], insertion_m: f64,
     cycle_period_ns: u64, cycle_duration_ns: u64, cycles_total: u64, read_failures_total: u64,
     overruns_total: u64, consecutive_read_failures: u32, source_state: u32, tau_margin_nm: [f64; 2],
-    held_sample_age_ns: u64, publish_late_ns: u64, implausible_total: u64);
+    held_sample_age_ns: u64, publish_late_ns: u64, implausible_total: u64, bound_rad: [f64; 2],
+    tip_bound_m: f64, weight: [f64; 2], _reserved: u64);
 
 #[cfg(test)]
 mod tests {
@@ -392,8 +401,8 @@ mod tests {
             );
             assert_eq!(<PoseV2 as ZeroCopySend>::type_name(), PoseV2::TYPE_NAME);
             assert_eq!(
-                <CompensationStatusV3 as ZeroCopySend>::type_name(),
-                CompensationStatusV3::TYPE_NAME
+                <CompensationStatusV4 as ZeroCopySend>::type_name(),
+                CompensationStatusV4::TYPE_NAME
             );
             assert_eq!(<Header as ZeroCopySend>::type_name(), "dvrk::HeaderV2");
         }

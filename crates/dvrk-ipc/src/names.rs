@@ -8,7 +8,7 @@ use core::fmt;
 use iceoryx2::prelude::ServiceName;
 
 use crate::IpcError;
-use crate::msg::{CompensationStatusV3, JawStateV1, JointStateV2, Message, PoseV2};
+use crate::msg::{CompensationStatusV4, JawStateV1, JointStateV2, Message, PoseV2};
 
 /// Default service prefix: the arm's name, as the dVRK console names its ROS namespace.
 pub const DEFAULT_PREFIX: &str = "PSM1";
@@ -47,7 +47,7 @@ pub enum Topic {
     /// `compensated/measured_cp`, [`PoseV2`]: tip pose in the base frame, from the corrected
     /// joints.
     CompensatedMeasuredCp,
-    /// `compensated/status`, [`CompensationStatusV3`].
+    /// `compensated/status`, [`CompensationStatusV4`].
     CompensatedStatus,
 }
 
@@ -90,7 +90,7 @@ impl Topic {
             | Topic::MeasuredCp
             | Topic::CompensatedLocalMeasuredCp
             | Topic::CompensatedMeasuredCp => PoseV2::TYPE_NAME,
-            Topic::CompensatedStatus => CompensationStatusV3::TYPE_NAME,
+            Topic::CompensatedStatus => CompensationStatusV4::TYPE_NAME,
         }
     }
 
@@ -416,7 +416,7 @@ mod tests {
         assert_eq!(Topic::LocalMeasuredCp.type_name(), "dvrk::PoseV2");
         assert_eq!(
             Topic::CompensatedStatus.type_name(),
-            "dvrk::CompensationStatusV3"
+            "dvrk::CompensationStatusV4"
         );
         assert!(Topic::MeasuredCp.carries::<PoseV2>());
         assert!(!Topic::MeasuredJs.carries::<PoseV2>());

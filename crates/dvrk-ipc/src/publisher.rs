@@ -11,7 +11,7 @@ use iceoryx2::service::service_name::ServiceName;
 
 use crate::error::{IpcError, PublishError};
 use crate::msg::{
-    ArmState, CompensationStatusV3, CycleMessages, JawStateV1, JointStateV2, Message, PoseV2,
+    ArmState, CompensationStatusV4, CycleMessages, JawStateV1, JointStateV2, Message, PoseV2,
 };
 use crate::names::{NUM_TOPICS, ServiceNames, Topic};
 use crate::services::{ArmServices, StateServices};
@@ -150,7 +150,7 @@ pub struct ArmPublisher<S: Service = iceoryx2::service::ipc::Service> {
     services: ArmServices<S>,
     measured: StatePublishers<S>,
     compensated: StatePublishers<S>,
-    compensated_status: Publisher<S, CompensationStatusV3, ()>,
+    compensated_status: Publisher<S, CompensationStatusV4, ()>,
     cycle: Notifier<S>,
     cycle_first: Notifier<S>,
 }

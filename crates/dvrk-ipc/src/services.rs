@@ -13,7 +13,7 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFac
 use iceoryx2::service::service_name::ServiceName;
 
 use crate::IpcError;
-use crate::msg::{CompensationStatusV3, JawStateV1, JointStateV2, Message, PoseV2};
+use crate::msg::{CompensationStatusV4, JawStateV1, JointStateV2, Message, PoseV2};
 use crate::names::{ServiceNames, Topic};
 
 /// The project's quality of service. The same numbers are `DVRK_IPC_QOS_*` in `dvrk_ipc.h`.
@@ -245,7 +245,7 @@ pub struct ArmServices<S: Service = iceoryx2::service::ipc::Service> {
     pub measured: StateServices<S>,
     /// `<prefix>/compensated/...`.
     pub compensated: StateServices<S>,
-    pub compensated_status: PubSubFactory<S, CompensationStatusV3, ()>,
+    pub compensated_status: PubSubFactory<S, CompensationStatusV4, ()>,
     /// Notified after the last message of a cycle.
     pub cycle: EventFactory<S>,
     /// Notified after the first message of a cycle.

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use dvrk_ipc::{
-    CompensationStatusV3, Header, JOINT_NAMES, JawStateV1, JointStateV2, Message, NUM_JOINTS,
+    CompensationStatusV4, Header, JOINT_NAMES, JawStateV1, JointStateV2, Message, NUM_JOINTS,
     PoseV2, Topic, flags, qos,
 };
 
@@ -34,21 +34,25 @@ const FIELDS: &[(&str, &str)] = &[
     ("dvrk_PoseV2", "position_m"),
     ("dvrk_PoseV2", "orientation_xyzw"),
     ("dvrk_PoseV2", "rotation"),
-    ("dvrk_CompensationStatusV3", "header"),
-    ("dvrk_CompensationStatusV3", "tau_ext_nm"),
-    ("dvrk_CompensationStatusV3", "delta_rad"),
-    ("dvrk_CompensationStatusV3", "insertion_m"),
-    ("dvrk_CompensationStatusV3", "cycle_period_ns"),
-    ("dvrk_CompensationStatusV3", "cycle_duration_ns"),
-    ("dvrk_CompensationStatusV3", "cycles_total"),
-    ("dvrk_CompensationStatusV3", "read_failures_total"),
-    ("dvrk_CompensationStatusV3", "overruns_total"),
-    ("dvrk_CompensationStatusV3", "consecutive_read_failures"),
-    ("dvrk_CompensationStatusV3", "source_state"),
-    ("dvrk_CompensationStatusV3", "tau_margin_nm"),
-    ("dvrk_CompensationStatusV3", "held_sample_age_ns"),
-    ("dvrk_CompensationStatusV3", "publish_late_ns"),
-    ("dvrk_CompensationStatusV3", "implausible_total"),
+    ("dvrk_CompensationStatusV4", "header"),
+    ("dvrk_CompensationStatusV4", "tau_ext_nm"),
+    ("dvrk_CompensationStatusV4", "delta_rad"),
+    ("dvrk_CompensationStatusV4", "insertion_m"),
+    ("dvrk_CompensationStatusV4", "cycle_period_ns"),
+    ("dvrk_CompensationStatusV4", "cycle_duration_ns"),
+    ("dvrk_CompensationStatusV4", "cycles_total"),
+    ("dvrk_CompensationStatusV4", "read_failures_total"),
+    ("dvrk_CompensationStatusV4", "overruns_total"),
+    ("dvrk_CompensationStatusV4", "consecutive_read_failures"),
+    ("dvrk_CompensationStatusV4", "source_state"),
+    ("dvrk_CompensationStatusV4", "tau_margin_nm"),
+    ("dvrk_CompensationStatusV4", "held_sample_age_ns"),
+    ("dvrk_CompensationStatusV4", "publish_late_ns"),
+    ("dvrk_CompensationStatusV4", "implausible_total"),
+    ("dvrk_CompensationStatusV4", "bound_rad"),
+    ("dvrk_CompensationStatusV4", "tip_bound_m"),
+    ("dvrk_CompensationStatusV4", "weight"),
+    ("dvrk_CompensationStatusV4", "_reserved"),
 ];
 
 const TYPES: &[&str] = &[
@@ -56,7 +60,7 @@ const TYPES: &[&str] = &[
     "dvrk_JointStateV2",
     "dvrk_JawStateV1",
     "dvrk_PoseV2",
-    "dvrk_CompensationStatusV3",
+    "dvrk_CompensationStatusV4",
 ];
 
 /// Integer constants of the header and their Rust values.
@@ -119,6 +123,14 @@ fn int_constants() -> Vec<(&'static str, u64)> {
         "DVRK_IPC_FLAG_INSTRUMENT_UNSUPPORTED",
         "DVRK_IPC_FLAG_NO_CALIBRATION",
         "DVRK_IPC_FLAG_BASE_FRAME_STALE",
+        "DVRK_IPC_FLAG_WARMUP",
+        "DVRK_IPC_FLAG_GAP",
+        "DVRK_IPC_FLAG_TRANSIENT",
+        "DVRK_IPC_FLAG_ACCEL_OUT_OF_RANGE",
+        "DVRK_IPC_FLAG_INSERTION_EXTRAPOLATED",
+        "DVRK_IPC_FLAG_INSERTION_OUT_OF_RANGE",
+        "DVRK_IPC_FLAG_STILL_ONLY",
+        "DVRK_IPC_FLAG_REDUCED",
     ];
     assert_eq!(flag_macros.len(), flags::TABLE.len(), "a flag is missing");
     for (mac, (bit, name)) in flag_macros.iter().zip(flags::TABLE) {
@@ -183,8 +195,8 @@ fn string_constants() -> Vec<(&'static str, String)> {
         ),
         ("DVRK_IPC_TYPE_NAME_POSE_V2", PoseV2::TYPE_NAME.into()),
         (
-            "DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V3",
-            CompensationStatusV3::TYPE_NAME.into(),
+            "DVRK_IPC_TYPE_NAME_COMPENSATION_STATUS_V4",
+            CompensationStatusV4::TYPE_NAME.into(),
         ),
         ("DVRK_IPC_JAW_NAME", dvrk_ipc::JAW_NAME.into()),
     ]
@@ -237,8 +249,8 @@ fn rust_layout() -> BTreeMap<String, String> {
         [header, position_m, orientation_xyzw, rotation]
     );
     ty!(
-        "dvrk_CompensationStatusV3",
-        CompensationStatusV3,
+        "dvrk_CompensationStatusV4",
+        CompensationStatusV4,
         [
             header,
             tau_ext_nm,
@@ -254,7 +266,11 @@ fn rust_layout() -> BTreeMap<String, String> {
             tau_margin_nm,
             held_sample_age_ns,
             publish_late_ns,
-            implausible_total
+            implausible_total,
+            bound_rad,
+            tip_bound_m,
+            weight,
+            _reserved
         ]
     );
     for (name, value) in int_constants() {

@@ -13,7 +13,7 @@ use common::Domain;
 use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::service::ipc;
 use dvrk_ipc::{
-    ArmPublisher, ArmState, CompensationStatusV3, CycleMessages, Header, IpcError, JawStateV1,
+    ArmPublisher, ArmState, CompensationStatusV4, CycleMessages, Header, IpcError, JawStateV1,
     JointStateV2, Message, PoseV2, Subscription, Topic, Update, create_node, flags,
 };
 
@@ -63,7 +63,7 @@ fn cycle(seq: u64) -> CycleMessages {
         orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
         rotation: core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 }),
     };
-    let status = CompensationStatusV3 {
+    let status = CompensationStatusV4 {
         header,
         tau_ext_nm: [0.1 * s, -0.2 * s],
         delta_rad: [0.01, -0.02],
@@ -123,7 +123,7 @@ fn round_trip_of_all_nine_topics() {
         cp(Topic::CompensatedLocalMeasuredCp),
         cp(Topic::CompensatedMeasuredCp),
     ];
-    let mut st = Subscription::<CompensationStatusV3>::new(
+    let mut st = Subscription::<CompensationStatusV4>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,
@@ -187,7 +187,7 @@ fn a_started_cycle_delivers_its_first_message_at_once_and_the_rest_when_finished
     let mut base =
         Subscription::<PoseV2>::new(&node, &d.names, Topic::CompensatedMeasuredCp, PERIOD)
             .expect("sub base");
-    let mut status = Subscription::<CompensationStatusV3>::new(
+    let mut status = Subscription::<CompensationStatusV4>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,
@@ -272,7 +272,7 @@ fn buffer_overflow_shows_up_as_seq_gaps() {
 fn invalid_cycles_carry_valid_zero_and_the_reason() {
     let d = Domain::new("invalid");
     let node = node(&d, "invalid");
-    let mut sub = Subscription::<CompensationStatusV3>::new(
+    let mut sub = Subscription::<CompensationStatusV4>::new(
         &node,
         &d.names,
         Topic::CompensatedStatus,

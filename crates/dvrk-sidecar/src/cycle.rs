@@ -4,7 +4,7 @@
 use dvrk_compliance::{Compensator, ComplianceConfig, Correction, PsmKinematics};
 use dvrk_io::ArmSample;
 use dvrk_ipc::{
-    ArmState, CompensationStatusV3, CycleMessages, Header, JawStateV1, JointStateV2, PoseV2, flags,
+    ArmState, CompensationStatusV4, CycleMessages, Header, JawStateV1, JointStateV2, PoseV2, flags,
 };
 use nalgebra::Isometry3;
 
@@ -35,7 +35,7 @@ pub struct CycleResult {
     /// model; the raw messages keep `valid`).
     pub compensated_valid: bool,
     pub flags: u32,
-    /// [`dvrk_ipc::CompensationStatusV3::source_state`]: console state, parameter set,
+    /// [`dvrk_ipc::CompensationStatusV4::source_state`]: console state, parameter set,
     /// instrument.
     pub source_state: u32,
     /// |tau_ext| minus the threshold at which the correction of joints 1, 2 engages (N·m).
@@ -140,6 +140,8 @@ fn finish(
     if correction.insertion_clamped {
         f |= flags::INSERTION_CLAMPED;
     }
+    // the compensation's own trust flags (issue 20), in bits 21..28
+    f |= (correction.flags & 0xff) << flags::TRUST_SHIFT;
     if correction.active[0] {
         f |= flags::CORRECTION_ACTIVE_J1;
     }
@@ -368,7 +370,7 @@ pub fn messages_from_first(
         valid: u32::from(r.valid),
         ..comp_header
     };
-    let status = CompensationStatusV3 {
+    let status = CompensationStatusV4 {
         header: comp_header,
         tau_ext_nm: r.correction.tau_ext_nm,
         delta_rad: r.correction.delta_rad,
@@ -384,6 +386,10 @@ pub fn messages_from_first(
         publish_late_ns: t.publish_late_ns,
         implausible_total: t.implausible_total,
         source_state: r.source_state,
+        bound_rad: r.correction.bound_rad,
+        tip_bound_m: r.correction.tip_bound_m,
+        weight: r.correction.weight,
+        _reserved: 0,
     };
     CycleMessages {
         measured: arm_state(

@@ -3,7 +3,7 @@
 use anyhow::{Context, Result, bail};
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV3, Header, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, Message,
+    CompensationStatusV4, Header, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, Message,
     NOMINAL_PERIOD, PoseV2, ServiceNames, SubscribeOptions, Subscription, Topic, Update,
     WaitStrategy,
 };
@@ -88,7 +88,7 @@ pub fn run(args: &EchoArgs) -> Result<()> {
         | Topic::CompensatedMeasuredCp => {
             echo::<PoseV2>(&node, &names, topic, args, &stop, shape::pose, pose_text)
         }
-        Topic::CompensatedStatus => echo::<CompensationStatusV3>(
+        Topic::CompensatedStatus => echo::<CompensationStatusV4>(
             &node,
             &names,
             topic,
@@ -219,7 +219,7 @@ fn pose_text(m: &PoseV2) -> String {
     )
 }
 
-fn status_text(m: &CompensationStatusV3) -> String {
+fn status_text(m: &CompensationStatusV4) -> String {
     format!(
         "{}\n  tau_ext_nm [{:+.4}, {:+.4}]  delta_rad [{:+.6}, {:+.6}]  insertion_m {:.4}\n  cycle period {:.1} us, duration {:.1} us, started {:.1} us late, read failures {}",
         header_text(&m.header),

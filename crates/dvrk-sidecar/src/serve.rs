@@ -500,7 +500,7 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         self.base_frame = f.view.base_frame().unwrap_or(f.configured_base);
     }
 
-    /// [`dvrk_ipc::CompensationStatusV3::source_state`] of this cycle.
+    /// [`dvrk_ipc::CompensationStatusV4::source_state`] of this cycle.
     #[inline]
     fn source_state(
         follow: Option<&Follow>,

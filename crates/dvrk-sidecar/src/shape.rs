@@ -9,7 +9,7 @@
 //! - the status: its field names (without `_reserved`).
 
 use dvrk_ipc::{
-    CompensationStatusV3, Header, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, PoseV2,
+    CompensationStatusV4, Header, JAW_NAME, JOINT_NAMES, JawStateV1, JointStateV2, PoseV2,
 };
 use serde_json::{Map, Value, json};
 
@@ -75,7 +75,7 @@ pub fn pose(topic: &str, m: &PoseV2) -> Value {
     )
 }
 
-pub fn status(topic: &str, m: &CompensationStatusV3) -> Value {
+pub fn status(topic: &str, m: &CompensationStatusV4) -> Value {
     message(
         topic,
         &m.header,
@@ -86,12 +86,13 @@ pub fn status(topic: &str, m: &CompensationStatusV3) -> Value {
                 "consecutive_read_failures": m.consecutive_read_failures,
                 "tau_margin_nm": m.tau_margin_nm, "held_sample_age_ns": m.held_sample_age_ns,
                 "publish_late_ns": m.publish_late_ns, "implausible_total": m.implausible_total,
-                "source_state": m.source_state, "source": source_json(m) }),
+                "source_state": m.source_state, "source": source_json(m),
+                "bound_rad": m.bound_rad, "tip_bound_m": m.tip_bound_m, "weight": m.weight }),
     )
 }
 
 /// `source_state` spelled out: the console's state, the parameter set, the instrument's name.
-fn source_json(m: &dvrk_ipc::CompensationStatusV3) -> serde_json::Value {
+fn source_json(m: &dvrk_ipc::CompensationStatusV4) -> serde_json::Value {
     let instrument = match m.instrument_code() {
         0 => "not known".to_owned(),
         1 => "removed".to_owned(),
@@ -181,7 +182,7 @@ mod tests {
             },
         );
         assert_eq!(js["name"].as_array().unwrap().len(), 6);
-        let st = status("PSM1/compensated/status", &CompensationStatusV3::default());
+        let st = status("PSM1/compensated/status", &CompensationStatusV4::default());
         assert_eq!(st["header"]["valid"], false);
         assert!(st.get("_reserved").is_none());
         assert!(st.get("implausible_total").is_some());
