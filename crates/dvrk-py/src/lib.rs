@@ -163,7 +163,8 @@ impl NativeSubscription {
         dtype: &Py<PyAny>,
         bytes: &[u8],
     ) -> PyResult<Bound<'py, PyAny>> {
-        frombuffer.call1(py, (PyByteArray::new(py, bytes), dtype.bind(py)))
+        frombuffer
+            .call1(py, (PyByteArray::new(py, bytes), dtype.bind(py)))
             .map(|a| a.into_bound(py))
     }
 }
