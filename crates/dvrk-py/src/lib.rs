@@ -178,6 +178,8 @@ impl NativeSubscription {
     /// without a sample before it comes back to Python to check the timeout and signals
     /// (`None`: dvrk-ipc's default, 10 ms at 1500 Hz).
     #[new]
+    // The Python constructor's keyword arguments, one per option.
+    #[allow(clippy::too_many_arguments)]
     #[pyo3(signature = (node, prefix, topic, dtype, wait = "event", period_ns = 666_667, deadline_s = None))]
     fn new(
         py: Python<'_>,
