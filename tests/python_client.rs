@@ -443,17 +443,29 @@ fn python_arm_reads_what_serve_publishes_with_every_wait_strategy() {
     }
     let probe = repo().join("python/tests/arm_probe.py");
     let mut records = Vec::new();
-    for wait in ["event", "spin", "predictive"] {
-        let p = LineProc::spawn(
-            "arm_probe",
-            &mut python(
-                "pyarm",
-                &[probe.to_str().unwrap(), "cycles", &prefix, wait, "40"],
-            ),
-        );
-        let lines = p.finish(Duration::from_secs(60));
-        assert_eq!(lines.len(), 40, "wait {wait}");
-        records.extend(lines);
+    // Both clients: the native module (dvrk_sidecar._native) and the pure-Python one.
+    for backend in ["native", "pure"] {
+        for wait in ["event", "spin", "predictive"] {
+            let p = LineProc::spawn(
+                "arm_probe",
+                &mut python(
+                    "pyarm",
+                    &[
+                        probe.to_str().unwrap(),
+                        "cycles",
+                        &prefix,
+                        wait,
+                        "40",
+                        "--backend",
+                        backend,
+                    ],
+                ),
+            );
+            let lines = p.finish(Duration::from_secs(60));
+            assert_eq!(lines.len(), 40, "wait {wait}, backend {backend}");
+            assert!(lines.iter().all(|l| l["backend"] == backend), "{backend}");
+            records.extend(lines);
+        }
     }
     let seen: Vec<BTreeMap<u64, Value>> = echoes.into_iter().map(|e| by_seq(e.stop())).collect();
     let (st, log) = serve.terminate();
@@ -580,49 +592,53 @@ fn python_arm_raises_on_invalid_samples_and_names_a_missing_publisher() {
     let node = create_node::<Service>("py-client-test", Some(&config)).unwrap();
     let publisher = ArmPublisher::create(&node, &ServiceNames::new("PSM1").unwrap()).unwrap();
     let probe = repo().join("python/tests/arm_probe.py");
-    let mut p = LineProc::spawn(
-        "arm_probe invalid",
-        &mut python(
-            "pyinvalid",
-            &[
-                probe.to_str().unwrap(),
-                "invalid",
-                "PSM1",
-                "--domain",
-                &domain,
-                "--root",
-                ROOT,
-            ],
-        ),
-    );
-    // Publish a cycle every millisecond until the probe is done (ports are !Send: this thread).
-    let start = Instant::now();
     let mut seq = 0;
-    while p.proc.wait_timeout(Duration::ZERO).is_none() {
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "the probe did not finish"
+    for backend in ["native", "pure"] {
+        let mut p = LineProc::spawn(
+            "arm_probe invalid",
+            &mut python(
+                "pyinvalid",
+                &[
+                    probe.to_str().unwrap(),
+                    "invalid",
+                    "PSM1",
+                    "--domain",
+                    &domain,
+                    "--root",
+                    ROOT,
+                    "--backend",
+                    backend,
+                ],
+            ),
         );
-        seq += 1;
-        publisher.publish_cycle(&invalid_cycle(seq)).unwrap();
-        std::thread::sleep(Duration::from_millis(1));
+        // Publish a cycle every millisecond until the probe is done (ports are !Send: this thread).
+        let start = Instant::now();
+        while p.proc.wait_timeout(Duration::ZERO).is_none() {
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "the probe did not finish"
+            );
+            seq += 1;
+            publisher.publish_cycle(&invalid_cycle(seq)).unwrap();
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let st = p.proc.wait_timeout(Duration::ZERO).unwrap();
+        assert!(st.success(), "probe: {}", p.proc.stderr_text());
+        let lines = p.json();
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        let e = &lines[0];
+        assert_eq!(e["header"]["valid"], Value::Bool(false));
+        assert_eq!(
+            e["header"]["flags"],
+            serde_json::json!(["BOARD_TIMEOUT", "HELD"])
+        );
+        assert_eq!(floats(&e["position"]), [0.1, -0.2, 0.15, 0.3, -0.4, 0.5]);
+        let msg = e["error"].as_str().unwrap();
+        assert!(
+            msg.contains("PSM1/measured_js") && msg.contains("BOARD_TIMEOUT, HELD"),
+            "{msg}"
+        );
     }
-    let st = p.proc.wait_timeout(Duration::ZERO).unwrap();
-    assert!(st.success(), "probe: {}", p.proc.stderr_text());
-    let lines = p.json();
-    assert_eq!(lines.len(), 1, "{lines:?}");
-    let e = &lines[0];
-    assert_eq!(e["header"]["valid"], Value::Bool(false));
-    assert_eq!(
-        e["header"]["flags"],
-        serde_json::json!(["BOARD_TIMEOUT", "HELD"])
-    );
-    assert_eq!(floats(&e["position"]), [0.1, -0.2, 0.15, 0.3, -0.4, 0.5]);
-    let msg = e["error"].as_str().unwrap();
-    assert!(
-        msg.contains("PSM1/measured_js") && msg.contains("BOARD_TIMEOUT, HELD"),
-        "{msg}"
-    );
     drop(publisher);
 
     // Nobody publishes in this domain under another arm name: NoSample says so.
@@ -651,4 +667,49 @@ fn python_arm_raises_on_invalid_samples_and_names_a_missing_publisher() {
         msg.contains("PSM2/measured_js") && msg.contains("no publisher is connected"),
         "{msg}"
     );
+}
+
+#[cfg_attr(
+    not(has_py_dvrk_sidecar),
+    ignore = "needs python3 with iceoryx2, numpy and this package: python3 -m pip install ./python, then touch build.rs"
+)]
+#[test]
+fn python_native_wait_releases_the_gil() {
+    if !python_client_ready() {
+        return;
+    }
+    let domain = format!("pg{}_", std::process::id());
+    let _files = DomainFiles(domain.clone());
+    let probe = repo().join("python/tests/arm_probe.py");
+    let mut counted = BTreeMap::new();
+    for backend in ["native", "pure"] {
+        let out = python(
+            "pygil",
+            &[
+                probe.to_str().unwrap(),
+                "gil",
+                "PSM3",
+                "--domain",
+                &domain,
+                "--root",
+                ROOT,
+                "--backend",
+                backend,
+            ],
+        )
+        .output()
+        .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(v["backend"], backend);
+        assert!(v["waited_s"].as_f64().unwrap() >= 0.25, "{v}");
+        counted.insert(backend, v["counted"].as_u64().unwrap());
+    }
+    // While the native wait sleeps in compiled code the other thread has the interpreter to
+    // itself: it counts at least tens of thousands in 0.3 s (millions on an idle core).
+    assert!(counted["native"] > 10_000, "{counted:?}");
 }

@@ -12,17 +12,25 @@
 //! its timestamp is taken at the same point, so every path is measured from the same instant to
 //! the consumer's hands.
 //!
+//! In the same run, Python subscribers (`benches/latency/python_sub.py`, one process each, the
+//! installed `dvrk_sidecar` package, `python3` or `--python PATH`): `python_native_<wait>` (the
+//! compiled module's `Subscription::wait`, GIL released), `python_pure_<wait>` (the pure-Python
+//! client) and `python_json_udp` (a Python lab program's sawSocketStreamer receiver: a UDP
+//! socket and `json.loads`, fed by the same streamer as `json_udp`). The native Python path
+//! times the newest sample of each wait (and counts gaps); the others every sample.
+//!
 //! ```text
 //! cargo build --release -p dvrk-sidecar && cargo bench --bench latency
 //! cargo bench --bench latency -- --seconds 5 --subscribers 1,4,16 --json
 //! cargo bench --bench latency -- --seconds 2 --subscribers 1,4 --check-lost   # CI: exit 1 on loss
 //! cargo bench --bench latency -- --topic measured_js   # another topic (default compensated/local/measured_cp)
+//! cargo bench --bench latency -- --paths event,python_native_predictive --python ~/venv/bin/python3
 //! ```
 //! The shared-memory figures include the publisher's sends of the topics before the measured
 //! one in the cycle's publishing order ([`Topic::ALL`]); `--topic` shows what that order costs.
 //! Prints a markdown table (with the publisher's own share, `publish_t_ns - sample_t_ns`, and the
 //! hand-off, receipt - `publish_t_ns`), or with `--json` one line per case:
-//! `{"subscribers":N,"path":"event|predictive|spin|json_udp","samples":..,"p50_us":..,"p99_us":..,
+//! `{"subscribers":N,"path":"event|predictive|spin|json_udp|python_...","samples":..,"p50_us":..,"p99_us":..,
 //! "p999_us":..,"max_us":..,"lost":..,"cpu_percent":..}`, where `lost` counts sequence gaps and
 //! `cpu_percent` is the mean CPU use of one subscriber process while it measured.
 
@@ -367,6 +375,36 @@ struct Options {
     /// The topic the shared-memory subscribers take (the JSON path always carries the
     /// compensated pose).
     topic: Topic,
+    /// The interpreter of the Python paths.
+    python: String,
+    /// Seconds per Python case (default: `seconds`).
+    python_seconds: Option<f64>,
+}
+
+/// The default paths: every Rust and Python path (spinning ones only while subscribers < CPUs).
+const DEFAULT_PATHS: [&str; 8] = [
+    "event",
+    "predictive",
+    "spin",
+    "json_udp",
+    "python_native_predictive",
+    "python_native_event",
+    "python_pure_event",
+    "python_json_udp",
+];
+
+/// A Python shared-memory path: (`native`|`pure`, its wait strategy).
+fn python_shm_path(p: &str) -> Option<(&'static str, WaitStrategy)> {
+    let (backend, wait) = if let Some(w) = p.strip_prefix("python_native_") {
+        ("native", w)
+    } else {
+        ("pure", p.strip_prefix("python_pure_")?)
+    };
+    Some((backend, wait.parse().ok()?))
+}
+
+fn python_script() -> PathBuf {
+    repo().join("benches/latency/python_sub.py")
 }
 
 fn parse_options(args: &[String]) -> Res<Options> {
@@ -375,10 +413,10 @@ fn parse_options(args: &[String]) -> Res<Options> {
         counts: vec![1, 4, 16],
         json: false,
         check_lost: false,
-        paths: ["event", "predictive", "spin", "json_udp"]
-            .map(String::from)
-            .to_vec(),
+        paths: DEFAULT_PATHS.map(String::from).to_vec(),
         topic: Topic::CompensatedLocalMeasuredCp,
+        python: "python3".to_owned(),
+        python_seconds: None,
     };
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -404,6 +442,10 @@ fn parse_options(args: &[String]) -> Res<Options> {
                 let t = it.next().ok_or("--topic compensated/local/measured_cp")?;
                 o.topic = Topic::from_suffix(t).ok_or_else(|| format!("unknown topic {t:?}"))?;
             }
+            "--python" => o.python = it.next().ok_or("--python PATH")?.clone(),
+            "--python-seconds" => {
+                o.python_seconds = Some(it.next().ok_or("--python-seconds S")?.parse()?)
+            }
             "--json" => o.json = true,
             "--check-lost" => o.check_lost = true,
             // cargo bench passes filters and flags of its own; ignore them.
@@ -411,15 +453,49 @@ fn parse_options(args: &[String]) -> Res<Options> {
         }
     }
     for p in &o.paths {
-        if p != "json_udp" {
-            p.parse::<WaitStrategy>()?;
+        let known = p == "json_udp"
+            || p == "python_json_udp"
+            || python_shm_path(p).is_some()
+            || p.parse::<WaitStrategy>().is_ok();
+        if !known {
+            return Err(format!(
+                "unknown path {p:?}: expected event, predictive, spin, json_udp, \
+                 python_native_<wait>, python_pure_<wait> or python_json_udp"
+            )
+            .into());
         }
     }
     Ok(o)
 }
 
+/// Fails unless `python` imports the installed package with its native module (only when a
+/// Python path is asked for).
+fn check_python(o: &Options) -> Res<()> {
+    if !o.paths.iter().any(|p| p.starts_with("python_")) {
+        return Ok(());
+    }
+    let out = Command::new(&o.python)
+        .args(["-c", "import dvrk_sidecar._native, numpy, iceoryx2"])
+        .current_dir(std::env::temp_dir())
+        .output()
+        .map_err(|e| format!("running {}: {e}", o.python))?;
+    if !out.status.success() {
+        return Err(format!(
+            "the Python paths need {} with the dvrk_sidecar package and its native module \
+             (python3 -m pip install ./python, or bash .ci/python-deps; or leave them out with \
+             --paths): {}",
+            o.python,
+            String::from_utf8_lossy(&out.stderr).trim()
+        )
+        .into());
+    }
+    Ok(())
+}
+
 fn orchestrate(args: &[String]) -> Res<()> {
     let o = parse_options(args)?;
+    check_python(&o)?;
+    let py_seconds = o.python_seconds.unwrap_or(o.seconds).to_string();
     let cores = std::thread::available_parallelism()?.get();
     let me = std::env::current_exe()?;
     let bin = me
@@ -496,7 +572,13 @@ fn orchestrate(args: &[String]) -> Res<()> {
             .filter_map(|p| p.parse::<WaitStrategy>().ok())
             .filter(|w| *w != WaitStrategy::Spin || n < cores)
             .collect();
-        if !shm_paths.is_empty() {
+        let py_shm: Vec<(&str, &'static str, WaitStrategy)> = o
+            .paths
+            .iter()
+            .filter_map(|p| python_shm_path(p).map(|(b, w)| (p.as_str(), b, w)))
+            .filter(|(_, _, w)| *w != WaitStrategy::Spin || n < cores)
+            .collect();
+        if !shm_paths.is_empty() || !py_shm.is_empty() {
             let serve = Killer(
                 Command::new(&bin)
                     .args(["serve", "--config"])
@@ -518,18 +600,46 @@ fn orchestrate(args: &[String]) -> Res<()> {
                     .collect::<Res<_>>()?;
                 results.push((wait.name().to_owned(), collect(subs)?));
             }
+            for &(path, backend, wait) in &py_shm {
+                let subs: Vec<Sub> = (0..n)
+                    .map(|_| {
+                        sub_process(
+                            Command::new(&o.python)
+                                .arg(python_script())
+                                .args(["shm", backend, wait.name(), &prefix])
+                                .args([o.topic.suffix(), &py_seconds])
+                                .current_dir(&dir)
+                                .stdout(Stdio::piped())
+                                .spawn()?,
+                        )
+                    })
+                    .collect::<Res<_>>()?;
+                results.push((path.to_owned(), collect(subs)?));
+            }
             drop(serve);
         }
-        if o.paths.iter().any(|p| p == "json_udp") {
-            // JSON over UDP: the streamer + n subscriber processes.
+        for json_path in ["json_udp", "python_json_udp"] {
+            if !o.paths.iter().any(|p| p == json_path) {
+                continue;
+            }
+            // JSON over UDP: the streamer + n subscriber processes (Rust or Python).
+            let seconds = if json_path == "json_udp" {
+                o.seconds.to_string()
+            } else {
+                py_seconds.clone()
+            };
             let mut subs: Vec<Sub> = (0..n)
                 .map(|_| {
-                    sub_process(
-                        Command::new(&me)
-                            .args(["--sub-json", &o.seconds.to_string()])
-                            .stdout(Stdio::piped())
-                            .spawn()?,
-                    )
+                    let mut cmd = if json_path == "json_udp" {
+                        let mut c = Command::new(&me);
+                        c.args(["--sub-json", &seconds]);
+                        c
+                    } else {
+                        let mut c = Command::new(&o.python);
+                        c.arg(python_script()).args(["json", &seconds]);
+                        c
+                    };
+                    sub_process(cmd.stdout(Stdio::piped()).spawn()?)
                 })
                 .collect::<Res<_>>()?;
             let mut ports = Vec::with_capacity(n);
@@ -548,14 +658,15 @@ fn orchestrate(args: &[String]) -> Res<()> {
                 .map(u16::to_string)
                 .collect::<Vec<_>>()
                 .join(",");
+            let streamer_s: f64 = seconds.parse::<f64>()? + 1.0;
             let streamer = Killer(
                 Command::new(&me)
                     .args(["--json-streamer"])
                     .arg(&cfg)
-                    .args([&targets, &(o.seconds + 1.0).to_string()])
+                    .args([&targets, &streamer_s.to_string()])
                     .spawn()?,
             );
-            results.push(("json_udp".to_owned(), collect(subs)?));
+            results.push((json_path.to_owned(), collect(subs)?));
             drop(streamer);
         }
         for (path, r) in &results {
@@ -605,8 +716,15 @@ fn orchestrate(args: &[String]) -> Res<()> {
                 );
             }
         }
-        if let Some((_, json)) = results.iter().find(|(p, _)| p == "json_udp") {
-            for (path, r) in results.iter().filter(|(p, _)| p != "json_udp") {
+        // Rust paths against the Rust JSON receiver, Python paths against the Python one.
+        for (json_path, python) in [("json_udp", false), ("python_json_udp", true)] {
+            let Some((_, json)) = results.iter().find(|(p, _)| p == json_path) else {
+                continue;
+            };
+            for (path, r) in results
+                .iter()
+                .filter(|(p, _)| !p.ends_with("json_udp") && p.starts_with("python_") == python)
+            {
                 ratios.push((
                     n,
                     path.clone(),
@@ -617,7 +735,9 @@ fn orchestrate(args: &[String]) -> Res<()> {
         }
     }
     if !o.json && !ratios.is_empty() {
-        println!("\n| subscribers | path | JSON/path p50 | JSON/path p99 |\n|---|---|---|---|");
+        println!(
+            "\npython_* paths against python_json_udp, the others against json_udp:\n\n| subscribers | path | JSON/path p50 | JSON/path p99 |\n|---|---|---|---|"
+        );
         for (n, path, r50, r99) in ratios {
             println!("| {n} | {path} | {r50:.2}x | {r99:.2}x |");
         }

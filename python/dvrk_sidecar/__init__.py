@@ -6,10 +6,14 @@ published over iceoryx2 shared memory.
     position, velocity, effort = arm.measured_js()      # numpy arrays, 6 joints
     tip = arm.compensated.local.measured_cp()           # 4x4 numpy array, RCM frame
 
+`dvrk_sidecar.BACKEND` says which client `Arm` uses by default: "native" (the compiled module,
+built by `pip install ./python` with Rust) or "pure" (iceoryx2's Python binding, the fallback).
+
 `python -m dvrk_sidecar echo PSM1/measured_js --json` prints samples in the same JSON shape as
 `dvrk-sidecar echo --json`; `python -m dvrk_sidecar layout` prints the message layouts.
 """
 
+from ._backend import BACKEND, NATIVE_IMPORT_ERROR
 from .ipc import WAIT_STRATEGIES, ConfigError, DvrkSidecarError, NoSample, OpenError
 from .msg import FLAG_NAMES, JOINT_NAMES, TOPICS
 
@@ -27,6 +31,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Arm",
+    "BACKEND",
     "Cycle",
     "ConfigError",
     "DvrkSidecarError",

@@ -78,13 +78,16 @@ def pose_matrix(p: msg.PoseV2) -> numpy.ndarray:
     return m
 
 
+def _status_fields():
+    return [n for n, _ in msg.CompensationStatusV4._fields_ if n not in ("header", "_reserved")]
+
+
 def _status_dict(s: msg.CompensationStatusV4) -> dict:
     """The status as a dict with the message's field names; pairs as numpy arrays."""
     out = {}
-    for name, _ in msg.CompensationStatusV4._fields_:
-        if name not in ("header", "_reserved"):
-            v = getattr(s, name)
-            out[name] = numpy.array(v) if isinstance(v, ctypes.Array) else v
+    for name in _status_fields():
+        v = getattr(s, name)
+        out[name] = numpy.array(v) if isinstance(v, ctypes.Array) else v
     out["source"] = msg.source_state_dict(s.source_state)
     return out
 
@@ -96,39 +99,33 @@ class _Source:
         self._arm = arm
         self._base = base
 
-    def _read(self, topic, age, wait, convert, extra):
-        return self._arm._read(self._base + topic, age, wait, convert, extra)
+    def _read(self, topic, kind, age, wait, extra, stamped):
+        return self._arm._read(self._base + topic, kind, age, wait, extra, stamped)
 
 
 class _JawView(_Source):
     """`<prefix>/[compensated/]jaw/measured_js`."""
 
-    def measured_js(self, age=None, wait=None, extra=False):
+    def measured_js(self, age=None, wait=None, extra=False, stamped=False):
         """Jaw position (rad), velocity (rad/s), effort (N m) as 1-element numpy arrays."""
-        return self._read(
-            "jaw/measured_js",
-            age,
-            wait,
-            lambda m: (numpy.array([m.position]), numpy.array([m.velocity]), numpy.array([m.effort])),
-            extra,
-        )
+        return self._read("jaw/measured_js", "js", age, wait, extra, stamped)
 
-    def measured_jp(self, age=None, wait=None, extra=False):
-        return self._read("jaw/measured_js", age, wait, lambda m: numpy.array([m.position]), extra)
+    def measured_jp(self, age=None, wait=None, extra=False, stamped=False):
+        return self._read("jaw/measured_js", "jp", age, wait, extra, stamped)
 
-    def measured_jv(self, age=None, wait=None, extra=False):
-        return self._read("jaw/measured_js", age, wait, lambda m: numpy.array([m.velocity]), extra)
+    def measured_jv(self, age=None, wait=None, extra=False, stamped=False):
+        return self._read("jaw/measured_js", "jv", age, wait, extra, stamped)
 
-    def measured_jf(self, age=None, wait=None, extra=False):
-        return self._read("jaw/measured_js", age, wait, lambda m: numpy.array([m.effort]), extra)
+    def measured_jf(self, age=None, wait=None, extra=False, stamped=False):
+        return self._read("jaw/measured_js", "jf", age, wait, extra, stamped)
 
 
 class _LocalView(_Source):
     """`<prefix>/[compensated/]local/measured_cp`: the tip in the RCM frame."""
 
-    def measured_cp(self, age=None, wait=None, extra=False):
+    def measured_cp(self, age=None, wait=None, extra=False, stamped=False):
         """The tip pose in the RCM frame, a 4x4 numpy array (metres)."""
-        return self._read("local/measured_cp", age, wait, pose_matrix, extra)
+        return self._read("local/measured_cp", "pose", age, wait, extra, stamped)
 
 
 class _ArmView(_Source):
@@ -139,35 +136,123 @@ class _ArmView(_Source):
         self.jaw = _JawView(arm, base)
         self.local = _LocalView(arm, base)
 
-    def measured_js(self, age=None, wait=None, extra=False):
+    def measured_js(self, age=None, wait=None, extra=False, stamped=False):
         """Position (rad, insertion m), velocity, effort (N m, insertion N) of the 6 joints
-        (`msg.JOINT_NAMES`) as numpy arrays; with extra=True the Header follows."""
-        return self._read(
-            "measured_js",
-            age,
-            wait,
-            lambda m: (numpy.array(m.position), numpy.array(m.velocity), numpy.array(m.effort)),
-            extra,
-        )
+        (`msg.JOINT_NAMES`) as numpy arrays; with extra=True the Header follows, with
+        stamped=True the timestamp (0.0: invalid)."""
+        return self._read("measured_js", "js", age, wait, extra, stamped)
 
-    def measured_jp(self, age=None, wait=None, extra=False):
-        return self._read("measured_js", age, wait, lambda m: numpy.array(m.position), extra)
+    def measured_jp(self, age=None, wait=None, extra=False, stamped=False):
+        return self._read("measured_js", "jp", age, wait, extra, stamped)
 
-    def measured_jv(self, age=None, wait=None, extra=False):
-        return self._read("measured_js", age, wait, lambda m: numpy.array(m.velocity), extra)
+    def measured_jv(self, age=None, wait=None, extra=False, stamped=False):
+        return self._read("measured_js", "jv", age, wait, extra, stamped)
 
-    def measured_jf(self, age=None, wait=None, extra=False):
-        return self._read("measured_js", age, wait, lambda m: numpy.array(m.effort), extra)
+    def measured_jf(self, age=None, wait=None, extra=False, stamped=False):
+        return self._read("measured_js", "jf", age, wait, extra, stamped)
 
-    def measured_cp(self, age=None, wait=None, extra=False):
+    def measured_cp(self, age=None, wait=None, extra=False, stamped=False):
         """The tip pose in the base frame (base_frame x local), a 4x4 numpy array (metres)."""
-        return self._read("measured_cp", age, wait, pose_matrix, extra)
+        return self._read("measured_cp", "pose", age, wait, extra, stamped)
 
 
 class _CompensatedView(_ArmView):
-    def status(self, age=None, wait=None, extra=False):
+    def status(self, age=None, wait=None, extra=False, stamped=False):
         """`compensated/status` as a dict with the message's field names (the JSON body)."""
-        return self._read("status", age, wait, _status_dict, extra)
+        return self._read("status", "status", age, wait, extra, stamped)
+
+
+def _as_array(x):
+    """A ctypes array or scalar field as a new numpy array (1 element for a scalar)."""
+    return numpy.array(x) if isinstance(x, ctypes.Array) else numpy.array([x])
+
+
+PURE_CONVERT = {
+    "js": lambda m: (_as_array(m.position), _as_array(m.velocity), _as_array(m.effort)),
+    "jp": lambda m: _as_array(m.position),
+    "jv": lambda m: _as_array(m.velocity),
+    "jf": lambda m: _as_array(m.effort),
+    "pose": pose_matrix,
+    "status": _status_dict,
+}
+"""What a getter returns, from a ctypes message (the pure backend)."""
+
+
+def _shape(result, header, extra, stamped):
+    """A getter's return value: the data, then the Header (extra) and/or the stamp (stamped)."""
+    tail = ()
+    if extra:
+        tail += (header,)
+    if stamped:
+        tail += (header.stamp if header.valid else 0.0,)
+    if not tail:
+        return result
+    return (*result, *tail) if isinstance(result, tuple) else (result, *tail)
+
+
+class _PureBackend:
+    """The pure-Python client: iceoryx2's Python binding, one listener per Arm."""
+
+    name = "pure"
+    convert = PURE_CONVERT
+
+    def __init__(self, arm_name, wait, domain, root, period_ns):
+        self._node = ipc.create_node("dvrk-sidecar-python", domain, root)
+        self._readers = {t: ipc.Reader(self._node, arm_name, t) for t in msg.TOPICS}
+        self._waiter = ipc.Waiter(self._node, arm_name, wait, period_ns)
+        self.strategy = self._waiter.strategy
+
+    def _reader(self, topic):
+        try:
+            return self._readers[topic]
+        except KeyError:
+            raise ipc.DvrkSidecarError("the Arm is closed") from None
+
+    def newest(self, topic):
+        return self._reader(topic).take_newest()
+
+    def last(self, topic):
+        return self._reader(topic).last
+
+    def wait(self, topic, until_ns):
+        return self._waiter.wait_for(self._reader(topic).take_newest, until_ns)
+
+    def observe(self, topic, value):
+        self._waiter.observe(value.header)
+
+    @staticmethod
+    def header(value):
+        return Header.from_msg(value.header)
+
+    def zero(self, topic):
+        return msg.TOPICS[topic]()
+
+    def no_sample(self, topic, waited_s):
+        return self._reader(topic).no_sample(waited_s)
+
+    def service_name(self, topic):
+        return self._reader(topic).service_name
+
+    def cycle(self, until_ns, all_topics=False):
+        """Waits for the next cycle; returns its status message, None on timeout."""
+        reader = self._reader("compensated/status")
+        reader.take_newest()  # what has already arrived is not the next cycle
+        value = self._waiter.wait_for(reader.take_newest, until_ns)
+        return value
+
+    def cycle_messages(self, seq):
+        """The nine messages of cycle `seq`, None when one was already overwritten."""
+        messages = {}
+        for topic, reader in self._readers.items():
+            reader.take_newest()
+            messages[topic] = reader.find(seq)
+        return messages if all(m is not None for m in messages.values()) else None
+
+    def close(self):
+        for r in self._readers.values():
+            r.close()
+        self._readers = {}
+        self._waiter.close()
 
 
 class Arm(_ArmView):
@@ -179,6 +264,9 @@ class Arm(_ArmView):
     domain, root: the iceoryx2 domain (file-name prefix, e.g. "t123_") and its root path (e.g.
         "/tmp/iox2t/"); None for iceoryx2's defaults, where `dvrk-sidecar serve` publishes.
     age, timeout: the getters' default `age` and `wait`, seconds.
+    backend: "native" (the compiled module: waits with the GIL released, numpy views of one
+        array per message), "pure" (iceoryx2's Python binding), or None: native when it
+        imports (`dvrk_sidecar.BACKEND`), else pure.
 
     One Arm is used from one thread at a time. `close()` (or a `with` block) releases its ports.
     """
@@ -192,6 +280,7 @@ class Arm(_ArmView):
         age: float = 0.01,
         timeout: float = 0.5,
         period_s: float = ipc.NOMINAL_PERIOD_NS * 1e-9,
+        backend=None,
     ):
         super().__init__(self, "")
         self.name = ipc.check_prefix(name)
@@ -199,54 +288,66 @@ class Arm(_ArmView):
             number = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             if not number or v < 0 or (what == "period_s" and v == 0):
                 raise ipc.ConfigError(f"{what} {v!r}: must be a finite number of seconds >= 0")
+        if wait not in ipc.WAIT_STRATEGIES:
+            raise ipc.ConfigError(f"wait {wait!r}: expected one of {', '.join(ipc.WAIT_STRATEGIES)}")
         self.age = float(age)
         self.timeout = float(timeout)
         self.compensated = _CompensatedView(self, "compensated/")
-        self._node = ipc.create_node("dvrk-sidecar-python", domain, root)
-        self._readers = {t: ipc.Reader(self._node, self.name, t) for t in msg.TOPICS}
-        self._waiter = ipc.Waiter(self._node, self.name, wait, int(period_s * 1e9))
+        from . import _backend
+
+        if backend is None:
+            backend = _backend.BACKEND
+        if backend == "native":
+            self._backend = _backend.native().NativeBackend(self.name, wait, domain, root, int(period_s * 1e9))
+        elif backend == "pure":
+            self._backend = _PureBackend(self.name, wait, domain, root, int(period_s * 1e9))
+        else:
+            raise ipc.ConfigError(f"backend {backend!r}: expected 'native', 'pure' or None")
 
     @property
     def wait_strategy(self) -> str:
-        return self._waiter.strategy
+        return self._backend.strategy
 
-    def _reader(self, topic):
-        try:
-            return self._readers[topic]
-        except KeyError:
-            raise ipc.DvrkSidecarError(f"{self!r} is closed") from None
+    @property
+    def backend(self) -> str:
+        """"native" or "pure": which client this Arm uses."""
+        return self._backend.name
 
-    def _read(self, topic, age, wait, convert, extra):
-        reader = self._reader(topic)
+    def _read(self, topic, kind, age, wait, extra, stamped):
+        b = self._backend
         age = self.age if age is None else age
         wait = self.timeout if wait is None else wait
-        value = reader.take_newest()
+        value = b.newest(topic)
         if value is None:
-            value = reader.last
+            value = b.last(topic)
         now = time.monotonic_ns()
-        if value is None or now - value.header.sample_t_ns > age * 1e9:
-            value = self._waiter.wait_for(reader.take_newest, now + int(wait * 1e9))
+        header = None if value is None else b.header(value)
+        if header is None or now - header.sample_t_ns > age * 1e9:
+            value = b.wait(topic, now + int(wait * 1e9))
             if value is None:
-                raise reader.no_sample(wait)
+                if stamped:
+                    # dVRK 2.4 convention: no exception, a zero timestamp says "no valid data".
+                    zero = b.header(b.zero(topic))
+                    return _shape(b.convert[kind](b.zero(topic)), zero, extra, stamped)
+                raise b.no_sample(topic, wait)
+            header = b.header(value)
         else:
-            self._waiter.observe(value.header)
-        header = Header.from_msg(value.header)
-        result = convert(value)
-        if not header.valid:
-            raise InvalidSample(reader.service_name, header, result)
-        if extra:
-            return (*result, header) if isinstance(result, tuple) else (result, header)
-        return result
+            b.observe(topic, value)
+        result = b.convert[kind](value)
+        if not header.valid and not stamped:
+            raise InvalidSample(b.service_name(topic), header, result)
+        return _shape(result, header, extra, stamped)
 
     def wait_for_cycle(self, timeout=None):
         """Waits for the next cycle the sidecar publishes (its last message, the status, has
         arrived) and returns that cycle's Header (valid or not); None after `timeout` seconds
         (default: the Arm's)."""
-        reader = self._reader("compensated/status")
-        reader.take_newest()  # what has already arrived is not the next cycle
+        return self._wait_for_cycle(timeout, False)
+
+    def _wait_for_cycle(self, timeout, all_topics):
         timeout = self.timeout if timeout is None else timeout
-        value = self._waiter.wait_for(reader.take_newest, time.monotonic_ns() + int(timeout * 1e9))
-        return None if value is None else Header.from_msg(value.header)
+        value = self._backend.cycle(time.monotonic_ns() + int(timeout * 1e9), all_topics)
+        return None if value is None else self._backend.header(value)
 
     def read_cycle(self, timeout=None):
         """Waits for the next cycle and returns all nine of its messages as a `Cycle` (the same
@@ -256,22 +357,16 @@ class Arm(_ArmView):
         timeout = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + timeout
         while True:
-            header = self.wait_for_cycle(max(0.0, deadline - time.monotonic()))
+            header = self._wait_for_cycle(max(0.0, deadline - time.monotonic()), True)
             if header is None:
                 return None
-            messages = {}
-            for topic, reader in self._readers.items():
-                reader.take_newest()
-                messages[topic] = reader.find(header.seq)
-            if all(m is not None for m in messages.values()):
-                return Cycle(self.name, messages)
+            messages = self._backend.cycle_messages(header.seq)
+            if messages is not None:
+                return Cycle(self.name, messages, self._backend)
 
     def close(self) -> None:
         """Releases the subscribers and the listener (the node goes with the Arm)."""
-        for r in self._readers.values():
-            r.close()
-        self._readers = {}
-        self._waiter.close()
+        self._backend.close()
 
     def __enter__(self):
         return self
@@ -281,7 +376,7 @@ class Arm(_ArmView):
         return False
 
     def __repr__(self) -> str:
-        return f"Arm({self.name!r}, wait={self.wait_strategy!r})"
+        return f"Arm({self.name!r}, wait={self.wait_strategy!r}, backend={self.backend!r})"
 
 
 class Cycle(_ArmView):
@@ -290,23 +385,22 @@ class Cycle(_ArmView):
     `compensated.status()`; their `age` and `wait` are ignored), all of cycle `seq`. A getter of
     an invalid message raises InvalidSample as the Arm's do."""
 
-    def __init__(self, name: str, messages: dict):
+    def __init__(self, name: str, messages: dict, backend=None):
         super().__init__(self, "")
         self.compensated = _CompensatedView(self, "compensated/")
         self.name = name
         self._messages = messages
-        self.header = Header.from_msg(messages["compensated/status"].header)
+        self._backend = backend or _PureBackend
+        self.header = self._backend.header(messages["compensated/status"])
         self.seq = self.header.seq
 
-    def _read(self, topic, age, wait, convert, extra):
+    def _read(self, topic, kind, age, wait, extra, stamped):
         value = self._messages[topic]
-        header = Header.from_msg(value.header)
-        result = convert(value)
-        if not header.valid:
+        header = self._backend.header(value)
+        result = self._backend.convert[kind](value)
+        if not header.valid and not stamped:
             raise InvalidSample(f"{self.name}/{topic}", header, result)
-        if extra:
-            return (*result, header) if isinstance(result, tuple) else (result, header)
-        return result
+        return _shape(result, header, extra, stamped)
 
     def __repr__(self) -> str:
         return f"Cycle({self.name!r}, seq={self.seq})"

@@ -1,0 +1,157 @@
+"""Python subscribers of the latency harness (benches/latency/main.rs runs one process each).
+
+    python3 python_sub.py shm native|pure WAIT PREFIX TOPIC SECONDS
+    python3 python_sub.py json SECONDS          # prints "PORT n" first
+
+Every mode prints one JSON line at the end, as the Rust subscribers do: {"all": [latency ns of
+every sample, from header.sample_t_ns to the moment Python holds it], "publisher": [...],
+"lost": sequence gaps after the first sample, "cpu_percent": CPU of this process while it
+measured, "on_time": [predicted on time, predictive waits] or null}.
+
+- `shm native`: dvrk_sidecar._native.Subscription (compiled wait, GIL released) - the sample
+  is in Python's hands as a numpy array when `wait()` returns.
+- `shm pure`: the pure-Python client's Reader and Waiter (what `Arm(backend="pure")` uses).
+- `json`: a sawSocketStreamer consumer as a Python lab program writes it today: a UDP socket,
+  `json.loads`, the pose out of the dict.
+"""
+
+import json
+import socket
+import sys
+import time
+
+mono = time.monotonic_ns
+cpu = time.process_time_ns
+
+
+class Window:
+    """CPU use from the first sample to the end."""
+
+    def __init__(self):
+        self.t0 = None
+        self.c0 = None
+
+    def mark(self, now):
+        if self.t0 is None:
+            self.t0, self.c0 = now, cpu()
+
+    def elapsed_s(self, now):
+        return 0.0 if self.t0 is None else (now - self.t0) * 1e-9
+
+    def percent(self, now):
+        if self.t0 is None or now <= self.t0:
+            return 0.0
+        return 100.0 * (cpu() - self.c0) / (now - self.t0)
+
+
+def report(lat, publisher, lost, window, on_time=None):
+    print(json.dumps({"all": lat, "publisher": publisher, "lost": lost,
+                      "cpu_percent": window.percent(mono()), "on_time": on_time}), flush=True)
+
+
+def shm_native(wait, prefix, topic, seconds):
+    from dvrk_sidecar import _native, native
+
+    node = _native.Node("latency-py-sub")
+    sub = _native.Subscription(node, prefix, topic, native.DTYPES[topic], wait=wait)
+    lat, publisher, window = [], [], Window()
+    first_gaps = None
+    while True:
+        a = sub.wait(0.5)
+        now = mono()
+        if a is not None:
+            h = a["header"][0]
+            t, pub = int(h["sample_t_ns"]), int(h["publish_t_ns"])
+            window.mark(now)
+            lat.append(now - t)
+            publisher.append(pub - t)
+            if first_gaps is None:
+                first_gaps = sub.stats()["seq_gaps_total"]
+        elif window.t0 is not None and sub.terminated:
+            break
+        if window.elapsed_s(now) > seconds:
+            break
+    st = sub.stats()
+    on_time = None
+    if wait == "predictive":
+        total = st["predicted_on_time_total"] + st["predicted_late_total"] + st["predicted_missed_total"]
+        on_time = [st["predicted_on_time_total"], total]
+    report(lat, publisher, st["seq_gaps_total"] - (first_gaps or 0), window, on_time)
+
+
+def shm_pure(wait, prefix, topic, seconds):
+    from dvrk_sidecar import ipc
+
+    node = ipc.create_node("latency-py-pure")
+    reader = ipc.Reader(node, prefix, topic, buffer=16)
+    waiter = ipc.Waiter(node, prefix, wait)
+    lat, publisher, window = [], [], Window()
+    state = {"last": None, "lost": 0}
+
+    def poll():
+        # Every sample drained counts (as the Rust subscriber's `each`); the newest is returned.
+        newest = None
+        while True:
+            v = reader.take()
+            if v is None:
+                return newest
+            now = mono()
+            h = v.header
+            if state["last"] is not None and h.seq > state["last"] + 1:
+                state["lost"] += h.seq - state["last"] - 1
+            state["last"] = h.seq
+            window.mark(now)
+            lat.append(now - h.sample_t_ns)
+            publisher.append(h.publish_t_ns - h.sample_t_ns)
+            newest = v
+
+    while window.elapsed_s(mono()) <= seconds:
+        v = waiter.wait_for(poll, mono() + 500_000_000)
+        if v is None and window.t0 is not None and reader.publishers() == 0:
+            break
+    report(lat, publisher, state["lost"], window)
+
+
+def json_udp(seconds):
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    print(f"PORT {sock.getsockname()[1]}", flush=True)
+    sock.settimeout(0.2)
+    lat, window = [], Window()
+    last, lost, idle = None, 0, 0
+    while True:
+        try:
+            data = sock.recv(2048)
+        except socket.timeout:
+            idle += 1
+            if window.t0 is not None and idle > 5:
+                break
+            continue
+        idle = 0
+        now = mono()
+        window.mark(now)
+        v = json.loads(data)
+        cp = v["measured_cp"]
+        lat.append(now - int(cp["Timestamp"] * 1e9))
+        _ = cp["Position"]["Translation"], cp["Position"]["Rotation"]
+        seq = v["seq"]
+        if last is not None and seq > last + 1:
+            lost += seq - last - 1
+        last = seq
+        if window.elapsed_s(now) > seconds:
+            break
+    report(lat, [], lost, window)
+
+
+def main(argv):
+    if argv[0] == "shm":
+        backend, wait, prefix, topic, seconds = argv[1], argv[2], argv[3], argv[4], float(argv[5])
+        (shm_native if backend == "native" else shm_pure)(wait, prefix, topic, seconds)
+    elif argv[0] == "json":
+        json_udp(float(argv[1]))
+    else:
+        raise SystemExit(f"unknown mode {argv[0]!r}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

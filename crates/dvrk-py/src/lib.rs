@@ -1,0 +1,376 @@
+//! `dvrk_sidecar._native`: the compiled half of the `dvrk_sidecar` Python package.
+//!
+//! A [`dvrk_ipc::Subscription`] per topic, driven from Python: [`NativeSubscription::wait`]
+//! runs the consumer's wait strategy (event, predictive, spin) in compiled code with the GIL
+//! released, so other Python threads keep running while one waits, and hands the newest sample
+//! to Python as one numpy array over the whole message (a structured dtype given by the Python
+//! side, built from its ctypes layouts): one copy of the message into a new buffer, then every
+//! field a view of it.
+//!
+//! Python never sees this module directly: `dvrk_sidecar.Arm` uses it when it imports
+//! (`dvrk_sidecar.BACKEND == "native"`) and falls back to the pure-Python client otherwise.
+
+use std::rc::Rc;
+
+use dvrk_ipc::iceoryx2::node::Node;
+use dvrk_ipc::iceoryx2::service::ipc::Service;
+use dvrk_ipc::{
+    CompensationStatusV4, JawStateV1, JointStateV2, Message, PoseV2, ServiceNames,
+    SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
+};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyByteArray, PyDict};
+
+pyo3::create_exception!(
+    _native,
+    NativeError,
+    PyRuntimeError,
+    "A failure of dvrk-ipc or iceoryx2 (opening a service, receiving, waiting)."
+);
+
+fn native_err(e: impl std::fmt::Display) -> PyErr {
+    NativeError::new_err(e.to_string())
+}
+
+/// Moves a `!Send` borrow into [`Python::detach`]'s closure.
+///
+/// Sound here: the closure runs synchronously on the calling thread (`detach` only releases
+/// the GIL around it), and the borrowed subscription belongs to an `unsendable` pyclass, which
+/// PyO3 lets no other thread touch, borrowed mutably for the whole call.
+struct OnThisThread<T>(T);
+// SAFETY: see above; the value never leaves the thread that created it.
+unsafe impl<T> Send for OnThisThread<T> {}
+impl<T> OnThisThread<T> {
+    /// By value, so that a closure captures the whole wrapper, not its (`!Send`) field.
+    fn into_inner(self) -> T {
+        self.0
+    }
+}
+
+/// The bytes of a message. Every [`Message`] is `repr(C)` of `u64`/`u32`/`f64` with no
+/// implicit padding (checked at compile time in dvrk-ipc), so all its bytes are initialised.
+fn bytes_of<T: Message>(v: &T) -> &[u8] {
+    // SAFETY: `v` is a valid `T` of `size_of::<T>()` initialised bytes (no padding, see above),
+    // borrowed for the returned lifetime.
+    unsafe { core::slice::from_raw_parts((v as *const T).cast::<u8>(), core::mem::size_of::<T>()) }
+}
+
+fn seconds_to_ns(s: f64) -> u64 {
+    if s.is_finite() && s > 0.0 {
+        (s * 1e9).min(u64::MAX as f64) as u64
+    } else {
+        0
+    }
+}
+
+/// An iceoryx2 node in the sidecar's domain (the default one, or an isolated one), shared by
+/// the subscriptions of one `Arm`.
+#[pyclass(unsendable, module = "dvrk_sidecar._native", name = "Node")]
+struct NativeNode {
+    node: Rc<Node<Service>>,
+}
+
+#[pymethods]
+impl NativeNode {
+    /// `domain`: the file-name prefix of an isolated domain (e.g. `"t123_"`), `root`: its root
+    /// path (e.g. `"/tmp/iox2t/"`); both `None` for iceoryx2's defaults, where
+    /// `dvrk-sidecar serve` publishes. Same checks as `dvrk_ipc::domain_config`.
+    #[new]
+    #[pyo3(signature = (name = "dvrk-sidecar-python", domain = None, root = None))]
+    fn new(name: &str, domain: Option<&str>, root: Option<&str>) -> PyResult<Self> {
+        let config = match (domain, root) {
+            (None, None) => None,
+            (domain, root) => {
+                let default_prefix;
+                let prefix = match domain {
+                    Some(d) => d,
+                    None => {
+                        default_prefix = dvrk_ipc::iceoryx2::config::Config::default()
+                            .global
+                            .prefix
+                            .to_string();
+                        &default_prefix
+                    }
+                };
+                Some(
+                    dvrk_ipc::domain_config(prefix, root)
+                        .map_err(|e| PyValueError::new_err(e.to_string()))?,
+                )
+            }
+        };
+        let node = dvrk_ipc::create_node::<Service>(name, config.as_ref()).map_err(native_err)?;
+        Ok(Self {
+            node: Rc::new(node),
+        })
+    }
+}
+
+enum Inner {
+    Joint(Subscription<JointStateV2>),
+    Jaw(Subscription<JawStateV1>),
+    Pose(Subscription<PoseV2>),
+    Status(Subscription<CompensationStatusV4>),
+}
+
+/// Runs `$body` with `$s` bound to the typed subscription, whatever its message type.
+macro_rules! each_type {
+    ($inner:expr, $s:ident => $body:expr) => {
+        match $inner {
+            Inner::Joint($s) => $body,
+            Inner::Jaw($s) => $body,
+            Inner::Pose($s) => $body,
+            Inner::Status($s) => $body,
+        }
+    };
+}
+
+/// What one call of the underlying `Subscription::wait` gave, the sample already a numpy array.
+enum Step<'py> {
+    Fresh(Bound<'py, PyAny>),
+    Stale,
+    Terminated,
+    Interrupted,
+}
+
+/// A subscriber to one topic of an arm (`dvrk_ipc::Subscription`), waiting with the chosen
+/// strategy in compiled code with the GIL released. One thread only (`unsendable`): like every
+/// iceoryx2 `ipc` port, it may not move between threads.
+#[pyclass(unsendable, module = "dvrk_sidecar._native", name = "Subscription")]
+struct NativeSubscription {
+    inner: Option<Inner>,
+    /// Keeps the node alive as long as its ports.
+    _node: Rc<Node<Service>>,
+    service_name: String,
+    wait: WaitStrategy,
+    size: usize,
+    dtype: Py<PyAny>,
+    frombuffer: Py<PyAny>,
+    terminated: bool,
+}
+
+impl NativeSubscription {
+    fn inner(&mut self) -> PyResult<&mut Inner> {
+        self.inner
+            .as_mut()
+            .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))
+    }
+
+    /// One numpy array of shape (1,) and the structured dtype over a copy of `bytes`.
+    fn array<'py>(
+        py: Python<'py>,
+        frombuffer: &Py<PyAny>,
+        dtype: &Py<PyAny>,
+        bytes: &[u8],
+    ) -> PyResult<Bound<'py, PyAny>> {
+        frombuffer
+            .call1(py, (PyByteArray::new(py, bytes), dtype.bind(py)))
+            .map(|a| a.into_bound(py))
+    }
+}
+
+#[pymethods]
+impl NativeSubscription {
+    /// Subscribes to `topic` (e.g. `"compensated/local/measured_cp"`) of the arm `prefix` on
+    /// `node`. `wait`: `"event"`, `"spin"` or `"predictive"`; `dtype`: the numpy structured
+    /// dtype of the topic's message (its itemsize must be the message's size); `period_ns`:
+    /// the publisher's nominal period; `deadline_s`: how long one wait in compiled code lasts
+    /// without a sample before it comes back to Python to check the timeout and signals
+    /// (`None`: dvrk-ipc's default, 10 ms at 1500 Hz).
+    #[new]
+    // The Python constructor's keyword arguments, one per option.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (node, prefix, topic, dtype, wait = "event", period_ns = 666_667, deadline_s = None))]
+    fn new(
+        py: Python<'_>,
+        node: &NativeNode,
+        prefix: &str,
+        topic: &str,
+        dtype: Py<PyAny>,
+        wait: &str,
+        period_ns: u64,
+        deadline_s: Option<f64>,
+    ) -> PyResult<Self> {
+        let names = ServiceNames::new(prefix).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let t = Topic::from_suffix(topic)
+            .ok_or_else(|| PyValueError::new_err(format!("unknown topic {topic:?}")))?;
+        let strategy: WaitStrategy = wait
+            .parse()
+            .map_err(|e: dvrk_ipc::UnknownWaitStrategy| PyValueError::new_err(e.to_string()))?;
+        if period_ns == 0 {
+            return Err(PyValueError::new_err("period_ns must be > 0"));
+        }
+        let options = SubscribeOptions {
+            period: core::time::Duration::from_nanos(period_ns),
+            wait: strategy,
+            deadline: deadline_s
+                .map(|s| core::time::Duration::from_nanos(seconds_to_ns(s).max(1_000_000))),
+        };
+        let n = &*node.node;
+        let (inner, size) = if t.carries::<PoseV2>() {
+            let s = Subscription::with_options(n, &names, t, options);
+            (s.map(Inner::Pose), PoseV2::SIZE)
+        } else if t.carries::<JointStateV2>() {
+            let s = Subscription::with_options(n, &names, t, options);
+            (s.map(Inner::Joint), JointStateV2::SIZE)
+        } else if t.carries::<JawStateV1>() {
+            let s = Subscription::with_options(n, &names, t, options);
+            (s.map(Inner::Jaw), JawStateV1::SIZE)
+        } else {
+            let s = Subscription::with_options(n, &names, t, options);
+            (s.map(Inner::Status), CompensationStatusV4::SIZE)
+        };
+        let inner = inner.map_err(native_err)?;
+        let itemsize: usize = dtype.bind(py).getattr("itemsize")?.extract()?;
+        if itemsize != size {
+            return Err(PyValueError::new_err(format!(
+                "dtype of {itemsize} bytes for {topic}, whose message has {size}"
+            )));
+        }
+        let frombuffer = py.import("numpy")?.getattr("frombuffer")?.unbind();
+        Ok(Self {
+            service_name: format!("{prefix}/{topic}"),
+            inner: Some(inner),
+            _node: node.node.clone(),
+            wait: strategy,
+            size,
+            dtype,
+            frombuffer,
+            terminated: false,
+        })
+    }
+
+    /// Waits up to `timeout` seconds for the next sample (the GIL released) and returns the
+    /// newest, after draining every buffered one: a numpy array of shape (1,) and the topic's
+    /// dtype. `None` after `timeout`. Python signal handlers (Ctrl-C) run at least every
+    /// `deadline_s`; an exception they raise comes out of this call.
+    #[pyo3(signature = (timeout = 0.5))]
+    fn wait<'py>(&mut self, py: Python<'py>, timeout: f64) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let until = dvrk_ipc::monotonic_ns().saturating_add(seconds_to_ns(timeout));
+        loop {
+            let frombuffer = &self.frombuffer;
+            let dtype = &self.dtype;
+            let inner = self
+                .inner
+                .as_mut()
+                .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))?;
+            let step = each_type!(inner, s => {
+                let s = OnThisThread(s);
+                let update = py.detach(move || s.into_inner().wait()).map_err(native_err)?;
+                match update {
+                    Update::Fresh(v) => Step::Fresh(Self::array(py, frombuffer, dtype, bytes_of(&v))?),
+                    Update::Stale { .. } => Step::Stale,
+                    Update::Terminated => Step::Terminated,
+                    Update::Interrupted => Step::Interrupted,
+                }
+            });
+            match step {
+                Step::Fresh(a) => {
+                    self.terminated = false;
+                    return Ok(Some(a));
+                }
+                Step::Terminated => self.terminated = true,
+                Step::Stale | Step::Interrupted => {}
+            }
+            py.check_signals()?;
+            if dvrk_ipc::monotonic_ns() >= until {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// The newest sample received since the last call, without waiting (drains the buffer;
+    /// does not consume cycle events); `None` when nothing new arrived.
+    fn take<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let frombuffer = &self.frombuffer;
+        let dtype = &self.dtype;
+        let inner = self
+            .inner
+            .as_mut()
+            .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))?;
+        each_type!(inner, s => match s.try_latest().map_err(native_err)? {
+            Some(v) => Ok(Some(Self::array(py, frombuffer, dtype, bytes_of(&v))?)),
+            None => Ok(None),
+        })
+    }
+
+    /// The newest sample ever received (a new array each call), `None` before the first.
+    fn latest<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let frombuffer = &self.frombuffer;
+        let dtype = &self.dtype;
+        let inner = self
+            .inner
+            .as_mut()
+            .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))?;
+        each_type!(inner, s => match s.latest() {
+            Some(v) => Ok(Some(Self::array(py, frombuffer, dtype, bytes_of(v))?)),
+            None => Ok(None),
+        })
+    }
+
+    /// Publishers connected to the topic.
+    fn publishers(&mut self) -> PyResult<usize> {
+        Ok(each_type!(self.inner()?, s => s.number_of_publishers()))
+    }
+
+    /// Whether the last wait saw the publisher go away (stopped or died).
+    #[getter]
+    fn terminated(&self) -> bool {
+        self.terminated
+    }
+
+    /// dvrk_ipc::SubscriptionStats as a dict.
+    fn stats<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let st = each_type!(self.inner()?, s => s.stats());
+        let d = PyDict::new(py);
+        d.set_item("received_total", st.received_total)?;
+        d.set_item("superseded_total", st.superseded_total)?;
+        d.set_item("seq_gaps_total", st.seq_gaps_total)?;
+        d.set_item("stale_total", st.stale_total)?;
+        d.set_item("predicted_on_time_total", st.predicted_on_time_total)?;
+        d.set_item("predicted_late_total", st.predicted_late_total)?;
+        d.set_item("predicted_missed_total", st.predicted_missed_total)?;
+        Ok(d)
+    }
+
+    /// The predictive model (period_ns, next_arrival_ns, guard_ns, spin_after_ns), `None`
+    /// until learnt.
+    fn prediction(&mut self) -> PyResult<Option<(u64, u64, u64, u64)>> {
+        let p = each_type!(self.inner()?, s => s.prediction());
+        Ok(p.map(|p| (p.period_ns, p.next_arrival_ns, p.guard_ns, p.spin_after_ns)))
+    }
+
+    /// `<prefix>/<topic>`.
+    #[getter]
+    fn service_name(&self) -> &str {
+        &self.service_name
+    }
+
+    /// `"event"`, `"spin"` or `"predictive"`.
+    #[getter]
+    fn wait_strategy(&self) -> &'static str {
+        self.wait.name()
+    }
+
+    /// The message's size in bytes.
+    #[getter]
+    fn size(&self) -> usize {
+        self.size
+    }
+
+    /// Releases the subscriber and its listener.
+    fn close(&mut self) {
+        self.inner = None;
+    }
+}
+
+/// The compiled half of `dvrk_sidecar`.
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<NativeNode>()?;
+    m.add_class::<NativeSubscription>()?;
+    m.add("NativeError", m.py().get_type::<NativeError>())?;
+    m.add("WAIT_STRATEGIES", ("event", "spin", "predictive"))?;
+    m.add("NOMINAL_PERIOD_NS", 666_667u64)?;
+    Ok(())
+}
