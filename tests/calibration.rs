@@ -285,7 +285,10 @@ fn calibrate_record_turns_a_live_still_arm_into_a_data_row() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = std::fs::read_to_string(&out).unwrap();
-    let mut lines = text.lines();
+    // the provenance block first (arm, date, command)
+    assert!(text.starts_with("# arm: "), "{text}");
+    assert!(text.contains("# command: ") && text.contains("calibrate record"), "{text}");
+    let mut lines = text.lines().skip_while(|l| l.starts_with('#'));
     assert_eq!(
         lines.next(),
         Some("joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction")

@@ -365,7 +365,7 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
             "--joints",
             "1",
             "--depths",
-            "0.10,0.15,0.20",
+            "0.10,0.13,0.16,0.19",
             "--quiet",
             "--out",
         ])
