@@ -412,3 +412,95 @@ fn discovery_of_an_emulator_on_any_address() {
         );
     }
 }
+
+/// Issue 22, "only the boards and the console count": another local user (`nobody`) runs its
+/// own board emulator on the tapped port and its own console stand-in, so that complete,
+/// well-formed request/reply pairs of this arm's boards cross the tapped interface from sockets
+/// that are not the boards' nor the console's. Not one sample may be published as valid, and
+/// serve says what it dropped. (Before: every forged read was published as valid.)
+#[cfg_attr(
+    not(has_root),
+    ignore = "needs root: the tap's AF_PACKET capture needs CAP_NET_RAW, and the forger runs as another user (sudo -E cargo test --test tap)"
+)]
+#[test]
+fn another_users_forged_pairs_publish_no_valid_sample() {
+    use std::os::unix::process::CommandExt;
+    need_root!("another_users_forged_pairs_publish_no_valid_sample");
+    const NOBODY: u32 = 65534;
+    let test = "tap_forged";
+    let port = free_udp_port();
+    let prefix = unique_prefix(test);
+    let c = repo().join("config");
+    let mut sim = Proc::spawn(
+        "sim as nobody",
+        Command::new(sidecar_bin())
+            .args(["sim", "--listen", &format!("0.0.0.0:{port}")])
+            .args(["--ethernet", "bridge", "--scenario"])
+            .arg(c.join("sim/free-motion.toml"))
+            .arg("--io")
+            .arg(c.join("io/psm-classic.toml"))
+            .uid(NOBODY)
+            .gid(NOBODY)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let bound = eventually(Duration::from_secs(30), || {
+        UdpSocket::bind(("0.0.0.0", port)).is_err().then_some(())
+    });
+    assert!(bound.is_some(), "the forger's emulator did not bind {port}");
+    let mut serve = common::serve(&tap_config(test, port, &prefix));
+    let stop = Arc::new(AtomicBool::new(false));
+    let sub = subscribe(&prefix, stop.clone());
+    std::thread::sleep(Duration::from_millis(500));
+    let record = std::env::temp_dir().join(format!("dvrk-forged-{}.csv", std::process::id()));
+    let out = Command::new(sidecar_bin())
+        .args([
+            "drive",
+            "--boards",
+            &format!("127.0.0.1:{port}"),
+            "--protocol",
+            "sequential-read-write",
+            "--rate",
+            "1500",
+            "--duration",
+            "2",
+            "--record",
+        ])
+        .arg(&record)
+        .uid(NOBODY)
+        .gid(NOBODY)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("running drive as nobody");
+    let _ = std::fs::remove_file(&record);
+    let drive_out = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "the forger's stand-in failed: {drive_out}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    stop.store(true, Ordering::Relaxed);
+    let published = sub.join().unwrap();
+    let (_, serve_log) = serve.terminate();
+    let _ = sim.terminate();
+    let valid = published.iter().filter(|m| m.header.valid == 1).count();
+    eprintln!(
+        "{test}: published {} samples while another user's console read its emulator, {valid} \
+         valid",
+        published.len()
+    );
+    assert!(
+        !published.is_empty(),
+        "serve published nothing: {serve_log}"
+    );
+    assert_eq!(
+        valid, 0,
+        "{valid} forged samples published as valid\nserve: {serve_log}"
+    );
+    assert!(
+        serve_log.contains("another user's socket"),
+        "serve does not say what it dropped: {serve_log}"
+    );
+}

@@ -157,7 +157,12 @@ pub fn run_record(
     match source.run(&mut sink, period, stop, until) {
         Ok(stats) => Ok((stats, sink.finish()?)),
         Err(e) => {
-            sink.abandon();
+            // Nothing recorded is deleted: the footer is written if the file still takes it
+            // (an error of the source), otherwise (a full disk) the file keeps every chunk
+            // closed before the error.
+            if let Err(f) = sink.finish() {
+                tracing::warn!("record: no footer written ({f}); the closed chunks are kept");
+            }
             Err(e)
         }
     }

@@ -2,9 +2,10 @@
 //! payloads, the layout `ros2 bag` (rosbag2_storage_mcap), Foxglove and PlotJuggler read.
 
 use std::collections::BTreeMap;
-use std::fs::File;
+use std::fs::{File, OpenOptions};
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use dvrk_ipc::{CompensationStatusV4, JawStateV1, JointStateV2, PoseV2};
 use mcap::records::MessageHeader;
@@ -13,20 +14,34 @@ use crate::convert::{Encoder, OutTopic};
 use crate::error::BridgeError;
 use crate::source::Sink;
 
+/// The longest a chunk stays open: what a SIGKILL or a power loss can cost of a recording.
+pub const CHUNK_INTERVAL: Duration = Duration::from_secs(1);
+
 /// An MCAP file being written: one channel per recorded [`OutTopic`], named by its ROS 2 topic
 /// name (`/PSM1/compensated/local/measured_cp`, `/PSM1/measured_js`).
 ///
-/// The file is written as `.<name>.partial` beside the target and renamed to it by
-/// [`McapSink::finish`], so a reader never sees a file without its summary; [`McapSink::abandon`]
-/// removes it after an error.
+/// The file is written at its own name from the start and survives any end of the recording:
+/// - a chunk is closed, flushed and synced to the disk at least every [`CHUNK_INTERVAL`] (and
+///   whenever it reaches the writer's chunk size), so after SIGKILL, a power loss or a full disk
+///   a streaming reader (the `mcap` libraries' non-seeking readers, `mcap recover`) reads every
+///   message up to the last finished chunk;
+/// - [`McapSink::finish`] writes the summary and footer (a clean stop: SIGINT, SIGTERM,
+///   `--seconds`, or an error of the source), so the seeking readers open the file too;
+/// - nothing is ever deleted: after a write error (a full disk) the file keeps every finished
+///   chunk.
+///
+/// An existing path is refused ([`McapSink::create`]): a recording never replaces a file.
 ///
 /// Log and publish times are the message's ROS stamp (the sample time in CLOCK_REALTIME ns), and
 /// the MCAP sequence is the low 32 bits of the sidecar's `seq`.
 pub struct McapSink {
     encoder: Encoder,
     path: PathBuf,
-    tmp: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
+    /// The same open file as the writer's, to sync each closed chunk to the disk.
+    file: File,
+    /// When the open chunk was started (the last chunk closed).
+    chunk_since: Instant,
     /// Channel of each topic of [`OutTopic::RECORDED`] that is recorded.
     channels: [Option<u16>; OutTopic::RECORDED.len()],
     payload: Vec<u8>,
@@ -46,20 +61,46 @@ impl McapSink {
     /// Starts the file that will become `path` and registers the schemas and the channels of
     /// the compensated topics and, with `raw`, of the uncompensated ones.
     pub fn create(encoder: Encoder, path: &Path, raw: bool) -> Result<Self, BridgeError> {
-        let Some(name) = path.file_name() else {
+        if path.file_name().is_none() {
             return Err(BridgeError::InvalidArgument {
                 what: "--out",
                 value: path.display().to_string(),
                 reason: "not a file path",
             });
-        };
-        let tmp = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
-        let file = File::create(&tmp).map_err(|source| BridgeError::CreateFile {
-            path: tmp.clone(),
+        }
+        // Created exclusively: an existing file (an earlier recording), a device node, a FIFO or
+        // a symbolic link (even a dangling one) is never opened, truncated or replaced.
+        let file = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|source| BridgeError::CreateFile {
+                path: path.to_owned(),
+                source: if source.kind() == std::io::ErrorKind::AlreadyExists {
+                    std::io::Error::new(
+                        source.kind(),
+                        "it exists; record never replaces a file: remove it or give a new --out",
+                    )
+                } else {
+                    source
+                },
+            })?;
+        let io_err = |source| BridgeError::CreateFile {
+            path: path.to_owned(),
             source,
-        })?;
+        };
+        let sync = file.try_clone().map_err(io_err)?;
+        // The new directory entry reaches the disk too, so a power loss keeps the file.
+        if let Some(dir) = path.parent() {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            File::open(dir).and_then(|d| d.sync_all()).map_err(io_err)?;
+        }
         let mcap_err = |source| BridgeError::Mcap {
-            path: tmp.clone(),
+            path: path.to_owned(),
             source,
         };
         let mut writer = mcap::WriteOptions::new()
@@ -95,15 +136,36 @@ impl McapSink {
                     .map_err(mcap_err)?,
             );
         }
-        Ok(McapSink {
+        let mut sink = McapSink {
             encoder,
             path: path.to_owned(),
-            tmp,
             writer,
+            file: sync,
+            chunk_since: Instant::now(),
             channels,
             payload: Vec::new(),
             written: 0,
-        })
+        };
+        // The header, schemas and channels on the disk before the first message.
+        sink.close_chunk()?;
+        Ok(sink)
+    }
+
+    /// Closes the open chunk, writes it out and syncs it to the disk: from here on a streaming
+    /// reader reads every message written so far, whatever happens to this process.
+    fn close_chunk(&mut self) -> Result<(), BridgeError> {
+        self.writer.flush().map_err(|source| BridgeError::Mcap {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.file
+            .sync_data()
+            .map_err(|source| BridgeError::CreateFile {
+                path: self.path.clone(),
+                source,
+            })?;
+        self.chunk_since = Instant::now();
+        Ok(())
     }
 
     /// Messages written so far.
@@ -111,52 +173,31 @@ impl McapSink {
         self.written
     }
 
-    /// Writes the summary, closes the file and renames it to its target; returns the number of
-    /// messages. On error the partial file is removed.
-    pub fn finish(mut self) -> Result<u64, BridgeError> {
-        let tmp = self.tmp.clone();
-        let result = self
-            .writer
-            .finish()
-            .map_err(|source| BridgeError::Mcap {
-                path: tmp.clone(),
-                source,
-            })
-            .and_then(|_| {
-                self.writer
-                    .into_inner()
-                    .into_inner()
-                    .map_err(|e| BridgeError::CreateFile {
-                        path: tmp.clone(),
-                        source: e.into_error(),
-                    })
-            })
-            .and_then(|file| {
-                file.sync_all().map_err(|source| BridgeError::CreateFile {
-                    path: tmp.clone(),
-                    source,
-                })
-            })
-            .and_then(|()| {
-                std::fs::rename(&tmp, &self.path).map_err(|source| BridgeError::CreateFile {
-                    path: self.path.clone(),
-                    source,
-                })
-            });
-        match result {
-            Ok(()) => Ok(self.written),
-            Err(e) => {
-                let _ = std::fs::remove_file(&tmp);
-                Err(e)
-            }
-        }
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        &self.path
     }
 
-    /// Removes the partial file (after an error).
-    pub fn abandon(self) {
-        let tmp = self.tmp.clone();
-        drop(self);
-        let _ = std::fs::remove_file(tmp);
+    /// Writes the last chunk, the summary and the footer, and syncs the file; returns the
+    /// number of messages. On error (a full disk) the file is kept as it is: every chunk closed
+    /// before is readable.
+    pub fn finish(mut self) -> Result<u64, BridgeError> {
+        let path = self.path.clone();
+        self.writer.finish().map_err(|source| BridgeError::Mcap {
+            path: path.clone(),
+            source,
+        })?;
+        let file = self
+            .writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| BridgeError::CreateFile {
+                path: path.clone(),
+                source: e.into_error(),
+            })?;
+        file.sync_all()
+            .map_err(|source| BridgeError::CreateFile { path, source })?;
+        Ok(self.written)
     }
 
     fn write(&mut self, t: OutTopic, header: &dvrk_ipc::Header) -> Result<(), BridgeError> {
@@ -185,10 +226,13 @@ impl McapSink {
                 &self.payload,
             )
             .map_err(|source| BridgeError::Mcap {
-                path: self.tmp.clone(),
+                path: self.path.clone(),
                 source,
             })?;
         self.written += 1;
+        if self.chunk_since.elapsed() >= CHUNK_INTERVAL {
+            self.close_chunk()?;
+        }
         Ok(())
     }
 }

@@ -11,11 +11,14 @@ use dvrk_io::port::{BoardProbe, EthMode, Port, PortError, UdpLink, UdpPort, conf
 use dvrk_io::wire::Tcode;
 use dvrk_io::wire::block::hardware_version;
 
+/// A port that asks once per quadlet read (no retry), so that these tests can count requests
+/// exactly whatever the load of the machine; the retry has tests of its own below.
 fn port_to(r: &Responder, timeout_ms: u64) -> UdpPort {
     let mut p = UdpPort::open_udp(r.addr).unwrap();
     p.link_mut()
         .set_timeout(Duration::from_millis(timeout_ms))
         .unwrap();
+    p.link_mut().set_quadlet_retry_wait(None);
     p
 }
 
@@ -418,6 +421,7 @@ fn per_board_addressing_of_rev9_ethernet_only_boards() {
     p.link_mut()
         .set_timeout(Duration::from_millis(200))
         .unwrap();
+    p.link_mut().set_quadlet_retry_wait(None);
     assert_eq!(p.read_quadlet(6, 0).unwrap() >> 24 & 0xF, 6);
     assert_eq!(p.read_quadlet(7, 0).unwrap() >> 24 & 0xF, 7);
     r6.with(|b| assert_eq!(b.log.len(), 1));
@@ -436,6 +440,7 @@ fn late_replies_after_a_stall_are_drained_and_never_taken_for_new_answers() {
     let mut boards = Boards::psm(8);
     let mut p = UdpPort::open_udp(board.local_addr().unwrap()).unwrap();
     p.link_mut().set_timeout(Duration::from_millis(2)).unwrap();
+    p.link_mut().set_quadlet_retry_wait(None);
     // 100 requests for the hardware version go unanswered...
     let mut queued = Vec::new();
     let mut buf = [0u8; 2048];
@@ -538,4 +543,76 @@ fn corrupted_replies_fail_their_crc() {
     );
     assert_eq!(p.counters().crc_errors, 6);
     exchange(&mut p, &|_| {}, &mut blk).unwrap();
+}
+
+/// A lost request or reply (issue 22): the quadlet read asks again after the retry's short wait
+/// and takes the answer, well within the reply timeout; a board that stops answering costs one
+/// retried read, then one request per read.
+#[test]
+fn a_lost_quadlet_is_asked_for_again_within_the_timeout() {
+    let board = UdpSocket::bind("127.0.0.1:0").unwrap();
+    board
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let mut p = UdpPort::open_udp(board.local_addr().unwrap()).unwrap();
+    p.link_mut().set_timeout(Duration::from_secs(2)).unwrap();
+    let t = std::thread::spawn(move || {
+        let mut boards = Boards::psm(8);
+        let mut buf = [0u8; 2048];
+        // The first request is lost; the second is answered.
+        board.recv_from(&mut buf).unwrap();
+        let (n, from) = board.recv_from(&mut buf).unwrap();
+        for r in boards.handle(&buf[..n]) {
+            board.send_to(&r, from).unwrap();
+        }
+        board
+    });
+    let t0 = std::time::Instant::now();
+    assert_eq!(p.read_quadlet(6, 4).unwrap(), hardware_version::QLA1);
+    // Far below the 2 s timeout the read would have waited without the retry.
+    assert!(t0.elapsed() < Duration::from_secs(1), "{:?}", t0.elapsed());
+    let c = p.counters();
+    assert_eq!((c.requests, c.replies_ok, c.timeouts), (2, 1, 0), "{c:?}");
+    assert!(c.quadlet_retries >= 1, "{c:?}");
+    let board = t.join().unwrap();
+
+    // Silent board: 4 requests for the first read, then 1 per read.
+    p.link_mut().set_timeout(Duration::from_millis(20)).unwrap();
+    let before = p.counters().requests;
+    assert!(p.read_quadlet(6, 4).is_err());
+    assert_eq!(p.counters().requests - before, 4);
+    assert!(p.read_quadlet(6, 4).is_err());
+    assert_eq!(p.counters().requests - before, 5);
+    assert_eq!(p.counters().timeouts, 2);
+    drop(board);
+}
+
+/// A reply slower than the retry's wait is still taken, as the answer to the read it belongs
+/// to (its label is one of the read's requests).
+#[test]
+fn a_late_reply_answers_its_read_and_lengthens_the_wait() {
+    let board = UdpSocket::bind("127.0.0.1:0").unwrap();
+    board
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let mut p = UdpPort::open_udp(board.local_addr().unwrap()).unwrap();
+    p.link_mut().set_timeout(Duration::from_secs(2)).unwrap();
+    let t = std::thread::spawn(move || {
+        let mut boards = Boards::psm(8);
+        let mut buf = [0u8; 2048];
+        // Answer the first request only after its retry came in.
+        let (n, from) = board.recv_from(&mut buf).unwrap();
+        let first = boards.handle(&buf[..n]);
+        board.recv_from(&mut buf).unwrap();
+        for r in first {
+            board.send_to(&r, from).unwrap();
+        }
+    });
+    assert_eq!(p.read_quadlet(6, 4).unwrap(), hardware_version::QLA1);
+    t.join().unwrap();
+    let c = p.counters();
+    assert!(
+        c.requests >= 2 && c.replies_ok == 1 && c.timeouts == 0,
+        "{c:?}"
+    );
 }

@@ -101,8 +101,21 @@ pub fn run_record(args: &RecordArgs) -> Result<()> {
         seconds: args.seconds,
         compensated_only: args.compensated_only,
     };
+    // The file is created exclusively at its name: one that exists when the run ends was
+    // written by this run, and is kept.
+    let existed = std::fs::symlink_metadata(&args.out).is_ok();
     let (stats, written) = dvrk_bridge::run_record(&args.source.options(), &rec, stop.as_atomic())
-        .with_context(|| format!("recording to {}", args.out.display()))?;
+        .with_context(|| match std::fs::metadata(&args.out) {
+            Ok(m) if !existed && m.is_file() => format!(
+                "recording to {} stopped; the {} bytes written are kept there, readable up to \
+                 the last chunk closed (at most {} s before the error) with a streaming MCAP \
+                 reader or `mcap recover`",
+                args.out.display(),
+                m.len(),
+                dvrk_bridge::record::CHUNK_INTERVAL.as_secs()
+            ),
+            _ => format!("recording to {}", args.out.display()),
+        })?;
     tracing::info!(
         "record: {} messages of {} cycles written to {} ({} invalid skipped, {} decimated, {} lost in shared memory)",
         written,

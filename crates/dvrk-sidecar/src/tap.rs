@@ -15,12 +15,21 @@
 //! On a loopback interface every packet is seen twice (leaving and arriving): the filter drops
 //! the leaving copy there. On a real interface the console's requests are the leaving packets
 //! and are kept.
+//!
+//! Only the boards and the console count (issue 22). dvrk-io takes a reply only from the
+//! address its request went to. Here, before that: on a real interface a reply must arrive from
+//! the wire (a datagram this host sends is no board's, whoever sent it); a datagram sent by a
+//! socket of this host (every one on loopback, the console's requests on a real interface) is
+//! taken only if that socket belongs to root or to this service's user, looked up once per
+//! source address in /proc/net/udp. An unprivileged local user's forged requests and replies
+//! are dropped and counted.
 
-use std::io;
+use std::io::{self, Read};
+use std::net::{Ipv4Addr, SocketAddrV4};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 
 use anyhow::{Context, Result, bail};
-use dvrk_io::tap::{LinkType, TapDecoder, TapEvent};
+use dvrk_io::tap::{LinkType, TapDecoder, TapEvent, parse_frame};
 use dvrk_io::{ArmSample, IoConfig, MAX_BOARDS};
 use tracing::{info, warn};
 
@@ -96,6 +105,8 @@ pub struct Capture {
     fd: OwnedFd,
     iface: String,
     buf: Box<[u8]>,
+    /// The last frame was sent by this host (not arrived from the wire).
+    outgoing: bool,
 }
 
 impl Capture {
@@ -184,6 +195,7 @@ impl Capture {
             fd,
             iface: iface.to_owned(),
             buf: vec![0u8; FRAME_CAP].into_boxed_slice(),
+            outgoing: false,
         })
     }
 
@@ -217,7 +229,13 @@ impl Capture {
         if sll.sll_hatype == libc::ARPHRD_LOOPBACK && sll.sll_pkttype == libc::PACKET_OUTGOING {
             return Ok(None);
         }
+        self.outgoing = sll.sll_pkttype == libc::PACKET_OUTGOING;
         Ok(Some(n as usize))
+    }
+
+    /// Whether the frame of the last `recv` was sent by this host.
+    pub fn outgoing(&self) -> bool {
+        self.outgoing
     }
 
     /// The frame of the last `recv`.
@@ -226,12 +244,105 @@ impl Capture {
     }
 }
 
+/// Source addresses seen, and whether their local socket belongs to an allowed user.
+const OWNER_CACHE: usize = 32;
+/// At most one /proc/net/udp lookup per this many ns: a local user spraying datagrams from new
+/// ports cannot make the tap spend its cycles reading /proc (their frames are dropped meanwhile).
+const OWNER_LOOKUP_EVERY_NS: u64 = 5_000_000;
+/// /proc/net/udp read at most this far (about 2000 sockets).
+const PROC_UDP_CAP: usize = 256 * 1024;
+
+/// Who owns the local sockets that send the console's and the boards' datagrams.
+struct Owners {
+    cache: [Option<(SocketAddrV4, bool)>; OWNER_CACHE],
+    next: usize,
+    euid: u32,
+    last_lookup_ns: Option<u64>,
+    buf: Box<[u8]>,
+    /// Datagrams dropped: another user's socket, or a reply sent by this host on a real
+    /// interface.
+    refused: u64,
+}
+
+impl Owners {
+    fn new() -> Self {
+        Self {
+            cache: [None; OWNER_CACHE],
+            next: 0,
+            // SAFETY: geteuid has no preconditions.
+            euid: unsafe { libc::geteuid() },
+            last_lookup_ns: None,
+            buf: vec![0u8; PROC_UDP_CAP].into_boxed_slice(),
+            refused: 0,
+        }
+    }
+
+    /// Whether the local socket `src` belongs to root or to this service's user. No allocation:
+    /// a cached answer, or one bounded read of /proc/net/udp into the buffer of [`Owners::new`].
+    fn allowed(&mut self, src: SocketAddrV4, now_ns: u64) -> bool {
+        if let Some((_, ok)) = self.cache.iter().flatten().find(|(a, _)| *a == src) {
+            return *ok;
+        }
+        if self
+            .last_lookup_ns
+            .is_some_and(|t| now_ns.saturating_sub(t) < OWNER_LOOKUP_EVERY_NS)
+        {
+            return false;
+        }
+        self.last_lookup_ns = Some(now_ns);
+        let ok = self
+            .owner_uid(src)
+            .is_some_and(|uid| uid == 0 || uid == self.euid);
+        self.cache[self.next] = Some((src, ok));
+        self.next = (self.next + 1) % OWNER_CACHE;
+        ok
+    }
+
+    /// The uid of the socket bound to `src` (or to its port on 0.0.0.0), from /proc/net/udp.
+    fn owner_uid(&mut self, src: SocketAddrV4) -> Option<u32> {
+        let mut f = std::fs::File::open("/proc/net/udp").ok()?;
+        let mut n = 0;
+        while n < self.buf.len() {
+            match f.read(&mut self.buf[n..]) {
+                Ok(0) => break,
+                Ok(k) => n += k,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => return None,
+            }
+        }
+        proc_udp_owner(self.buf.get(..n)?, src)
+    }
+}
+
+/// The uid column of the /proc/net/udp line whose local address is `src` or `0.0.0.0` with
+/// `src`'s port (the kernel prints the address as the native-endian u32 of its network-order
+/// bytes, and the port in hex).
+fn proc_udp_owner(text: &[u8], src: SocketAddrV4) -> Option<u32> {
+    let text = std::str::from_utf8(text).ok()?;
+    for line in text.lines().skip(1) {
+        let mut cols = line.split_ascii_whitespace();
+        let local = cols.nth(1)?;
+        let uid = cols.nth(5)?;
+        let (ip, port) = local.split_once(':')?;
+        let (Ok(ip), Ok(port)) = (u32::from_str_radix(ip, 16), u16::from_str_radix(port, 16))
+        else {
+            continue;
+        };
+        let ip = Ipv4Addr::from(ip.to_ne_bytes());
+        if port == src.port() && (ip == *src.ip() || ip.is_unspecified()) {
+            return uid.parse().ok();
+        }
+    }
+    None
+}
+
 /// What the tap saw in the last second, for its once-per-second report.
 #[derive(Clone, Copy, Default)]
 struct Window {
     blocks: [u64; MAX_BOARDS],
     requests: u64,
     samples: u64,
+    refused: u64,
 }
 
 /// serve's sample source in tap mode: the sample the console read, in the same cycle.
@@ -250,6 +361,9 @@ pub struct TapSource {
     cap: Capture,
     dec: TapDecoder,
     port: u16,
+    /// The capture is on a loopback interface (every datagram is sent by a local socket).
+    loopback: bool,
+    owners: Owners,
     next_report_ns: u64,
     window: Window,
 }
@@ -267,16 +381,44 @@ impl TapSource {
             cap,
             dec: TapDecoder::new(io).with_board_port(port),
             port,
+            loopback: is_loopback(iface),
+            owners: Owners::new(),
             next_report_ns: 0,
             window: Window::default(),
         })
+    }
+
+    /// Whether a captured frame may come from the console (`reply` false) or a board:
+    /// on a real interface a reply must arrive from the wire; a datagram sent by a socket of
+    /// this host must come from one of root's or this service's user.
+    fn admit(&mut self, frame_len: usize, reply: bool, now_ns: u64) -> bool {
+        let cap = if reply { &self.cap } else { &self.requests };
+        let outgoing = cap.outgoing();
+        let ok = if !self.loopback && reply && outgoing {
+            false
+        } else if !self.loopback && !outgoing {
+            // From the wire: a board, or a console on another host.
+            true
+        } else {
+            match parse_frame(cap.frame(frame_len), LinkType::Ip) {
+                // Not a datagram: the decoder skips it anyway.
+                Err(_) => true,
+                Ok(d) => self.owners.allowed(d.src, now_ns),
+            }
+        };
+        if !ok {
+            self.owners.refused += 1;
+        }
+        ok
     }
 
     /// Feeds every queued request to the decoder, without waiting.
     fn drain_requests(&mut self, out: &mut ArmSample) {
         let now = rt::monotonic_ns();
         while let Ok(r) = self.requests.recv(true) {
-            if let Some(m) = r {
+            if let Some(m) = r
+                && self.admit(m, false, now)
+            {
                 self.dec
                     .push(self.requests.frame(m), LinkType::Ip, now, out);
             }
@@ -301,10 +443,20 @@ impl TapSource {
                 blocks: seen,
                 requests: c.requests,
                 samples: c.samples,
+                refused: self.owners.refused,
             },
         );
         if first {
             return;
+        }
+        if self.owners.refused > prev.refused {
+            warn!(
+                interface = self.cap.iface(),
+                port = self.port,
+                dropped = self.owners.refused - prev.refused,
+                "datagrams of the boards' port from another user's socket, or replies sent by \
+                 this host, dropped in the last second"
+            );
         }
         if c.requests == prev.requests {
             warn!(
@@ -342,7 +494,9 @@ impl SampleSource for TapSource {
                     // Every request went out before its reply came back, so it is queued by
                     // now: take them first (pairing needs the request's label).
                     self.drain_requests(out);
-                    if self.dec.push(self.cap.frame(n), LinkType::Ip, now, out) == TapEvent::Sample
+                    if self.admit(n, true, now)
+                        && self.dec.push(self.cap.frame(n), LinkType::Ip, now, out)
+                            == TapEvent::Sample
                     {
                         got = true;
                         break;
@@ -404,6 +558,27 @@ mod tests {
             assert_eq!(f[7].k, field);
             assert_eq!(f[8].k, 1394);
         }
+    }
+
+    #[test]
+    fn proc_net_udp_owner_is_read() {
+        let text = b"   sl  local_address rem_address   st tx_queue rx_queue tr tm->when retrnsmt   uid  timeout inode ref pointer drops\n\
+  123: 0100007F:9C40 00000000:0000 07 00000000:00000000 00:00000000 00000000  1000        0 1 2 0000000000000000 0\n\
+  124: 00000000:0572 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 1 2 0000000000000000 0\n";
+        let a = |s: &str| s.parse::<SocketAddrV4>().unwrap();
+        if cfg!(target_endian = "little") {
+            assert_eq!(proc_udp_owner(text, a("127.0.0.1:40000")), Some(1000));
+        }
+        assert_eq!(proc_udp_owner(text, a("127.0.0.5:1394")), Some(0));
+        assert_eq!(proc_udp_owner(text, a("127.0.0.1:40001")), None);
+        // This test's own socket is found, owned by this user.
+        let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let std::net::SocketAddr::V4(me) = s.local_addr().unwrap() else {
+            unreachable!()
+        };
+        let mut o = Owners::new();
+        assert_eq!(o.owner_uid(me), Some(o.euid));
+        assert!(o.allowed(me, 0));
     }
 
     #[test]

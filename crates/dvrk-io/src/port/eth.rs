@@ -23,6 +23,8 @@ pub struct EthCounters {
     pub requests: u64,
     pub replies_ok: u64,
     pub timeouts: u64,
+    /// Quadlet requests sent again after a wait without reply ([`super::QuadletRetry`]).
+    pub quadlet_retries: u64,
     /// Replies with another label or from another node (late answers to timed-out requests,
     /// duplicates), skipped.
     pub stale_replies: u64,
@@ -66,6 +68,16 @@ pub struct EthPort<L: Link> {
     /// The link must be drained before the next request: a timeout or an unexpected reply
     /// means late replies may be queued.
     resync: bool,
+    /// The last quadlet read was answered: a lost datagram is asked for again
+    /// ([`Link::quadlet_retry`]); after a read without any reply, reads ask once.
+    link_answers: bool,
+    /// Wait of a repeated quadlet read now: the link's [`QuadletRetry::wait`], doubled each time
+    /// a reply to an earlier request of the same read shows that the wait was shorter than the
+    /// board's answer, and brought back down by an eighth after 16 reads (a shared-mode cycle) without that.
+    retry_wait: Option<std::time::Duration>,
+    quiet_reads: u8,
+    /// Label of the last reply taken.
+    last_label: u8,
     /// The source has sent a nonzero CRC: from now on a zero CRC is an error too.
     crcs_seen: bool,
     counters: EthCounters,
@@ -91,6 +103,10 @@ impl<L: Link> EthPort<L> {
             query_allowed: false,
             query_seq: 0,
             resync: false,
+            link_answers: true,
+            retry_wait: None,
+            quiet_reads: 0,
+            last_label: 0,
             crcs_seen: false,
             counters: EthCounters::default(),
             tx: Box::new([0; TX_CAP]),
@@ -157,6 +173,23 @@ impl<L: Link> EthPort<L> {
         l
     }
 
+    /// `late`: the reply taken answered an earlier request of the read, so the wait was too
+    /// short for this board: double it. Otherwise, after 16 reads, shorten it by an eighth.
+    fn adapt_retry_wait(&mut self, retry: Option<super::QuadletRetry>, late: bool) {
+        let (Some(r), Some(w)) = (retry, self.retry_wait) else {
+            return;
+        };
+        if late {
+            self.retry_wait = Some(w * 2);
+            self.quiet_reads = 0;
+        } else if self.quiet_reads >= 16 {
+            self.retry_wait = Some((w - w / 8).max(r.wait));
+            self.quiet_reads = 0;
+        } else {
+            self.quiet_reads += 1;
+        }
+    }
+
     /// Builds and sends one request; returns its label.
     fn send_request(
         &mut self,
@@ -193,12 +226,45 @@ impl<L: Link> EthPort<L> {
         expect: Expect,
         out: &mut [u8],
     ) -> Result<(u32, u8), PortError> {
+        self.await_reply_of(
+            board,
+            addr,
+            expect_src,
+            label,
+            1 << label,
+            expect,
+            out,
+            None,
+        )
+    }
+
+    /// Waits for a reply to `label` or to any label in the `accept` mask (the earlier
+    /// requests of a repeated quadlet read), at most `wait` per receive when given.
+    #[allow(clippy::too_many_arguments)]
+    fn await_reply_of(
+        &mut self,
+        board: u8,
+        addr: u16,
+        expect_src: Option<u8>,
+        label: u8,
+        accept: u64,
+        expect: Expect,
+        out: &mut [u8],
+        wait: Option<std::time::Duration>,
+    ) -> Result<(u32, u8), PortError> {
         let mut stale: Option<PortError> = None;
         for _ in 0..=MAX_STALE {
-            let n = match self.link.recv(&mut self.rx[..]) {
+            let got = match wait {
+                Some(w) => self.link.recv_within(&mut self.rx[..], w),
+                None => self.link.recv(&mut self.rx[..]),
+            };
+            let n = match got {
                 Ok(n) => n,
                 Err(PortError::Timeout { .. }) => {
-                    self.counters.timeouts += 1;
+                    // A short wait of a repeated quadlet read is counted as a retry instead.
+                    if wait.is_none() {
+                        self.counters.timeouts += 1;
+                    }
                     self.resync = true;
                     // A wrong reply followed by silence says more than the silence alone.
                     return Err(stale.unwrap_or(PortError::Timeout { board, addr }));
@@ -208,7 +274,7 @@ impl<L: Link> EthPort<L> {
                     return Err(e);
                 }
             };
-            match self.validate(n, board, expect_src, label, expect, out) {
+            match self.validate(n, board, expect_src, label, accept, expect, out) {
                 Ok(v) => {
                     self.counters.replies_ok += 1;
                     return Ok(v);
@@ -230,13 +296,16 @@ impl<L: Link> EthPort<L> {
         Err(stale.unwrap_or(PortError::Timeout { board, addr }))
     }
 
-    /// Validates one reply datagram of `n` bytes in `rx`. Returns (quadlet data, source node).
+    /// Validates one reply datagram of `n` bytes in `rx`: its label must be in `accept`
+    /// (`label` is the one named in the error). Returns (quadlet data, source node).
+    #[allow(clippy::too_many_arguments)]
     fn validate(
         &mut self,
         n: usize,
         board: u8,
         expect_src: Option<u8>,
         label: u8,
+        accept: u64,
         expect: Expect,
         out: &mut [u8],
     ) -> Result<(u32, u8), PortError> {
@@ -304,7 +373,7 @@ impl<L: Link> EthPort<L> {
         };
         // A reply is ours only if both its label and its source node match; anything else is a
         // late or duplicate reply of another request, skipped by the caller.
-        if p.label() != label {
+        if accept & (1u64 << (p.label() & LABEL_MASK)) == 0 {
             return Err(PortError::WrongLabel {
                 board,
                 expected: label,
@@ -312,6 +381,7 @@ impl<L: Link> EthPort<L> {
             });
         }
         let src = p.src_node();
+        self.last_label = p.label();
         if let Some(exp) = expect_src
             && src != exp
         {
@@ -417,11 +487,62 @@ impl<L: Link> EthPort<L> {
 }
 
 impl<L: Link> Port for EthPort<L> {
+    /// On a lossy link ([`Link::quadlet_retry`]) a request without reply within the retry's
+    /// wait is sent again, up to its number of attempts, the last one waiting the link's whole
+    /// timeout; a reply to any of them is taken (they read the same register). After a read
+    /// that got no reply at all (a stalled or absent board), reads ask once until one is
+    /// answered again, so a stall neither multiplies the requests queued at the board nor
+    /// costs more than the timeout per read.
     fn read_quadlet(&mut self, board: u8, addr: u16) -> Result<u32, PortError> {
         let node = self.node(board)?;
-        let label = self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward)?;
-        self.await_reply(board, addr, Some(node), label, Expect::Quadlet, &mut [])
-            .map(|(v, _)| v)
+        let retry = self.link.quadlet_retry().filter(|_| self.link_answers);
+        let attempts = retry.map_or(1, |r| r.attempts.max(1));
+        let retry = retry.map(|r| {
+            // Between the link's wait and 4 times it (a board slower than its usual answer).
+            let w = self.retry_wait.unwrap_or(r.wait).clamp(r.wait, r.wait * 4);
+            self.retry_wait = Some(w);
+            super::QuadletRetry { wait: w, ..r }
+        });
+        let mut accept = 0u64;
+        let mut attempt = 1;
+        loop {
+            let label =
+                self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward)?;
+            accept |= 1 << label;
+            let wait = retry.filter(|_| attempt < attempts).map(|r| r.wait);
+            let r = self.await_reply_of(
+                board,
+                addr,
+                Some(node),
+                label,
+                accept,
+                Expect::Quadlet,
+                &mut [],
+                wait,
+            );
+            match r {
+                // Silence, or only replies to other requests then silence: ask again.
+                Err(
+                    PortError::Timeout { .. }
+                    | PortError::WrongLabel { .. }
+                    | PortError::WrongSource { .. },
+                ) if attempt < attempts => {
+                    self.counters.quadlet_retries += 1;
+                    attempt += 1;
+                }
+                Err(e @ (PortError::Timeout { .. } | PortError::WrongLabel { .. })) => {
+                    self.link_answers = false;
+                    return Err(e);
+                }
+                r => {
+                    if r.is_ok() {
+                        self.link_answers = true;
+                        self.adapt_retry_wait(retry, self.last_label != label);
+                    }
+                    return r.map(|(v, _)| v);
+                }
+            }
+        }
     }
 
     fn read_block(&mut self, board: u8, addr: u16, out: &mut [u8]) -> Result<(), PortError> {

@@ -29,7 +29,10 @@ pub use replay::{
     Frame, FramesParseError, RecordingLink, ReplayLink, ReplayPort, frames_from_text,
     frames_to_text,
 };
-pub use udp::{DEFAULT_BOARD_IP, DEFAULT_TIMEOUT, FPGA_UDP_PORT, UdpLink, UdpPort, UdpTarget};
+pub use udp::{
+    DEFAULT_BOARD_IP, DEFAULT_TIMEOUT, FPGA_UDP_PORT, MAX_QUADLET_ATTEMPTS, QUADLET_RETRY_WAIT,
+    UdpLink, UdpPort, UdpTarget,
+};
 
 use crate::wire::WireError;
 
@@ -88,9 +91,45 @@ pub trait Link {
         let _ = buf;
         0
     }
+    /// Receives like [`Link::recv`], but waits at most `wait` (the quadlet retry of
+    /// [`EthPort`]). The default waits the link's own timeout.
+    fn recv_within(
+        &mut self,
+        buf: &mut [u8],
+        wait: std::time::Duration,
+    ) -> Result<usize, PortError> {
+        let _ = wait;
+        self.recv(buf)
+    }
+    /// How [`EthPort`] asks again for a quadlet whose request or reply was lost; `None` (the
+    /// default, for links that cannot lose a datagram or replay a recording): one request per
+    /// quadlet read, waiting the link's timeout.
+    fn quadlet_retry(&self) -> Option<QuadletRetry> {
+        None
+    }
+}
+
+/// The quadlet retry of a lossy link (UDP): a quadlet read waits `wait` for its reply, then asks
+/// again, `attempts` requests in all, the last one waiting the link's whole timeout; a reply to
+/// any of them is taken (they read the same register, so each is as fresh as the others). A datagram lost at 1.5 kHz then costs `wait`,
+/// not the whole reply timeout and so the cycle (issue 22).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct QuadletRetry {
+    pub wait: std::time::Duration,
+    pub attempts: u8,
 }
 
 impl<L: Link + ?Sized> Link for &mut L {
+    fn recv_within(
+        &mut self,
+        buf: &mut [u8],
+        wait: std::time::Duration,
+    ) -> Result<usize, PortError> {
+        (**self).recv_within(buf, wait)
+    }
+    fn quadlet_retry(&self) -> Option<QuadletRetry> {
+        (**self).quadlet_retry()
+    }
     fn send(&mut self, dest_node: u8, datagram: &[u8]) -> Result<(), PortError> {
         (**self).send(dest_node, datagram)
     }

@@ -1,10 +1,11 @@
 //! UDP link to the boards (reference §3.1, §8.4).
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::os::fd::AsRawFd;
 use std::time::Duration;
 
 use super::eth::EthPort;
-use super::{Link, PortError};
+use super::{Link, PortError, QuadletRetry};
 use crate::wire::firewire::BROADCAST_NODE;
 
 /// FPGA UDP port for requests and replies (reference §3.1).
@@ -13,6 +14,14 @@ pub const FPGA_UDP_PORT: u16 = 1394;
 pub const DEFAULT_BOARD_IP: Ipv4Addr = Ipv4Addr::new(169, 254, 0, 100);
 /// Receive timeout of the dVRK host (reference §3.1, §6).
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(20);
+/// How long a quadlet read waits for its reply before asking again (see [`QuadletRetry`]): a
+/// few round trips of a board on its Ethernet link (tens of µs) and a third of the 1.5 kHz
+/// cycle, so that a lost datagram costs part of one cycle. A reply later than this is still
+/// taken, as the answer to the repeated request.
+pub const QUADLET_RETRY_WAIT: Duration = Duration::from_micros(150);
+/// Most requests of one quadlet read (the last one waits the whole reply timeout): at 10% loss
+/// of each datagram, a quadlet read fails once in 700.
+pub const MAX_QUADLET_ATTEMPTS: u8 = 4;
 /// Foreign datagrams skipped within one `recv` before it reports a timeout.
 const MAX_FOREIGN_PER_RECV: u32 = 64;
 
@@ -55,6 +64,10 @@ pub struct UdpLink {
     /// in per-board mode).
     expect_from: Option<SocketAddr>,
     foreign: u64,
+    /// The reply timeout ([`UdpLink::set_timeout`]).
+    timeout: Duration,
+    /// Wait of a quadlet read before it asks again; `None`: no retry.
+    retry_wait: Option<Duration>,
 }
 
 impl UdpLink {
@@ -80,6 +93,8 @@ impl UdpLink {
             target,
             expect_from: None,
             foreign: 0,
+            timeout: DEFAULT_TIMEOUT,
+            retry_wait: Some(QUADLET_RETRY_WAIT),
         })
     }
     /// One board (or hub) at `addr`.
@@ -118,7 +133,14 @@ impl UdpLink {
     }
     /// Receive timeout per datagram (default 20 ms). Zero is refused by the OS; use ≥ 1 µs.
     pub fn set_timeout(&mut self, timeout: Duration) -> std::io::Result<()> {
-        self.socket.set_read_timeout(Some(timeout))
+        self.socket.set_read_timeout(Some(timeout))?;
+        self.timeout = timeout;
+        Ok(())
+    }
+    /// The wait of a quadlet read before it asks again (default [`QUADLET_RETRY_WAIT`]);
+    /// `None`: one request per quadlet read, waiting the whole timeout.
+    pub fn set_quadlet_retry_wait(&mut self, wait: Option<Duration>) {
+        self.retry_wait = wait.filter(|w| !w.is_zero());
     }
     pub fn target(&self) -> UdpTarget {
         self.target
@@ -189,6 +211,52 @@ impl Link for UdpLink {
             self.foreign += 1;
         }
         Err(PortError::LINK_TIMEOUT)
+    }
+
+    fn recv_within(&mut self, buf: &mut [u8], wait: Duration) -> Result<usize, PortError> {
+        if wait >= self.timeout {
+            return self.recv(buf);
+        }
+        // The socket's receive timeout counts in scheduler ticks (a 200 µs timeout waits 1 to
+        // 4 ms): wait with ppoll, whose timer has µs resolution, then take the datagram, which
+        // is there (only this link reads its socket).
+        let ts = libc::timespec {
+            tv_sec: wait.as_secs() as libc::time_t,
+            tv_nsec: libc::c_long::from(wait.subsec_nanos() as i32),
+        };
+        for _ in 0..MAX_FOREIGN_PER_RECV {
+            let mut pfd = libc::pollfd {
+                fd: self.socket.as_raw_fd(),
+                events: libc::POLLIN,
+                revents: 0,
+            };
+            // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+            let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+            if r == 0 {
+                return Err(PortError::LINK_TIMEOUT);
+            }
+            if r < 0 {
+                let e = std::io::Error::last_os_error();
+                if e.kind() == std::io::ErrorKind::Interrupted {
+                    continue;
+                }
+                return Err(e.into());
+            }
+            let (n, from) = self.socket.recv_from(buf)?;
+            if self.accept(from) {
+                return Ok(n);
+            }
+            self.foreign += 1;
+        }
+        Err(PortError::LINK_TIMEOUT)
+    }
+
+    fn quadlet_retry(&self) -> Option<QuadletRetry> {
+        let wait = self.retry_wait?;
+        (wait < self.timeout).then_some(QuadletRetry {
+            wait,
+            attempts: MAX_QUADLET_ATTEMPTS,
+        })
     }
 
     fn discard_pending(&mut self, buf: &mut [u8]) -> usize {

@@ -3,7 +3,9 @@
 //!
 //! [`TapDecoder::push`] takes one captured frame (bytes, [`LinkType`]) and the caller's time.
 //! It pairs each host request with the boards' reply by host address, transaction label and
-//! node, and decodes the feedback blocks the console read, whichever read protocol it uses
+//! node, and takes a reply only from the address the request was sent to (a board's address
+//! and port; for a broadcast request, a board's port on that broadcast's subnet), so a datagram
+//! from another local port or address is never a board's reply. It decodes the feedback blocks the console read, whichever read protocol it uses
 //! (§3.4):
 //! - `sequential-read-*`: one block read of address 0 per board; a sample is complete when
 //!   every board of the arm has been read once since the previous sample;
@@ -51,6 +53,8 @@ enum Asked {
 #[derive(Clone, Copy, Debug)]
 struct Pending {
     host: SocketAddrV4,
+    /// Where the request went: the reply must come from there.
+    board: SocketAddrV4,
     label: u8,
     node: u8,
     asked: Asked,
@@ -184,15 +188,15 @@ impl TapDecoder {
     pub fn push_datagram(&mut self, d: &Datagram<'_>, t_ns: u64, out: &mut ArmSample) -> TapEvent {
         let bp = self.board_port;
         if d.dst.port() == bp && d.src.port() != bp {
-            self.request(d.src, d.payload)
+            self.request(d.src, d.dst, d.payload)
         } else if d.src.port() == bp && d.dst.port() != bp {
-            self.reply(d.dst, d.payload, t_ns, out)
+            self.reply(d.dst, d.src, d.payload, t_ns, out)
         } else {
             TapEvent::Skipped(Skip::OtherPort)
         }
     }
 
-    fn request(&mut self, host: SocketAddrV4, payload: &[u8]) -> TapEvent {
+    fn request(&mut self, host: SocketAddrV4, board: SocketAddrV4, payload: &[u8]) -> TapEvent {
         let Ok(req) = EthRequest::parse(payload) else {
             return TapEvent::Skipped(Skip::Malformed);
         };
@@ -221,6 +225,7 @@ impl TapDecoder {
             Some(asked) => {
                 self.pending[self.next_slot] = Some(Pending {
                     host,
+                    board,
                     label,
                     node,
                     asked,
@@ -232,12 +237,19 @@ impl TapDecoder {
         }
     }
 
-    fn take_pending(&mut self, host: SocketAddrV4, label: u8, src_node: u8) -> Option<Pending> {
+    fn take_pending(
+        &mut self,
+        host: SocketAddrV4,
+        from: SocketAddrV4,
+        label: u8,
+        src_node: u8,
+    ) -> Option<Pending> {
         let slot = self.pending.iter_mut().find(|p| {
             p.is_some_and(|p| {
                 p.host == host
                     && p.label == label
                     && (p.node == BROADCAST_NODE || p.node == src_node)
+                    && replies_for(p.board, from)
             })
         })?;
         slot.take()
@@ -246,6 +258,7 @@ impl TapDecoder {
     fn reply(
         &mut self,
         host: SocketAddrV4,
+        from: SocketAddrV4,
         payload: &[u8],
         t_ns: u64,
         out: &mut ArmSample,
@@ -265,7 +278,7 @@ impl TapDecoder {
             // Quadlet responses carry no feedback block; their requests were never kept.
             return TapEvent::Skipped(Skip::NoFeedback);
         };
-        let Some(pending) = self.take_pending(host, resp.label, p.src_node()) else {
+        let Some(pending) = self.take_pending(host, from, resp.label, p.src_node()) else {
             return TapEvent::Skipped(Skip::Unpaired);
         };
         self.counters.paired += 1;
@@ -393,6 +406,36 @@ impl TapDecoder {
         self.fresh = [false; MAX_BOARDS];
         self.counters.samples += 1;
     }
+}
+
+/// Whether a reply from `from` can answer a request sent to `to`: the same address and port,
+/// or, for a request to a broadcast address (all ones in its last octets, as 169.254.255.255 or
+/// 255.255.255.255; the Ethernet-only broadcast query, reference §3.4), the same port from an
+/// address of that subnet, or for a request to a multicast group, the same port from a
+/// unicast address. On loopback (emulators, tests) any loopback address with the same
+/// port: an emulator reached at 127.0.0.7 answers from 127.0.0.1; who owns a loopback socket
+/// is the shell's check.
+fn replies_for(to: SocketAddrV4, from: SocketAddrV4) -> bool {
+    if to == from {
+        return true;
+    }
+    let t = to.ip().octets();
+    if to.port() != from.port() {
+        return false;
+    }
+    if to.ip().is_loopback() && from.ip().is_loopback() {
+        return true;
+    }
+    if to.ip().is_multicast() {
+        // The broadcast query of FPGA V3 boards goes to their multicast group (reference §10):
+        // the hub answers from its own address.
+        return !from.ip().is_multicast() && !from.ip().is_broadcast();
+    }
+    if t[3] != 255 {
+        return false;
+    }
+    let f = from.ip().octets();
+    t.iter().zip(f).all(|(&t, f)| t == 255 || t == f)
 }
 
 #[cfg(test)]

@@ -27,7 +27,11 @@ fn host(s: &str) -> SocketAddrV4 {
     s.parse().unwrap()
 }
 
+/// A board's address; broadcast requests go to the subnet's broadcast address.
 fn board_addr(node: u8) -> SocketAddrV4 {
+    if node == BROADCAST_NODE {
+        return SocketAddrV4::new([127, 255, 255, 255].into(), BOARD_PORT);
+    }
     SocketAddrV4::new([127, 0, 0, 1 + node.min(200)].into(), BOARD_PORT)
 }
 
@@ -365,4 +369,69 @@ fn write_tap_fuzz_seeds() {
     let mut ip = Vec::new();
     fuzz_record(&mut ip, LinkType::Ip, &req[14..]);
     std::fs::write(dir.join("ip-request"), &ip).unwrap();
+}
+
+/// Issue 22: a reply is taken only from the address its request was sent to; one from another
+/// local address or port (a forger's socket) pairs with nothing, even with the right host,
+/// label and node.
+#[test]
+fn a_reply_from_another_address_than_the_request_went_to_is_not_taken() {
+    let cfg = cfg();
+    let mut d = TapDecoder::new(cfg.clone());
+    let mut out = ArmSample::default();
+    let resp = |label: u8, data: &[u8]| {
+        let r = ResponseRepr {
+            dest_id: 0xFFD0,
+            src_id: node_id(6),
+            label,
+            rcode: 0,
+            kind: ResponseKind::Block {
+                len: data.len() as u16,
+            },
+        };
+        let mut buf = vec![0u8; data.len() + 64];
+        let n = EthReply::emit(&mut buf, &r, data, &ExtraData::default()).unwrap();
+        buf.truncate(n);
+        buf
+    };
+    let forgers = [
+        SocketAddrV4::new([10, 0, 0, 99].into(), BOARD_PORT),
+        SocketAddrV4::new([127, 0, 0, 7].into(), BOARD_PORT + 1),
+    ];
+    for (label, forger) in forgers.into_iter().enumerate() {
+        let label = label as u8;
+        let req = request(CONSOLE, 6, label, 0, RequestKind::BlockRead { len: 64 });
+        assert_eq!(push(&mut d, &req, &mut out), TapEvent::Consumed);
+        let f = frame(forger, host(CONSOLE), &resp(label, &block(6, 1000, 1)));
+        let ev = push(&mut d, &f, &mut out);
+        assert!(
+            matches!(
+                ev,
+                TapEvent::Skipped(Skip::Unpaired) | TapEvent::Skipped(Skip::OtherPort)
+            ),
+            "reply from {forger}: {ev:?}"
+        );
+    }
+    assert_eq!(d.counters().paired, 0);
+    // From the board's own address the same reply is taken.
+    let req = request(CONSOLE, 6, 9, 0, RequestKind::BlockRead { len: 64 });
+    push(&mut d, &req, &mut out);
+    let f = frame(board_addr(6), host(CONSOLE), &resp(9, &block(6, 1000, 1)));
+    assert_ne!(
+        push(&mut d, &f, &mut out),
+        TapEvent::Skipped(Skip::Unpaired)
+    );
+    assert_eq!(d.counters().paired, 1);
+    assert!(replies_for(
+        "169.254.255.255:1394".parse().unwrap(),
+        "169.254.0.106:1394".parse().unwrap()
+    ));
+    assert!(!replies_for(
+        "169.254.255.255:1394".parse().unwrap(),
+        "10.0.0.6:1394".parse().unwrap()
+    ));
+    assert!(!replies_for(
+        "169.254.0.106:1394".parse().unwrap(),
+        "169.254.0.107:1394".parse().unwrap()
+    ));
 }
