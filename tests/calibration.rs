@@ -287,7 +287,10 @@ fn calibrate_record_turns_a_live_still_arm_into_a_data_row() {
     let text = std::fs::read_to_string(&out).unwrap();
     // the provenance block first (arm, date, command)
     assert!(text.starts_with("# arm: "), "{text}");
-    assert!(text.contains("# command: ") && text.contains("calibrate record"), "{text}");
+    assert!(
+        text.contains("# command: ") && text.contains("calibrate record"),
+        "{text}"
+    );
     let mut lines = text.lines().skip_while(|l| l.starts_with('#'));
     assert_eq!(
         lines.next(),
