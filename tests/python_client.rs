@@ -228,7 +228,8 @@ fn python_layouts_match_the_rust_types() {
             fields!(CompensationStatusV4; header, tau_ext_nm, delta_rad, insertion_m,
                 cycle_period_ns, cycle_duration_ns, cycles_total, read_failures_total,
                 overruns_total, consecutive_read_failures, source_state, tau_margin_nm,
-                held_sample_age_ns, publish_late_ns, implausible_total),
+                held_sample_age_ns, publish_late_ns, implausible_total, bound_rad, tip_bound_m,
+                weight, _reserved),
         ),
     ];
     assert_eq!(py.len(), rust.len(), "message types: {py:#?}");

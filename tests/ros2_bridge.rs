@@ -417,6 +417,12 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
     }
     let prefix = unique_prefix("record");
     let cfg = write_config("record", "sim", "shared", &prefix, "divot-push.toml");
+    // The simulator's fitted parameters (with a dynamics model): the paper's, without one,
+    // correct only a still arm (issue 20), and the push never stops long enough in 2 s.
+    let text = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("paper-psm.toml", "sim-psm.toml");
+    std::fs::write(&cfg, text).unwrap();
     let mut serve = serve(&cfg);
     let out = scratch("record").join("run.mcap");
     let echo_cp = echo_in_background(format!("{prefix}/compensated/local/measured_cp"), 3000);
