@@ -31,6 +31,7 @@ fuzz_target!(|data: &[u8]| {
     assert_eq!(back, rows, "round trip through the project layout");
 
     let args = FitArgs {
+        add: false,
         clamp: vec![path.clone()],
         torque_offset: if also_sweep { vec![path] } else { vec![] },
         joint: joint.into_iter().collect(),
