@@ -355,28 +355,7 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
     );
     // `fit --dynamics` needs a clamp file too: one made on the simulator in process
     let clamp_sim = dir.join("clamp_sim.csv");
-    let st = Command::new(sidecar_bin())
-        .current_dir(&repo)
-        .args([
-            "calibrate",
-            "clamp",
-            "--config",
-            "config/sim/clamp.toml",
-            "--joints",
-            "1",
-            "--depths",
-            "0.10,0.13,0.16,0.19",
-            "--quiet",
-            "--out",
-        ])
-        .arg(&clamp_sim)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    sim_clamp_file(&clamp_sim);
     let out = Command::new(sidecar_bin())
         .args(["fit", "--clamp"])
         .arg(&clamp_sim)
@@ -390,6 +369,32 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
         out.status.success(),
         "fit --dynamics: {}",
         String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A clamp file of joint 1 at four depths, made on the in-process simulator.
+fn sim_clamp_file(out: &Path) {
+    let st = Command::new(sidecar_bin())
+        .current_dir(repo())
+        .args([
+            "calibrate",
+            "clamp",
+            "--config",
+            "config/sim/clamp.toml",
+            "--joints",
+            "1",
+            "--depths",
+            "0.10,0.13,0.16,0.19",
+            "--quiet",
+            "--out",
+        ])
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
     );
 }
 
@@ -656,30 +661,8 @@ fn bad_arguments_are_refused_before_anything_is_opened() {
 #[test]
 fn files_record_their_provenance_and_fit_refuses_two_instruments() {
     let dir = scratch("console_provenance");
-    let repo = repo();
     let clamp = dir.join("clamp.csv");
-    let st = Command::new(sidecar_bin())
-        .current_dir(&repo)
-        .args([
-            "calibrate",
-            "clamp",
-            "--config",
-            "config/sim/clamp.toml",
-            "--joints",
-            "1",
-            "--depths",
-            "0.10,0.13,0.16,0.19",
-            "--quiet",
-            "--out",
-        ])
-        .arg(&clamp)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    sim_clamp_file(&clamp);
     let text = std::fs::read_to_string(&clamp).unwrap();
     for key in [
         "# arm: simulator",

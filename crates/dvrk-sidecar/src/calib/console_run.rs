@@ -452,6 +452,16 @@ impl MoveWait {
     }
 }
 
+/// After an abort: one `hold` where the arm is, unless the arm already left ENABLED (a hold
+/// would be refused); nothing else follows.
+fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
+    if let Some(r) = reason
+        && !matches!(r, Stop::StateLeft { .. })
+    {
+        let _ = client.hold();
+    }
+}
+
 fn set_ratio(client: &mut ConsoleClient, ratio: f64) -> anyhow::Result<()> {
     if client.ratio_matched() {
         client.set_ratio(ratio)?;
@@ -714,13 +724,7 @@ pub fn run_console<P: Plan>(
         std::thread::sleep(Duration::from_millis(1));
     };
     run.tool_type = watch.tool_type.clone();
-    if let Some(r) = &reason {
-        let state_ok = !matches!(r, Stop::StateLeft { .. });
-        if state_ok {
-            // One hold where the arm is; nothing else follows.
-            let _ = client.hold();
-        }
-    }
+    hold_after(client, reason.as_ref());
     run.stop = reason;
     run.elapsed_s = start.elapsed().as_secs_f64();
     Ok(run)
@@ -999,11 +1003,7 @@ pub fn run_dynamics(
         }
         std::thread::sleep(Duration::from_millis(1));
     };
-    if let Some(r) = &reason
-        && !matches!(r, Stop::StateLeft { .. })
-    {
-        let _ = client.hold();
-    }
+    hold_after(&mut client, reason.as_ref());
     let written = if rows.is_empty() && std::fs::symlink_metadata(&a.out).is_ok() {
         eprintln!("no row collected: {} is left as it was", a.out.display());
         false
