@@ -63,11 +63,56 @@ pub struct SidecarParams {
     /// 0.67 ms, waits 5 ms by default so that a lost datagram costs few cycles.
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: f64,
+    /// The arm's board ids, in the order of the io file's boards (default: the io file's). The
+    /// dVRK numbers Classic PSM1 boards 6-7, PSM2 8-9, PSM3 10-11, so one io file can serve
+    /// any of them.
+    pub boards: Option<Vec<u8>>,
     /// Simulator settings, used when `source = "sim"`.
     pub sim: Option<SimParams>,
     /// Real-time settings (all optional).
     #[serde(default)]
     pub realtime: RealtimeParams,
+}
+
+/// A service configuration that serves several arms from one source: the shared keys at the
+/// top, one `[[arm]]` table per arm.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MultiArmParams {
+    #[serde(default)]
+    source: Option<String>,
+    #[serde(default = "default_access")]
+    access: AccessMode,
+    #[serde(default = "default_rate")]
+    rate: Rate,
+    #[serde(default = "default_reply_timeout_ms")]
+    reply_timeout_ms: f64,
+    sim: Option<SimParams>,
+    #[serde(default)]
+    realtime: RealtimeParams,
+    arm: Vec<ArmParams>,
+}
+
+/// One `[[arm]]` of a several-arm configuration: what a single-arm file says at its top level,
+/// with `name` for `prefix` and `kind` for `arm`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmParams {
+    /// The arm's name as the console names it (`PSM1`): its iceoryx2 prefix and, by default,
+    /// its name on the console and in the dVRK JSON.
+    pub name: String,
+    /// Board ids, in the order of the io file's boards (default: the io file's).
+    pub boards: Option<Vec<u8>>,
+    pub io: PathBuf,
+    /// `classic` or `si`.
+    pub kind: ArmKind,
+    pub instrument: String,
+    pub compliance: PathBuf,
+    pub base_frame: Option<BaseFrameParams>,
+    pub follow_console: Option<bool>,
+    pub console_arm: Option<String>,
+    /// This arm's simulator scenario (default: the top-level `[sim]`'s).
+    pub scenario: Option<PathBuf>,
 }
 
 fn default_access() -> AccessMode {
@@ -87,7 +132,7 @@ fn default_prefix() -> String {
 /// writes `base-frame.transform`) or `dvrk_json` (the lab's dVRK console or system JSON, whose
 /// entry for the arm carries `base-frame`/`base_frame`), with `arm` naming the entry (default:
 /// the last segment of the prefix).
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BaseFrameParams {
     #[serde(default, deserialize_with = "dvrk_compliance::exact::option_matrix")]
@@ -208,7 +253,7 @@ impl fmt::Display for Rate {
 }
 
 /// `[sim]`: the built-in simulated PSM.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimParams {
     /// Scenario file (see config/sim/).
@@ -216,7 +261,7 @@ pub struct SimParams {
 }
 
 /// `[realtime]`: optional real-time settings for the loop thread.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RealtimeParams {
     /// Pin the loop to this CPU.
@@ -453,13 +498,174 @@ pub fn find_instrument(name: &str) -> Result<&'static Instrument> {
     }
 }
 
-impl SidecarConfig {
-    /// Loads `path` and everything it names; every error names the file and the field.
+/// Every arm of a service configuration, each resolved as a [`SidecarConfig`] that shares the
+/// file's source, access, rate, timeout, simulator and real-time settings.
+pub struct ServiceConfig {
+    pub path: PathBuf,
+    /// At least one; in the file's order.
+    pub arms: Vec<SidecarConfig>,
+    /// Whether the file lists `[[arm]]` tables (false: a single-arm file).
+    pub multi: bool,
+}
+
+/// The parameters of each arm of the file at `path` (text `text`), unresolved.
+fn arm_params(path: &Path, text: &str) -> Result<(Vec<SidecarParams>, bool)> {
+    let table: toml::Table = crate::files::from_toml(text)
+        .with_context(|| format!("{}: invalid service configuration", path.display()))?;
+    if !table.get("arm").is_some_and(|a| a.is_array()) {
+        let params: SidecarParams = crate::files::from_toml(text)
+            .with_context(|| format!("{}: invalid service configuration", path.display()))?;
+        return Ok((vec![params], false));
+    }
+    let m: MultiArmParams = crate::files::from_toml(text).with_context(|| {
+        format!(
+            "{}: invalid service configuration (with [[arm]] tables, the arm's own keys - \
+             name, boards, io, kind, instrument, compliance, base_frame, follow_console, \
+             console_arm, scenario - go in each [[arm]])",
+            path.display()
+        )
+    })?;
+    if m.arm.is_empty() {
+        bail!("{}: `arm` lists no arm", path.display());
+    }
+    let params = m
+        .arm
+        .into_iter()
+        .map(|a| SidecarParams {
+            source: m.source.clone(),
+            access: m.access,
+            io: a.io,
+            arm: a.kind,
+            instrument: a.instrument,
+            follow_console: a.follow_console,
+            console_arm: a.console_arm,
+            compliance: a.compliance,
+            rate: m.rate,
+            prefix: a.name,
+            base_frame: a.base_frame,
+            reply_timeout_ms: m.reply_timeout_ms,
+            boards: a.boards,
+            sim: match a.scenario {
+                Some(scenario) => Some(SimParams { scenario }),
+                None => m.sim.clone(),
+            },
+            realtime: m.realtime.clone(),
+        })
+        .collect();
+    Ok((params, true))
+}
+
+/// The names (iceoryx2 prefixes) of the arms the service configuration at `path` serves, in
+/// its order, without loading the files it names: what `ros2-bridge --config` and
+/// `record --config` need.
+pub fn arm_names(path: &Path) -> Result<Vec<String>> {
+    let text = read_file(path)?;
+    let (params, _) = arm_params(path, &text)?;
+    let names: Vec<String> = params.into_iter().map(|p| p.prefix).collect();
+    check_distinct_names(path, &names)?;
+    for n in &names {
+        dvrk_ipc::ServiceNames::new(n).map_err(|e| {
+            anyhow::anyhow!("{}: arm name \"{n}\": {e}", path.display())
+        })?;
+    }
+    Ok(names)
+}
+
+fn check_distinct_names(path: &Path, names: &[String]) -> Result<()> {
+    for (i, n) in names.iter().enumerate() {
+        if names[..i].contains(n) {
+            bail!(
+                "{}: two arms are named \"{n}\": each arm publishes under its own name",
+                path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+impl ServiceConfig {
+    /// Loads `path` and everything every arm names; every error names the file, the arm and
+    /// the field. Arms must have distinct names, boards and console arms.
     pub fn load(path: &Path) -> Result<Self> {
         let text = read_file(path)?;
-        let params: SidecarParams = crate::files::from_toml(&text)
-            .with_context(|| format!("{}: invalid service configuration", path.display()))?;
-        Self::from_params(path, params)
+        let (params, multi) = arm_params(path, &text)?;
+        let names: Vec<String> = params.iter().map(|p| p.prefix.clone()).collect();
+        check_distinct_names(path, &names)?;
+        let mut arms = Vec::with_capacity(params.len());
+        for p in params {
+            let name = p.prefix.clone();
+            let cfg = SidecarConfig::from_params(path, p);
+            arms.push(if multi {
+                cfg.with_context(|| format!("{}: [[arm]] \"{name}\"", path.display()))?
+            } else {
+                cfg?
+            });
+        }
+        for (i, a) in arms.iter().enumerate() {
+            for b in &arms[..i] {
+                if let Some(id) = a.io.board_ids().iter().find(|id| b.io.board_ids().contains(id)) {
+                    bail!(
+                        "{}: arms \"{}\" and \"{}\" both use board {id}: give each arm its \
+                         own `boards` (the dVRK numbers PSM1 6-7, PSM2 8-9, PSM3 10-11)",
+                        path.display(),
+                        b.prefix,
+                        a.prefix
+                    );
+                }
+                if a.follow_console && b.follow_console && a.console_arm == b.console_arm {
+                    bail!(
+                        "{}: arms \"{}\" and \"{}\" both follow console arm \"{}\"",
+                        path.display(),
+                        b.prefix,
+                        a.prefix,
+                        a.console_arm
+                    );
+                }
+            }
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            arms,
+            multi,
+        })
+    }
+}
+
+/// `io` with its boards renumbered: the i-th board of the file becomes `boards[i]`.
+pub fn renumber_boards(io: IoConfig, boards: &[u8]) -> Result<IoConfig> {
+    let old = io.board_ids().to_vec();
+    if boards.len() != old.len() {
+        bail!(
+            "gives {} board(s) {boards:?}, but the io file has {} ({old:?})",
+            boards.len(),
+            old.len()
+        );
+    }
+    if let Some(b) = boards.iter().find(|&&b| b > 15) {
+        bail!("board {b} is not a board id (0-15)");
+    }
+    for (i, b) in boards.iter().enumerate() {
+        if boards[..i].contains(b) {
+            bail!("board {b} is listed twice");
+        }
+    }
+    if boards == old.as_slice() {
+        return Ok(io);
+    }
+    let mut p = io.to_params();
+    for a in &mut p.actuators {
+        if let Some(i) = old.iter().position(|&o| o == a.board_id) {
+            a.board_id = boards[i];
+        }
+    }
+    IoConfig::from_params(p).map_err(|e| anyhow::anyhow!("renumbering the boards: {e}"))
+}
+
+impl SidecarConfig {
+    /// Loads a single-arm file, or the first arm of a several-arm file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let mut s = ServiceConfig::load(path)?;
+        Ok(s.arms.swap_remove(0))
     }
 
     fn from_params(path: &Path, p: SidecarParams) -> Result<Self> {
@@ -502,6 +708,9 @@ impl SidecarConfig {
 
         let io_path = resolve(&p.io);
         let mut io = load_io(&io_path).with_context(|| format!("{here}: field `io`"))?;
+        if let Some(b) = &p.boards {
+            io = renumber_boards(io, b).with_context(|| format!("{here}: field `boards`"))?;
+        }
         let compliance_path = resolve(&p.compliance);
         let compliance_text =
             read_file(&compliance_path).with_context(|| format!("{here}: field `compliance`"))?;
