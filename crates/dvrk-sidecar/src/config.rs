@@ -15,6 +15,10 @@ use dvrk_io::reader::AccessMode;
 use nalgebra::{Isometry3, UnitQuaternion};
 use serde::Deserialize;
 
+/// The most arms one service serves (a console drives two or three PSMs); the loop's per-second
+/// summary is a fixed array of this size.
+pub const MAX_ARMS: usize = 8;
+
 /// The FPGA's UDP port (reference dvrk-board-protocol.md section 3.1).
 pub const BOARD_UDP_PORT: u16 = 1394;
 
@@ -527,6 +531,13 @@ fn arm_params(path: &Path, text: &str) -> Result<(Vec<SidecarParams>, bool)> {
     })?;
     if m.arm.is_empty() {
         bail!("{}: `arm` lists no arm", path.display());
+    }
+    if m.arm.len() > MAX_ARMS {
+        bail!(
+            "{}: {} [[arm]] tables: one service serves at most {MAX_ARMS}",
+            path.display(),
+            m.arm.len()
+        );
     }
     let params = m
         .arm
@@ -1096,5 +1107,139 @@ mod tests {
         // A lab's own fit (non-zero offsets, no simulator header) passes.
         let own = paper.replace("effort_nm = [0.0, 0.0]", "effort_nm = [0.1, -0.2]");
         assert!(compliance_warnings(&udp, &own, "lab.toml").is_empty());
+    }
+
+    /// The repository's config directory, for test files that name its io and parameter files.
+    fn repo_config() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
+    }
+
+    fn write_config(name: &str, text: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("dvrk-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(name);
+        let c = repo_config().canonicalize().unwrap();
+        std::fs::write(&p, text.replace("CONFIG", &c.display().to_string())).unwrap();
+        p
+    }
+
+    const TWO_ARMS: &str = r#"
+source = "udp:127.0.0.1:9"
+[[arm]]
+name = "PSM1"
+io = "CONFIG/io/psm-classic.toml"
+kind = "classic"
+instrument = "LARGE_NEEDLE_DRIVER_400006"
+compliance = "CONFIG/compliance/sim-psm.toml"
+[[arm]]
+name = "PSM2"
+boards = [8, 9]
+io = "CONFIG/io/psm-classic.toml"
+kind = "si"
+instrument = "LARGE_NEEDLE_DRIVER_400006"
+compliance = "CONFIG/compliance/paper-psm.toml"
+[arm.base_frame]
+transform = [[1.0, 0.0, 0.0, 0.1], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+"#;
+
+    #[test]
+    fn the_shipped_two_arm_example_loads_with_the_dvrk_board_numbers() {
+        let path = repo_config().join("psm1-psm2.toml");
+        let svc = ServiceConfig::load(&path).unwrap();
+        assert!(svc.multi);
+        let names: Vec<&str> = svc.arms.iter().map(|a| a.prefix.as_str()).collect();
+        assert_eq!(names, ["PSM1", "PSM2"]);
+        assert_eq!(svc.arms[0].io.board_ids(), &[6, 7]);
+        assert_eq!(svc.arms[1].io.board_ids(), &[8, 9]);
+        assert!(svc.arms.iter().all(|a| a.source == Source::Sim));
+        assert!(
+            svc.arms[1]
+                .scenario_path
+                .as_ref()
+                .unwrap()
+                .ends_with("sim/palpation.toml")
+        );
+        assert_eq!(arm_names(&path).unwrap(), ["PSM1", "PSM2"]);
+        // A single-arm file is one arm, named by its prefix.
+        let single = repo_config().join("sidecar.toml");
+        let svc = ServiceConfig::load(&single).unwrap();
+        assert!(!svc.multi);
+        assert_eq!(svc.arms.len(), 1);
+        assert_eq!(arm_names(&single).unwrap(), ["PSM1"]);
+    }
+
+    #[test]
+    fn each_arm_keeps_its_own_kind_parameters_boards_and_base_frame() {
+        let p = write_config("two.toml", TWO_ARMS);
+        let svc = ServiceConfig::load(&p).unwrap();
+        let (a, b) = (&svc.arms[0], &svc.arms[1]);
+        assert_eq!((a.arm, b.arm), (ArmKind::Classic, ArmKind::Si));
+        assert_eq!(b.io.board_ids(), &[8, 9]);
+        assert!(b.io.actuators().iter().all(|x| x.board_id == 8 || x.board_id == 9));
+        // Same actuators as the file, only the board numbers moved.
+        assert_eq!(
+            a.io.actuators().map(|x| x.axis),
+            b.io.actuators().map(|x| x.axis)
+        );
+        assert_eq!(a.base_frame, Isometry3::identity());
+        assert!((b.base_frame.translation.vector.x - 0.1).abs() < 1e-12);
+        assert!(b.compliance_path.ends_with("paper-psm.toml"));
+        assert_eq!(a.source, b.source);
+    }
+
+    #[test]
+    fn several_arm_mistakes_are_named() {
+        let cases: &[(&str, String, &str)] = &[
+            (
+                "dup-name",
+                TWO_ARMS.replace("name = \"PSM2\"", "name = \"PSM1\""),
+                "two arms are named \"PSM1\"",
+            ),
+            (
+                "dup-boards",
+                TWO_ARMS.replace("boards = [8, 9]", "boards = [7, 8]"),
+                "both use board 7",
+            ),
+            (
+                "boards-count",
+                TWO_ARMS.replace("boards = [8, 9]", "boards = [8, 9, 10]"),
+                "field `boards`",
+            ),
+            (
+                "board-range",
+                TWO_ARMS.replace("boards = [8, 9]", "boards = [8, 16]"),
+                "board 16 is not a board id",
+            ),
+            (
+                "top-level-io",
+                format!("io = \"x.toml\"\n{TWO_ARMS}"),
+                "go in each [[arm]]",
+            ),
+            (
+                "unknown-arm-key",
+                TWO_ARMS.replace("kind = \"si\"", "kind = \"si\"\nprefix = \"X\""),
+                "unknown field `prefix`",
+            ),
+            (
+                "bad-io",
+                TWO_ARMS.replace(
+                    "boards = [8, 9]\nio = \"CONFIG/io/psm-classic.toml\"",
+                    "boards = [8, 9]\nio = \"CONFIG/io/missing.toml\"",
+                ),
+                "[[arm]] \"PSM2\"",
+            ),
+        ];
+        for (name, text, want) in cases {
+            let p = write_config(&format!("{name}.toml"), text);
+            let e = format!("{:#}", ServiceConfig::load(&p).err().unwrap());
+            assert!(e.contains(want), "{name}: {e}");
+            assert!(e.contains(&p.display().to_string()), "{name}: {e}");
+        }
+        let many: String = (0..=MAX_ARMS)
+            .map(|i| format!("[[arm]]\nname = \"PSM{i}\"\nio = \"a\"\nkind = \"classic\"\ninstrument = \"x\"\ncompliance = \"c\"\n"))
+            .collect();
+        let p = write_config("many.toml", &format!("source = \"sim\"\n{many}"));
+        let e = format!("{:#}", ServiceConfig::load(&p).err().unwrap());
+        assert!(e.contains("at most"), "{e}");
     }
 }

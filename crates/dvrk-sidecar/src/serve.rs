@@ -21,7 +21,7 @@ use dvrk_ipc::iceoryx2;
 use dvrk_ipc::{ArmPublisher, ServiceNames, SubscriberCounts, flags};
 use tracing::{info, warn};
 
-use crate::config::{Rate, SidecarConfig, Source};
+use crate::config::{Rate, ServiceConfig, SidecarConfig, Source};
 use crate::cycle::{self, CycleTiming, ReadOutcome};
 use crate::rt;
 use crate::signals::StopFlag;
@@ -33,39 +33,66 @@ fn board_ids(cfg: &SidecarConfig) -> Vec<u8> {
 }
 
 /// `check-config`: load and validate everything, run every check that `serve` runs before its
-/// loop ([`preflight`]), print what was found.
+/// loop ([`preflight`]) for every arm, print what was found.
 pub fn check_config(path: &Path) -> Result<()> {
-    let cfg = SidecarConfig::load(path)?;
-    preflight(&cfg).with_context(|| format!("{}", path.display()))?;
+    let svc = ServiceConfig::load(path)?;
+    preflight_service(&svc).with_context(|| format!("{}", path.display()))?;
     let mut out = std::io::stdout().lock();
     crate::outln!(out, "{}: OK", path.display())?;
+    let first = &svc.arms[0];
     crate::outln!(
         out,
         "  source      {} (access {:?})",
-        cfg.source,
-        cfg.access
+        first.source,
+        first.access
     )?;
-    crate::outln!(
-        out,
-        "  io          {} (boards {:?})",
-        cfg.io_path.display(),
-        board_ids(&cfg)
-    )?;
-    crate::outln!(
-        out,
-        "  arm         {:?}, instrument {}",
-        cfg.arm,
-        cfg.instrument.name
-    )?;
-    crate::outln!(out, "  compliance  {}", cfg.compliance_path.display())?;
-    crate::outln!(out, "  rate        {}", cfg.rate)?;
-    crate::outln!(out, "  prefix      {}", cfg.prefix)?;
-    crate::outln!(out, "  base frame  {}", cfg.base_frame_origin)?;
-    if let Some(p) = &cfg.scenario_path {
-        crate::outln!(out, "  scenario    {}", p.display())?;
+    crate::outln!(out, "  rate        {}", first.rate)?;
+    if svc.multi {
+        let names: Vec<&str> = svc.arms.iter().map(|a| a.prefix.as_str()).collect();
+        crate::outln!(out, "  arms        {} ({})", names.len(), names.join(", "))?;
     }
-    for w in &cfg.warnings {
-        eprintln!("warning: {w}");
+    for cfg in &svc.arms {
+        if svc.multi {
+            crate::outln!(out, "  [[arm]] {}", cfg.prefix)?;
+        }
+        crate::outln!(
+            out,
+            "  io          {} (boards {:?})",
+            cfg.io_path.display(),
+            board_ids(cfg)
+        )?;
+        crate::outln!(
+            out,
+            "  arm         {:?}, instrument {}",
+            cfg.arm,
+            cfg.instrument.name
+        )?;
+        crate::outln!(out, "  compliance  {}", cfg.compliance_path.display())?;
+        crate::outln!(out, "  prefix      {}", cfg.prefix)?;
+        crate::outln!(out, "  base frame  {}", cfg.base_frame_origin)?;
+        if let Some(p) = &cfg.scenario_path {
+            crate::outln!(out, "  scenario    {}", p.display())?;
+        }
+        for w in &cfg.warnings {
+            eprintln!("warning: {}: {w}", cfg.prefix);
+        }
+    }
+    Ok(())
+}
+
+/// [`preflight`] of the source once, and of every arm's simulator and services.
+pub fn preflight_service(svc: &ServiceConfig) -> Result<()> {
+    for (i, cfg) in svc.arms.iter().enumerate() {
+        let r = if i == 0 {
+            preflight(cfg)
+        } else {
+            preflight_arm(cfg)
+        };
+        if svc.multi {
+            r.with_context(|| format!("[[arm]] \"{}\"", cfg.prefix))?;
+        } else {
+            r?;
+        }
     }
     Ok(())
 }
@@ -78,13 +105,7 @@ pub fn check_config(path: &Path) -> Result<()> {
 pub fn preflight(cfg: &SidecarConfig) -> Result<()> {
     rt::check(&cfg.realtime)?;
     match &cfg.source {
-        Source::Sim => {
-            let scenario = cfg
-                .scenario
-                .as_ref()
-                .context("source = \"sim\" needs a [sim] scenario")?;
-            dvrk_sim::Emulator::new(scenario, &cfg.io).context("starting the simulated PSM")?;
-        }
+        Source::Sim => {}
         Source::Udp(addr) => {
             UdpLink::connect(*addr).with_context(|| format!("opening a UDP socket to {addr}"))?;
         }
@@ -93,6 +114,18 @@ pub fn preflight(cfg: &SidecarConfig) -> Result<()> {
             // The interface exists and this process may capture on it (CAP_NET_RAW).
             crate::tap::Capture::open(iface, *port, crate::tap::Direction::Replies)?;
         }
+    }
+    preflight_arm(cfg)
+}
+
+/// The checks of [`preflight`] that belong to one arm: its simulator and its services.
+fn preflight_arm(cfg: &SidecarConfig) -> Result<()> {
+    if cfg.source == Source::Sim {
+        let scenario = cfg
+            .scenario
+            .as_ref()
+            .context("source = \"sim\" needs a [sim] scenario")?;
+        dvrk_sim::Emulator::new(scenario, &cfg.io).context("starting the simulated PSM")?;
     }
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
@@ -221,38 +254,220 @@ impl SampleSource for SimSource {
     }
 }
 
+/// One port read by every arm of the service in turn: each cycle reads arm after arm on the
+/// same socket or FireWire handle. A `RefCell`, not a lock: the loop is one thread and an arm's
+/// read ends before the next arm's starts, so a borrow never overlaps another.
+pub struct SharedPort<P>(std::rc::Rc<std::cell::RefCell<P>>);
+
+impl<P> SharedPort<P> {
+    pub fn new(port: P) -> Self {
+        Self(std::rc::Rc::new(std::cell::RefCell::new(port)))
+    }
+}
+
+impl<P> Clone for SharedPort<P> {
+    fn clone(&self) -> Self {
+        Self(self.0.clone())
+    }
+}
+
+impl<P: Port> Port for SharedPort<P> {
+    fn read_quadlet(&mut self, board: u8, addr: u16) -> Result<u32, dvrk_io::port::PortError> {
+        self.0.borrow_mut().read_quadlet(board, addr)
+    }
+    fn read_block(
+        &mut self,
+        board: u8,
+        addr: u16,
+        out: &mut [u8],
+    ) -> Result<(), dvrk_io::port::PortError> {
+        self.0.borrow_mut().read_block(board, addr, out)
+    }
+    fn broadcast_query_hub_read(
+        &mut self,
+        board_mask: u16,
+        out: &mut [u8],
+    ) -> Result<(), dvrk_io::port::PortError> {
+        self.0.borrow_mut().broadcast_query_hub_read(board_mask, out)
+    }
+}
+
+/// Consecutive failed reads of an arm after which its boards are asked less often.
+pub const BACKOFF_AFTER_FAILURES: u32 = 3;
+/// The longest pause between two attempts on an arm whose boards do not answer, in cycles
+/// (0.68 s at 1500 Hz): the longest a returning arm waits to be read again.
+pub const BACKOFF_MAX_CYCLES: u32 = 1024;
+
+/// One arm of several on a shared port. An arm whose boards stop answering would cost every
+/// other arm a reply timeout per cycle; after [`BACKOFF_AFTER_FAILURES`] failed reads in a row
+/// its boards are asked again only after 8, 16, ... up to [`BACKOFF_MAX_CYCLES`] cycles, each
+/// skipped cycle published as invalid with BOARD_TIMEOUT without any I/O. The first good read
+/// ends the pause. Only the several-arm service uses it: one arm alone retries every cycle.
+pub struct Backoff<S> {
+    inner: S,
+    failures: u32,
+    pause: u32,
+    skipped: u32,
+}
+
+impl<S> Backoff<S> {
+    pub fn new(inner: S) -> Self {
+        Self {
+            inner,
+            failures: 0,
+            pause: 0,
+            skipped: 0,
+        }
+    }
+}
+
+impl<S: SampleSource> SampleSource for Backoff<S> {
+    fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
+        if self.skipped < self.pause {
+            self.skipped += 1;
+            out.t_ns = t_ns;
+            out.valid = false;
+            return ReadOutcome::Timeout;
+        }
+        let r = self.inner.read(t_ns, out);
+        match r {
+            ReadOutcome::Timeout | ReadOutcome::Error => {
+                self.failures = self.failures.saturating_add(1);
+                if self.failures >= BACKOFF_AFTER_FAILURES {
+                    self.pause = (self.pause * 2).clamp(8, BACKOFF_MAX_CYCLES);
+                    self.skipped = 0;
+                }
+            }
+            _ => {
+                self.failures = 0;
+                self.pause = 0;
+                self.skipped = 0;
+            }
+        }
+        r
+    }
+    fn simulated(&self) -> bool {
+        self.inner.simulated()
+    }
+    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
+        self.inner.set_coupling(coupling)
+    }
+}
+
 /// `serve`: load, set up, run until SIGTERM/SIGINT.
 pub fn run(path: &Path) -> Result<()> {
-    let cfg = SidecarConfig::load(path)?;
-    preflight(&cfg).with_context(|| format!("{}", path.display()))?;
-    for w in &cfg.warnings {
-        warn!("{w}");
+    let svc = ServiceConfig::load(path)?;
+    preflight_service(&svc).with_context(|| format!("{}", path.display()))?;
+    for cfg in &svc.arms {
+        for w in &cfg.warnings {
+            warn!(arm = %cfg.prefix, "{w}");
+        }
+        info!(
+            arm = %cfg.prefix, base_frame = %cfg.base_frame_origin,
+            "measured_cp = base frame x local/measured_cp"
+        );
     }
-    info!(base_frame = %cfg.base_frame_origin, "measured_cp = base frame x local/measured_cp");
     let stop = StopFlag::install()?;
-    match cfg.source.clone() {
+    let first = &svc.arms[0];
+    match first.source.clone() {
         Source::Sim => {
-            let source = SimSource::new(&cfg)?;
-            run_loop(&cfg, source, &stop)
+            let sources = svc
+                .arms
+                .iter()
+                .map(SimSource::new)
+                .collect::<Result<Vec<_>>>()?;
+            run_loop(&svc, sources, &stop)
         }
         Source::Udp(addr) => {
             let mut link =
                 UdpLink::connect(addr).with_context(|| format!("opening UDP socket to {addr}"))?;
-            link.set_timeout(cfg.reply_timeout)
+            link.set_timeout(first.reply_timeout)
                 .context("setting the reply timeout")?;
             let mut port = UdpPort::new(link);
-            let ids = board_ids(&cfg);
-            if !discover_until_found(&mut port, &ids, &addr.to_string(), &stop)? {
+            if !discover_arms(&mut port, &svc, &addr.to_string(), &stop)? {
                 return Ok(());
             }
-            info!(%addr, boards = ?ids, "boards found");
-            let reader = ArmReader::new(port, cfg.io.clone(), cfg.access);
-            run_loop(&cfg, reader, &stop)
+            let shared = SharedPort::new(port);
+            run_readers(&svc, shared, &stop)
         }
-        Source::Firewire(n) => firewire(&cfg, n, &stop),
+        Source::Firewire(n) => firewire(&svc, n, &stop),
         Source::Tap { iface, port } => {
-            let source = crate::tap::TapSource::open(&iface, port, cfg.io.clone())?;
-            run_loop(&cfg, source, &stop)
+            let ios: Vec<IoConfig> = svc.arms.iter().map(|a| a.io.clone()).collect();
+            let sources = crate::tap::TapSource::open_arms(&iface, port, ios)?;
+            run_loop(&svc, sources, &stop)
+        }
+    }
+}
+
+/// Every arm read through its own [`ArmReader`] on one shared port; with several arms, each
+/// behind a [`Backoff`].
+fn run_readers<P: Port>(svc: &ServiceConfig, port: SharedPort<P>, stop: &StopFlag) -> Result<()> {
+    let reader = |cfg: &SidecarConfig| ArmReader::new(port.clone(), cfg.io.clone(), cfg.access);
+    if svc.arms.len() > 1 {
+        let sources = svc.arms.iter().map(|c| Backoff::new(reader(c))).collect();
+        run_loop(svc, sources, stop)
+    } else {
+        // One arm: retry every cycle, as it always did.
+        run_loop(svc, svc.arms.iter().map(reader).collect(), stop)
+    }
+}
+
+/// How long a several-arm service waits for every arm's boards before it starts with the arms
+/// that answered (the others publish invalid samples until their boards answer).
+const PARTIAL_START_AFTER: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Discovery of every arm's boards. One arm: [`discover_until_found`] (waits until they all
+/// answer). Several: the same wait, but after [`PARTIAL_START_AFTER`] the service starts once
+/// at least one arm's boards all answered, naming the arms whose boards are missing. Returns
+/// false when stopped by a signal first.
+fn discover_arms<L: dvrk_io::Link>(
+    port: &mut dvrk_io::EthPort<L>,
+    svc: &ServiceConfig,
+    at: &str,
+    stop: &StopFlag,
+) -> Result<bool> {
+    if svc.arms.len() == 1 {
+        let ids = board_ids(&svc.arms[0]);
+        let found = discover_until_found(port, &ids, at, stop, None)?;
+        if found {
+            info!(%at, boards = ?ids, "boards found");
+        }
+        return Ok(found);
+    }
+    let all: Vec<u8> = svc.arms.iter().flat_map(board_ids).collect();
+    let started = std::time::Instant::now();
+    loop {
+        if discover_until_found(port, &all, at, stop, Some(PARTIAL_START_AFTER))? {
+            info!(%at, boards = ?all, "boards of every arm found");
+            return Ok(true);
+        }
+        if stop.raised() {
+            return Ok(false);
+        }
+        // Some board is missing: start with the arms whose boards all answer.
+        let mut found = Vec::new();
+        let mut missing = Vec::new();
+        for cfg in &svc.arms {
+            let ids = board_ids(cfg);
+            match port.discover(&ids) {
+                Ok(_) => found.push(cfg.prefix.as_str()),
+                Err(e) if e.is_configuration() => {
+                    return Err(e).with_context(|| {
+                        format!("[[arm]] \"{}\": boards {ids:?} at {at}", cfg.prefix)
+                    });
+                }
+                Err(e) => missing.push(format!("{} (boards {ids:?}: {e})", cfg.prefix)),
+            }
+        }
+        if !found.is_empty() {
+            warn!(
+                waited_s = started.elapsed().as_secs_f64(),
+                "starting with {}; not answering: {}. Their samples are published invalid \
+                 (BOARD_TIMEOUT) until their boards answer",
+                found.join(", "),
+                missing.join("; ")
+            );
+            return Ok(true);
         }
     }
 }
@@ -266,13 +481,14 @@ fn discover_until_found<L: dvrk_io::Link>(
     ids: &[u8],
     at: &str,
     stop: &StopFlag,
+    give_up_after: Option<std::time::Duration>,
 ) -> Result<bool> {
     let mut backoff = std::time::Duration::from_millis(10);
     let started = std::time::Instant::now();
     let mut next_log = started;
     let mut attempts = 0u64;
     loop {
-        if stop.raised() {
+        if stop.raised() || give_up_after.is_some_and(|g| started.elapsed() >= g) {
             return Ok(false);
         }
         attempts += 1;
@@ -306,15 +522,14 @@ fn discover_until_found<L: dvrk_io::Link>(
 }
 
 #[cfg(feature = "firewire")]
-fn firewire(cfg: &SidecarConfig, n: u32, stop: &StopFlag) -> Result<()> {
+fn firewire(svc: &ServiceConfig, n: u32, stop: &StopFlag) -> Result<()> {
     let port = dvrk_io::port::FirewirePort::open(n)
         .with_context(|| format!("opening FireWire port {n}"))?;
-    let reader = ArmReader::new(port, cfg.io.clone(), cfg.access);
-    run_loop(cfg, reader, stop)
+    run_readers(svc, SharedPort::new(port), stop)
 }
 
 #[cfg(not(feature = "firewire"))]
-fn firewire(_cfg: &SidecarConfig, n: u32, _stop: &StopFlag) -> Result<()> {
+fn firewire(_svc: &ServiceConfig, n: u32, _stop: &StopFlag) -> Result<()> {
     // preflight() has refused this already; the one message lives in firewire_check.
     firewire_check(n)
 }
@@ -745,18 +960,18 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
     }
 }
 
-fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag) -> Result<()> {
+/// Sets up one [`Pipeline`] of an arm: its publishers, checks, parameter sets and, when
+/// configured, the console it follows.
+fn arm_pipeline<'a, Src: SampleSource>(
+    cfg: &'a SidecarConfig,
+    source: Src,
+    node: &iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
+    period_ns: u64,
+    stop: &StopFlag,
+) -> Result<Pipeline<'a, Src, iceoryx2::service::ipc::Service>> {
     let names = ServiceNames::new(&cfg.prefix).map_err(|e| anyhow::anyhow!("prefix: {e}"))?;
-    let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar", None)
-        .context("creating the iceoryx2 node")?;
-    let publisher = ArmPublisher::create(&node, &names)
+    let publisher = ArmPublisher::create(node, &names)
         .with_context(|| format!("creating the publishers under {}", cfg.prefix))?;
-    rt::apply(&cfg.realtime)?;
-
-    let period_ns = match cfg.rate {
-        Rate::Hz(hz) => (1e9 / hz).round() as u64,
-        Rate::Follow => 0,
-    };
     let mut pipe = Pipeline::new(
         source,
         &cfg.compliance,
@@ -799,15 +1014,41 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             cfg.base_frame,
         ));
     }
-    let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
-    let mut hist = DurationHistogram::new();
-    let (summaries, summary_rx) = sync_channel::<Summary>(1);
-    let housekeeping = spawn_housekeeping(summary_rx, stop.clone())?;
+    Ok(pipe)
+}
 
-    info!(
-        source = %cfg.source, access = ?cfg.access, rate = %cfg.rate, prefix = %cfg.prefix,
-        instrument = cfg.instrument.name, "serving"
-    );
+fn run_loop<Src: SampleSource>(
+    svc: &ServiceConfig,
+    sources: Vec<Src>,
+    stop: &StopFlag,
+) -> Result<()> {
+    let first = &svc.arms[0];
+    let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar", None)
+        .context("creating the iceoryx2 node")?;
+    let period_ns = match first.rate {
+        Rate::Hz(hz) => (1e9 / hz).round() as u64,
+        Rate::Follow => 0,
+    };
+    let mut pipes = Vec::with_capacity(svc.arms.len());
+    for (cfg, source) in svc.arms.iter().zip(sources) {
+        pipes.push(arm_pipeline(cfg, source, &node, period_ns, stop)?);
+    }
+    rt::apply(&first.realtime)?;
+
+    let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
+    // One histogram per arm (its read to its notify) and one of the whole cycle (every arm).
+    let mut hists: Vec<DurationHistogram> = pipes.iter().map(|_| DurationHistogram::new()).collect();
+    let mut loop_hist = DurationHistogram::new();
+    let (summaries, summary_rx) = sync_channel::<Summary>(1);
+    let names: Vec<String> = svc.arms.iter().map(|a| a.prefix.clone()).collect();
+    let housekeeping = spawn_housekeeping(summary_rx, names, stop.clone())?;
+
+    for cfg in &svc.arms {
+        info!(
+            source = %cfg.source, access = ?cfg.access, rate = %cfg.rate, prefix = %cfg.prefix,
+            instrument = cfg.instrument.name, "serving"
+        );
+    }
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
 
     let t0 = rt::monotonic_ns();
@@ -819,15 +1060,20 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
         if period_ns > 0 {
             rt::sleep_until_ns(deadline);
         }
-        let t_start = rt::monotonic_ns();
-        pipe.late_ns = if period_ns > 0 {
-            t_start.saturating_sub(deadline)
-        } else {
-            0
-        };
-        pipe.cycle(t_start, rt::monotonic_ns);
+        let t_cycle = rt::monotonic_ns();
+        for (pipe, hist) in pipes.iter_mut().zip(hists.iter_mut()) {
+            let t_start = rt::monotonic_ns();
+            pipe.late_ns = if period_ns > 0 {
+                t_start.saturating_sub(deadline)
+            } else {
+                0
+            };
+            pipe.cycle(t_start, rt::monotonic_ns);
+            let t_end = rt::monotonic_ns();
+            hist.record(pipe.finish(t_start, t_end));
+        }
         let t_end = rt::monotonic_ns();
-        hist.record(pipe.finish(t_start, t_end));
+        loop_hist.record(t_end.saturating_sub(t_cycle));
 
         if period_ns > 0 {
             deadline += period_ns;
@@ -844,22 +1090,33 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
             next_watchdog = t_end + w;
         }
         if t_end >= next_summary {
+            let mut s = Summary {
+                arms: [ArmSummary::default(); crate::config::MAX_ARMS],
+                n: pipes.len().min(crate::config::MAX_ARMS),
+                cycle_p99_ns: loop_hist.quantile_ns(0.99).unwrap_or(0),
+                cycle_max_ns: loop_hist.max_ns(),
+            };
+            loop_hist.reset();
+            for ((slot, pipe), hist) in s.arms.iter_mut().zip(pipes.iter_mut()).zip(hists.iter_mut())
+            {
+                *slot = ArmSummary {
+                    counters: pipe.counters,
+                    cycle_p99_ns: hist.quantile_ns(0.99).unwrap_or(0),
+                    cycle_max_ns: hist.max_ns(),
+                    subscribers: pipe.publisher.subscriber_counts(),
+                };
+                hist.reset();
+                let c = &mut pipe.counters;
+                c.window_cycles = 0;
+                c.window_read_failures = 0;
+                c.window_implausible = 0;
+                c.window_valid = 0;
+                c.window_max_displacement_m = 0.0;
+                c.window_last_displacement_m = None;
+            }
             // A full slot (the thread has not taken the last one) drops this second's summary:
             // the loop never waits for logging.
-            let _ = summaries.try_send(Summary {
-                counters: pipe.counters,
-                cycle_p99_ns: hist.quantile_ns(0.99).unwrap_or(0),
-                cycle_max_ns: hist.max_ns(),
-                subscribers: pipe.publisher.subscriber_counts(),
-            });
-            hist.reset();
-            let c = &mut pipe.counters;
-            c.window_cycles = 0;
-            c.window_read_failures = 0;
-            c.window_implausible = 0;
-            c.window_valid = 0;
-            c.window_max_displacement_m = 0.0;
-            c.window_last_displacement_m = None;
+            let _ = summaries.try_send(s);
             next_summary += 1_000_000_000;
             if next_summary < t_end {
                 next_summary = t_end + 1_000_000_000;
@@ -871,15 +1128,18 @@ fn run_loop<Src: SampleSource>(cfg: &SidecarConfig, source: Src, stop: &StopFlag
     if housekeeping.join().is_err() {
         warn!("the housekeeping thread panicked");
     }
-    let c = pipe.counters;
-    info!(
-        cycles = c.cycles,
-        read_failures = c.read_failures,
-        implausible = c.implausible,
-        overruns = c.overruns,
-        publish_failures = c.publish_failures,
-        "stopped"
-    );
+    for (pipe, cfg) in pipes.iter().zip(&svc.arms) {
+        let c = pipe.counters;
+        info!(
+            arm = %cfg.prefix,
+            cycles = c.cycles,
+            read_failures = c.read_failures,
+            implausible = c.implausible,
+            overruns = c.overruns,
+            publish_failures = c.publish_failures,
+            "stopped"
+        );
+    }
     Ok(())
 }
 
@@ -895,13 +1155,23 @@ pub fn plausibility_limits(cfg: &SidecarConfig) -> PlausibilityLimits {
     }
 }
 
-/// One second of the loop, copied out of it for the housekeeping thread.
-#[derive(Debug, Clone, Copy)]
-struct Summary {
+/// One second of one arm, copied out of the loop for the housekeeping thread.
+#[derive(Debug, Clone, Copy, Default)]
+struct ArmSummary {
     counters: Counters,
     cycle_p99_ns: u64,
     cycle_max_ns: u64,
     subscribers: SubscriberCounts,
+}
+
+/// One second of the loop: every arm's, and the whole cycle's durations (all arms). A fixed
+/// array, so the loop hands it over without allocating.
+#[derive(Debug, Clone, Copy)]
+struct Summary {
+    arms: [ArmSummary; crate::config::MAX_ARMS],
+    n: usize,
+    cycle_p99_ns: u64,
+    cycle_max_ns: u64,
 }
 
 /// How often the housekeeping thread looks for a summary (and for a stop).
@@ -913,6 +1183,7 @@ const HOUSEKEEPING_POLL: std::time::Duration = std::time::Duration::from_millis(
 /// when the loop drops its sender or on a stop request.
 fn spawn_housekeeping(
     summaries: Receiver<Summary>,
+    names: Vec<String>,
     stop: StopFlag,
 ) -> Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
@@ -928,7 +1199,19 @@ fn spawn_housekeeping(
             let mut next_reap = std::time::Instant::now() + REAP_PERIOD;
             loop {
                 match summaries.try_recv() {
-                    Ok(s) => summary(&s),
+                    Ok(s) => {
+                        for (a, name) in s.arms.iter().take(s.n).zip(&names) {
+                            summary(a, name);
+                        }
+                        if s.n > 1 {
+                            info!(
+                                arms = s.n,
+                                cycle_p99_us = format_args!("{:.1}", s.cycle_p99_ns as f64 / 1e3),
+                                cycle_max_us = format_args!("{:.1}", s.cycle_max_ns as f64 / 1e3),
+                                "summary of the whole cycle (every arm)"
+                            );
+                        }
+                    }
                     Err(TryRecvError::Disconnected) => return,
                     Err(TryRecvError::Empty) if stop.raised() => return,
                     Err(TryRecvError::Empty) => {}
@@ -954,7 +1237,7 @@ fn spawn_housekeeping(
         .context("starting the housekeeping thread")
 }
 
-fn summary(s: &Summary) {
+fn summary(s: &ArmSummary, arm: &str) {
     let c = &s.counters;
     let p99_us = s.cycle_p99_ns as f64 / 1e3;
     let max_us = s.cycle_max_ns as f64 / 1e3;
@@ -969,6 +1252,7 @@ fn summary(s: &Summary) {
     );
     if c.window_read_failures > 0 || c.window_implausible > 0 {
         warn!(
+            arm,
             rate_hz = c.window_cycles,
             missed_reads = c.window_read_failures,
             missed_reads_total = c.read_failures,
@@ -987,6 +1271,7 @@ fn summary(s: &Summary) {
         None => ("n/a (no valid sample)".to_owned(), "n/a".to_owned()),
     };
     info!(
+        arm,
         rate_hz = c.window_cycles,
         valid = c.window_valid,
         cycle_p99_us = format_args!("{p99_us:.1}"),

@@ -342,7 +342,6 @@ struct Window {
     blocks: [u64; MAX_BOARDS],
     requests: u64,
     samples: u64,
-    refused: u64,
 }
 
 /// serve's sample source in tap mode: the sample the console read, in the same cycle.
@@ -353,41 +352,77 @@ struct Window {
 /// console read is skipped while the sidecar keeps up on average. Nothing within
 /// [`NO_SOURCE_AFTER_NS`]: [`ReadOutcome::NoSource`] (valid = 0).
 /// Once per second it names the boards of the arm missing from the console's traffic.
-pub struct TapSource {
+pub struct TapShared {
     /// The console's requests: drained without waiting, before each reply is decoded.
     requests: Capture,
     /// The boards' replies: the only socket the loop waits on, so the sidecar wakes once per
     /// reply rather than once per packet (writes and requests never wake it).
     cap: Capture,
-    dec: TapDecoder,
+    /// One decoder per arm, each fed every frame (a decoder keeps only its arm's boards).
+    decs: Vec<TapDecoder>,
+    /// Per arm: a sample completed while another arm's read was waiting, not yet taken.
+    pending: Vec<ArmSample>,
+    ready: Vec<bool>,
     port: u16,
     /// The capture is on a loopback interface (every datagram is sent by a local socket).
     loopback: bool,
     owners: Owners,
     next_report_ns: u64,
-    window: Window,
+    window: Vec<Window>,
+    refused_at_report: u64,
+}
+
+/// One arm's samples from the passive tap. Every arm of the service shares one capture (two
+/// sockets, read by one thread): each frame is decoded once per arm, and an arm's read takes
+/// the sample the console completed for it, waiting for the next frames only when none is
+/// queued. `Rc<RefCell<_>>`: the loop is one thread and reads arm after arm, never two at once.
+pub struct TapSource {
+    shared: std::rc::Rc<std::cell::RefCell<TapShared>>,
+    arm: usize,
 }
 
 impl TapSource {
+    /// One arm on its own capture.
     pub fn open(iface: &str, port: u16, io: IoConfig) -> Result<Self> {
+        Ok(Self::open_arms(iface, port, vec![io])?.remove(0))
+    }
+
+    /// Every arm (one io configuration each, in order) on one capture of `iface`.
+    pub fn open_arms(iface: &str, port: u16, ios: Vec<IoConfig>) -> Result<Vec<Self>> {
         let requests = Capture::open(iface, port, Direction::Requests)?;
         let cap = Capture::open(iface, port, Direction::Replies)?;
+        let boards: Vec<&[u8]> = ios.iter().map(|io| io.board_ids()).collect();
         info!(
-            interface = iface, port, boards = ?io.board_ids(),
+            interface = iface, port, boards = ?boards,
             "passive tap: listening to the console's traffic, sending nothing"
         );
-        Ok(Self {
+        let n = ios.len();
+        let shared = std::rc::Rc::new(std::cell::RefCell::new(TapShared {
             requests,
             cap,
-            dec: TapDecoder::new(io).with_board_port(port),
+            decs: ios
+                .into_iter()
+                .map(|io| TapDecoder::new(io).with_board_port(port))
+                .collect(),
+            pending: vec![ArmSample::default(); n],
+            ready: vec![false; n],
             port,
             loopback: is_loopback(iface),
             owners: Owners::new(),
             next_report_ns: 0,
-            window: Window::default(),
-        })
+            window: vec![Window::default(); n],
+            refused_at_report: 0,
+        }));
+        Ok((0..n)
+            .map(|arm| Self {
+                shared: shared.clone(),
+                arm,
+            })
+            .collect())
     }
+}
 
+impl TapShared {
     /// Whether a captured frame may come from the console (`reply` false) or a board:
     /// on a real interface a reply must arrive from the wire; a datagram sent by a socket of
     /// this host must come from one of root's or this service's user.
@@ -401,7 +436,7 @@ impl TapSource {
             true
         } else {
             match parse_frame(cap.frame(frame_len), LinkType::Ip) {
-                // Not a datagram: the decoder skips it anyway.
+                // Not a datagram: the decoders skip it anyway.
                 Err(_) => true,
                 Ok(d) => self.owners.allowed(d.src, now_ns),
             }
@@ -412,94 +447,100 @@ impl TapSource {
         ok
     }
 
-    /// Feeds every queued request to the decoder, without waiting.
-    fn drain_requests(&mut self, out: &mut ArmSample) {
+    /// Feeds every queued request to every decoder, without waiting.
+    fn drain_requests(&mut self) {
         let now = rt::monotonic_ns();
         while let Ok(r) = self.requests.recv(true) {
             if let Some(m) = r
                 && self.admit(m, false, now)
             {
-                self.dec
-                    .push(self.requests.frame(m), LinkType::Ip, now, out);
+                for (dec, out) in self.decs.iter_mut().zip(self.pending.iter_mut()) {
+                    dec.push(self.requests.frame(m), LinkType::Ip, now, out);
+                }
             }
         }
     }
 
-    pub fn decoder(&self) -> &TapDecoder {
-        &self.dec
+    /// Feeds one reply to every decoder; an arm whose sample it completes becomes ready.
+    fn push_reply(&mut self, n: usize, now: u64) {
+        for ((dec, out), ready) in self
+            .decs
+            .iter_mut()
+            .zip(self.pending.iter_mut())
+            .zip(self.ready.iter_mut())
+        {
+            if dec.push(self.cap.frame(n), LinkType::Ip, now, out) == TapEvent::Sample {
+                *ready = true;
+            }
+        }
     }
 
+    /// Once a second: what is missing from the console's traffic (in the loop's thread, but
+    /// once a second and without allocating).
     fn report(&mut self, t_ns: u64) {
         if t_ns < self.next_report_ns {
             return;
         }
         let first = self.next_report_ns == 0;
         self.next_report_ns = t_ns + 1_000_000_000;
-        let c = self.dec.counters();
-        let seen = self.dec.blocks_seen();
-        let prev = std::mem::replace(
-            &mut self.window,
-            Window {
-                blocks: seen,
-                requests: c.requests,
-                samples: c.samples,
-                refused: self.owners.refused,
-            },
-        );
-        if first {
-            return;
-        }
-        if self.owners.refused > prev.refused {
+        let refused_before = std::mem::replace(&mut self.refused_at_report, self.owners.refused);
+        let no_traffic = match (self.decs.first(), self.window.first()) {
+            (Some(d), Some(w)) => d.counters().requests == w.requests,
+            _ => true,
+        };
+        if !first && self.owners.refused > refused_before {
             warn!(
                 interface = self.cap.iface(),
                 port = self.port,
-                dropped = self.owners.refused - prev.refused,
+                dropped = self.owners.refused - refused_before,
                 "datagrams of the boards' port from another user's socket, or replies sent by \
                  this host, dropped in the last second"
             );
         }
-        if c.requests == prev.requests {
+        if !first && no_traffic {
             warn!(
                 interface = self.cap.iface(),
                 port = self.port,
                 "no console traffic in the last second: publishing valid = 0 with NO_SOURCE"
             );
-            return;
         }
-        for (slot, id) in self.dec.config().board_ids().iter().enumerate() {
-            if seen[slot] == prev.blocks[slot] {
-                warn!(
-                    board = id,
-                    interface = self.cap.iface(),
-                    samples = c.samples - prev.samples,
-                    "board missing from the console's traffic in the last second"
-                );
+        for (dec, w) in self.decs.iter().zip(self.window.iter_mut()) {
+            let c = dec.counters();
+            let seen = dec.blocks_seen();
+            if !first && !no_traffic {
+                for (slot, id) in dec.config().board_ids().iter().enumerate() {
+                    if seen[slot] == w.blocks[slot] {
+                        warn!(
+                            board = id,
+                            interface = self.cap.iface(),
+                            samples = c.samples - w.samples,
+                            "board missing from the console's traffic in the last second"
+                        );
+                    }
+                }
             }
+            *w = Window {
+                blocks: seen,
+                requests: c.requests,
+                samples: c.samples,
+            };
         }
     }
-}
 
-impl SampleSource for TapSource {
-    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
-        self.dec.config_mut().set_coupling(*coupling).is_ok()
-    }
-
-    fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
-        let mut got = false;
+    fn read(&mut self, arm: usize, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
         let start = rt::monotonic_ns();
         loop {
+            if self.ready.get(arm).copied().unwrap_or(false) {
+                break;
+            }
             match self.cap.recv(false) {
                 Ok(Some(n)) => {
                     let now = rt::monotonic_ns();
                     // Every request went out before its reply came back, so it is queued by
                     // now: take them first (pairing needs the request's label).
-                    self.drain_requests(out);
-                    if self.admit(n, true, now)
-                        && self.dec.push(self.cap.frame(n), LinkType::Ip, now, out)
-                            == TapEvent::Sample
-                    {
-                        got = true;
-                        break;
+                    self.drain_requests();
+                    if self.admit(n, true, now) {
+                        self.push_reply(n, now);
                     }
                 }
                 Ok(None) => {}
@@ -512,7 +553,7 @@ impl SampleSource for TapSource {
                 {
                     // No reply: still count the console's requests (boards that do not answer
                     // are then named, not reported as "no traffic").
-                    self.drain_requests(out);
+                    self.drain_requests();
                     break;
                 }
                 Err(_) => {
@@ -526,13 +567,32 @@ impl SampleSource for TapSource {
             }
         }
         self.report(t_ns);
-        if got {
-            ReadOutcome::Ok
-        } else {
-            out.t_ns = t_ns;
-            out.valid = false;
-            ReadOutcome::NoSource
+        match (self.ready.get_mut(arm), self.pending.get(arm)) {
+            (Some(ready), Some(sample)) if *ready => {
+                *ready = false;
+                *out = *sample;
+                ReadOutcome::Ok
+            }
+            _ => {
+                out.t_ns = t_ns;
+                out.valid = false;
+                ReadOutcome::NoSource
+            }
         }
+    }
+}
+
+impl SampleSource for TapSource {
+    fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
+        self.shared
+            .borrow_mut()
+            .decs
+            .get_mut(self.arm)
+            .is_some_and(|d| d.config_mut().set_coupling(*coupling).is_ok())
+    }
+
+    fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
+        self.shared.borrow_mut().read(self.arm, t_ns, out)
     }
 }
 

@@ -1,0 +1,125 @@
+//! End-to-end tests of one `serve` for several arms: one source read once per cycle for every
+//! arm, each arm under its own name, a failing arm marking only its own samples invalid.
+
+mod common;
+
+use std::time::Duration;
+
+use common::*;
+use serde_json::Value;
+
+const LIVENESS: Duration = Duration::from_secs(60);
+
+/// A two-arm configuration: `arms` lists (name, boards, scenario), every arm the repository's
+/// Classic io file and the paper's parameters.
+fn write_arms_config(test: &str, source: &str, access: &str, arms: &[(&str, [u8; 2], &str)]) -> std::path::PathBuf {
+    let c = repo().join("config");
+    let mut text = format!(
+        "source = \"{source}\"\naccess = \"{access}\"\nrate = 1500\n[sim]\nscenario = \"{}\"\n",
+        c.join("sim/idle.toml").display()
+    );
+    for (name, boards, scenario) in arms {
+        text.push_str(&format!(
+            r#"
+[[arm]]
+name = "{name}"
+boards = [{}, {}]
+io = "{io}"
+kind = "classic"
+instrument = "LARGE_NEEDLE_DRIVER_400006"
+compliance = "{comp}"
+scenario = "{scen}"
+"#,
+            boards[0],
+            boards[1],
+            io = c.join("io/psm-classic.toml").display(),
+            comp = c.join("compliance/paper-psm.toml").display(),
+            scen = c.join("sim").join(scenario).display(),
+        ));
+    }
+    let path = scratch(test).join("sidecar.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn flag_names(s: &Value) -> Vec<String> {
+    s["header"]["flags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_owned())
+        .collect()
+}
+
+fn seqs(samples: &[Value]) -> Vec<u64> {
+    samples
+        .iter()
+        .map(|s| s["header"]["seq"].as_u64().unwrap())
+        .collect()
+}
+
+fn assert_consecutive(test: &str, seqs: &[u64]) {
+    for w in seqs.windows(2) {
+        assert_eq!(w[1], w[0] + 1, "{test}: seq jumped from {} to {}", w[0], w[1]);
+    }
+}
+
+/// PSM2's boards never answer: the service starts with PSM1 after its wait, PSM1's samples are
+/// all valid and in order, PSM2's are all invalid with BOARD_TIMEOUT, and the log names PSM2.
+#[test]
+fn an_arm_whose_boards_do_not_answer_leaves_the_other_arm_served() {
+    let port = free_udp_port();
+    // A one-arm emulator: boards 6 and 7 only.
+    let _emu = emulator(port, "idle.toml");
+    let p1 = unique_prefix("missing_arm1");
+    let p2 = unique_prefix("missing_arm2");
+    let cfg = write_arms_config(
+        "missing_arm",
+        &format!("udp:127.0.0.1:{port}"),
+        "shared",
+        &[(&p1, [6, 7], "idle.toml"), (&p2, [8, 9], "idle.toml")],
+    );
+    let mut serve = serve(&cfg);
+    let one = echo_json(&format!("{p1}/measured_js"), 1500, LIVENESS);
+    assert!(
+        one.iter().all(|s| s["header"]["valid"] == Value::Bool(true)),
+        "every PSM1 sample valid"
+    );
+    assert_consecutive("missing_arm PSM1", &seqs(&one));
+    let two = echo_json(&format!("{p2}/compensated/status"), 50, LIVENESS);
+    for s in &two {
+        assert_eq!(s["header"]["valid"], Value::Bool(false), "{s}");
+        assert!(flag_names(s).iter().any(|f| f == "BOARD_TIMEOUT"), "{s}");
+    }
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "serve exited with {st}: {log}");
+    assert!(
+        log.contains("not answering") && log.contains(&p2) && log.contains("[8, 9]"),
+        "the log names the arm without boards: {log}"
+    );
+}
+
+/// A file's mistakes in one arm are named with the arm, by `check-config` and `serve`, and
+/// nothing is served.
+#[test]
+fn check_config_names_the_arm_at_fault() {
+    let cfg = write_arms_config(
+        "bad_arm",
+        "sim",
+        "shared",
+        &[("PSM1", [6, 7], "idle.toml"), ("PSM2", [7, 8], "idle.toml")],
+    );
+    for cmd in ["check-config", "serve"] {
+        let out = std::process::Command::new(sidecar_bin())
+            .args([cmd, "--config"])
+            .arg(&cfg)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{cmd} accepted two arms on board 7");
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            e.contains("\"PSM1\" and \"PSM2\" both use board 7") && e.contains("sidecar.toml"),
+            "{cmd}: {e}"
+        );
+    }
+}
