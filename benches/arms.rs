@@ -151,9 +151,8 @@ fn run_case(bin: &Path, port: u16, arms: usize, access: &str, seconds: f64) -> R
         .iter()
         .map(|a| format!("bench/arms{}/{a}", std::process::id()))
         .collect();
-    let mut text = format!(
-        "source = \"udp:127.0.0.1:{port}\"\naccess = \"{access}\"\nrate = 1500\n\n"
-    );
+    let mut text =
+        format!("source = \"udp:127.0.0.1:{port}\"\naccess = \"{access}\"\nrate = 1500\n\n");
     for (i, name) in names.iter().enumerate() {
         text.push_str(&arm_table(name, [6 + 2 * i as u8, 7 + 2 * i as u8], &c));
     }
@@ -220,7 +219,9 @@ fn main() -> Res<()> {
         "arms: {rounds} rounds x {seconds} s per case, access {access}, load {load_before} -> {}",
         loadavg()
     );
-    println!("| case | arm | rate (Hz, median s) | missed reads | arm cycle p99 (µs, median s) | whole cycle p99 (µs) |");
+    println!(
+        "| case | arm | rate (Hz, median s) | missed reads | arm cycle p99 (µs, median s) | whole cycle p99 (µs) |"
+    );
     println!("|---|---|---|---|---|---|");
     println!(
         "| one arm | PSM1 | {rate_one:.0} | {missed_one} | {:.1} | {p99_one:.1} |",

@@ -12,7 +12,12 @@ const LIVENESS: Duration = Duration::from_secs(60);
 
 /// A two-arm configuration: `arms` lists (name, boards, scenario), every arm the repository's
 /// Classic io file and the paper's parameters.
-fn write_arms_config(test: &str, source: &str, access: &str, arms: &[(&str, [u8; 2], &str)]) -> std::path::PathBuf {
+fn write_arms_config(
+    test: &str,
+    source: &str,
+    access: &str,
+    arms: &[(&str, [u8; 2], &str)],
+) -> std::path::PathBuf {
     let c = repo().join("config");
     let mut text = format!(
         "source = \"{source}\"\naccess = \"{access}\"\nrate = 1500\n[sim]\nscenario = \"{}\"\n",
@@ -60,7 +65,13 @@ fn seqs(samples: &[Value]) -> Vec<u64> {
 
 fn assert_consecutive(test: &str, seqs: &[u64]) {
     for w in seqs.windows(2) {
-        assert_eq!(w[1], w[0] + 1, "{test}: seq jumped from {} to {}", w[0], w[1]);
+        assert_eq!(
+            w[1],
+            w[0] + 1,
+            "{test}: seq jumped from {} to {}",
+            w[0],
+            w[1]
+        );
     }
 }
 
@@ -82,7 +93,8 @@ fn an_arm_whose_boards_do_not_answer_leaves_the_other_arm_served() {
     let mut serve = serve(&cfg);
     let one = echo_json(&format!("{p1}/measured_js"), 1500, LIVENESS);
     assert!(
-        one.iter().all(|s| s["header"]["valid"] == Value::Bool(true)),
+        one.iter()
+            .all(|s| s["header"]["valid"] == Value::Bool(true)),
         "every PSM1 sample valid"
     );
     assert_consecutive("missing_arm PSM1", &seqs(&one));

@@ -575,9 +575,8 @@ pub fn arm_names(path: &Path) -> Result<Vec<String>> {
     let names: Vec<String> = params.into_iter().map(|p| p.prefix).collect();
     check_distinct_names(path, &names)?;
     for n in &names {
-        dvrk_ipc::ServiceNames::new(n).map_err(|e| {
-            anyhow::anyhow!("{}: arm name \"{n}\": {e}", path.display())
-        })?;
+        dvrk_ipc::ServiceNames::new(n)
+            .map_err(|e| anyhow::anyhow!("{}: arm name \"{n}\": {e}", path.display()))?;
     }
     Ok(names)
 }
@@ -614,7 +613,11 @@ impl ServiceConfig {
         }
         for (i, a) in arms.iter().enumerate() {
             for b in &arms[..i] {
-                if let Some(id) = a.io.board_ids().iter().find(|id| b.io.board_ids().contains(id)) {
+                if let Some(id) =
+                    a.io.board_ids()
+                        .iter()
+                        .find(|id| b.io.board_ids().contains(id))
+                {
                     bail!(
                         "{}: arms \"{}\" and \"{}\" both use board {id}: give each arm its \
                          own `boards` (the dVRK numbers PSM1 6-7, PSM2 8-9, PSM3 10-11)",
@@ -1175,7 +1178,11 @@ transform = [[1.0, 0.0, 0.0, 0.1], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [
         let (a, b) = (&svc.arms[0], &svc.arms[1]);
         assert_eq!((a.arm, b.arm), (ArmKind::Classic, ArmKind::Si));
         assert_eq!(b.io.board_ids(), &[8, 9]);
-        assert!(b.io.actuators().iter().all(|x| x.board_id == 8 || x.board_id == 9));
+        assert!(
+            b.io.actuators()
+                .iter()
+                .all(|x| x.board_id == 8 || x.board_id == 9)
+        );
         // Same actuators as the file, only the board numbers moved.
         assert_eq!(
             a.io.actuators().map(|x| x.axis),

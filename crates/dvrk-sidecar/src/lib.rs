@@ -14,6 +14,7 @@ pub mod drive;
 pub mod echo;
 pub mod files;
 pub mod formats;
+pub mod fw_life;
 pub mod offline;
 pub mod out;
 pub mod rt;

@@ -288,7 +288,9 @@ impl<P: Port> Port for SharedPort<P> {
         board_mask: u16,
         out: &mut [u8],
     ) -> Result<(), dvrk_io::port::PortError> {
-        self.0.borrow_mut().broadcast_query_hub_read(board_mask, out)
+        self.0
+            .borrow_mut()
+            .broadcast_query_hub_read(board_mask, out)
     }
 }
 
@@ -521,11 +523,25 @@ fn discover_until_found<L: dvrk_io::Link>(
     }
 }
 
+/// FireWire follows the console's life cycle (crate::fw_life): open the port once the console
+/// holds it, read until the console lets it go, release it, wait for the console again.
 #[cfg(feature = "firewire")]
 fn firewire(svc: &ServiceConfig, n: u32, stop: &StopFlag) -> Result<()> {
-    let port = dvrk_io::port::FirewirePort::open(n)
-        .with_context(|| format!("opening FireWire port {n}"))?;
-    run_readers(svc, SharedPort::new(port), stop)
+    let dev = crate::fw_life::device(n);
+    loop {
+        if !crate::fw_life::wait_for_console(&dev, stop) {
+            return Ok(());
+        }
+        let port = dvrk_io::port::FirewirePort::open(n)
+            .with_context(|| format!("opening FireWire port {n}"))?;
+        let release = crate::fw_life::watch_release(dev.clone(), stop.clone())
+            .context("starting the FireWire release watch")?;
+        run_readers(svc, SharedPort::new(port), &release)?;
+        if stop.raised() {
+            return Ok(());
+        }
+        // run_readers dropped the port: the console can start again.
+    }
 }
 
 #[cfg(not(feature = "firewire"))]
@@ -1037,7 +1053,8 @@ fn run_loop<Src: SampleSource>(
 
     let watchdog_ns = sd_notify::watchdog_enabled().map(|d| (d.as_nanos() / 2) as u64);
     // One histogram per arm (its read to its notify) and one of the whole cycle (every arm).
-    let mut hists: Vec<DurationHistogram> = pipes.iter().map(|_| DurationHistogram::new()).collect();
+    let mut hists: Vec<DurationHistogram> =
+        pipes.iter().map(|_| DurationHistogram::new()).collect();
     let mut loop_hist = DurationHistogram::new();
     let (summaries, summary_rx) = sync_channel::<Summary>(1);
     let names: Vec<String> = svc.arms.iter().map(|a| a.prefix.clone()).collect();
@@ -1097,7 +1114,11 @@ fn run_loop<Src: SampleSource>(
                 cycle_max_ns: loop_hist.max_ns(),
             };
             loop_hist.reset();
-            for ((slot, pipe), hist) in s.arms.iter_mut().zip(pipes.iter_mut()).zip(hists.iter_mut())
+            for ((slot, pipe), hist) in s
+                .arms
+                .iter_mut()
+                .zip(pipes.iter_mut())
+                .zip(hists.iter_mut())
             {
                 *slot = ArmSummary {
                     counters: pipe.counters,

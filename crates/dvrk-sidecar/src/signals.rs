@@ -31,3 +31,16 @@ impl StopFlag {
         &self.0
     }
 }
+
+impl StopFlag {
+    /// A flag no signal raises: raised only by [`StopFlag::raise`] (e.g. the FireWire port's
+    /// release when the console exits, crate::fw_life).
+    pub fn manual() -> Self {
+        StopFlag(Arc::new(AtomicBool::new(false)))
+    }
+
+    /// Raises the flag.
+    pub fn raise(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
