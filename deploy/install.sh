@@ -180,7 +180,8 @@ if [ -n "$io_json" ]; then
     safe_json_name --io-json "$io_json"
 fi
 if [ -n "$source_override" ]; then
-    [[ "$source_override" =~ ^(udp:[0-9A-Fa-f.:\[\]]+|fw:[0-9]+|tap:[A-Za-z0-9._-]+(:[0-9]+)?|sim)$ ]] \
+    source_re='^(udp:[][0-9A-Fa-f.:]+|fw:[0-9]+|tap:[A-Za-z0-9._-]+(:[0-9]+)?|sim)$'
+    [[ "$source_override" =~ $source_re ]] \
         || die "--source $source_override: not one of udp:IP[:PORT], fw:N, tap:IFACE[:PORT], sim"
     [[ "$source_override" != tap:* ]] || tap=1
 fi
