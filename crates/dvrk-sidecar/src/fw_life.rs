@@ -70,6 +70,12 @@ pub fn wait_for_console(dev: &Path, stop: &StopFlag) -> bool {
             info!(device = %dev.display(), console_pids = ?h, "the console holds the FireWire device: opening it");
             return true;
         }
+        // The unit is Type=notify with a watchdog: waiting for the console (for hours, maybe)
+        // is a normal state, not a start-up that hangs.
+        let _ = sd_notify::notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Watchdog,
+        ]);
         if waited >= next_log {
             let status = format!(
                 "waiting for the dVRK console to open {} (the service opens it after the console, \
