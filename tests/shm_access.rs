@@ -134,3 +134,62 @@ fn consumer_of_another_user_is_told_why() {
     }
     eprintln!("the consumer of uid {CONSUMER_UID} was told: {msg}");
 }
+
+/// Root in a domain that another account (the service's) created: refused before anything is
+/// created there, in words naming the owner and what to run instead; the domain's files are
+/// left as they were (nothing owned by root appears).
+#[cfg_attr(
+    not(has_root),
+    ignore = "needs root to run the publisher as another user (setpriv) and to be root"
+)]
+#[test]
+fn root_is_refused_in_the_services_domain_before_it_locks_the_service_out() {
+    let domain = format!("hr{}_", std::process::id());
+    cleanup(&domain);
+    let mut publisher = spawn_as(PUBLISHER_UID, "publisher", &domain);
+    let ready = role_line(&mut publisher);
+    assert_eq!(
+        ready, "ready",
+        "the publisher (uid {PUBLISHER_UID}) did not start"
+    );
+
+    let cfg = domain_config(&domain, Some(&root_path(&domain))).unwrap();
+    let r = create_node::<Service>("shm_access_root", Some(&cfg));
+    let root_owned: Vec<PathBuf> = walk(&PathBuf::from(root_path(&domain)))
+        .into_iter()
+        .filter(|p| {
+            std::os::unix::fs::MetadataExt::uid(&std::fs::symlink_metadata(p).unwrap()) == 0
+        })
+        .collect();
+
+    if let Some(mut stdin) = publisher.stdin.take() {
+        let _ = stdin.write_all(b"\n");
+    }
+    let _ = publisher.wait();
+    cleanup(&domain);
+
+    let e = match r {
+        Err(e @ IpcError::RootWouldLockOut { .. }) => e.to_string(),
+        Err(e) => panic!("expected the root refusal, got: {e}"),
+        Ok(_) => panic!("root created a node in the domain of uid {PUBLISHER_UID}"),
+    };
+    for needle in ["you are root", "belongs to user nobody", "sudo -u nobody"] {
+        assert!(e.contains(needle), "{needle:?} missing from: {e}");
+    }
+    assert!(root_owned.is_empty(), "root left files: {root_owned:?}");
+}
+
+/// Every path under `dir` (not following links).
+fn walk(dir: &std::path::Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let p = e.path();
+            if e.file_type().is_ok_and(|t| t.is_dir()) {
+                out.extend(walk(&p));
+            }
+            out.push(p);
+        }
+    }
+    out
+}

@@ -103,6 +103,24 @@ fn user_name(uid: u32) -> String {
         .unwrap_or_else(|| format!("uid {uid}"))
 }
 
+/// Refuses a process running as root in a domain whose root path another account owns (see
+/// [`IpcError::RootWouldLockOut`]). Root passes every `access(2)` check, so without this the
+/// lock-out it causes would go unexplained until the service restarts.
+pub fn refuse_root_in_anothers_domain(config: &Config) -> Result<(), IpcError> {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        return Ok(());
+    }
+    let root = PathBuf::from(config.global.root_path().to_string());
+    match std::fs::metadata(&root) {
+        Ok(m) if m.uid() != 0 => Err(IpcError::RootWouldLockOut {
+            owner: user_name(m.uid()),
+            path: root,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// What to do when a file of `owner` is in the way.
 pub fn hint(owner: &str) -> String {
     if owner == "root" {
@@ -113,9 +131,10 @@ pub fn hint(owner: &str) -> String {
             .to_owned()
     } else {
         format!(
-            "Run this program as {owner} (e.g. sudo -u {owner} -g dvrk ...), or install the \
-             sidecar to run as your user (sudo deploy/install.sh --binary ... --user $USER); \
-             see deploy/README.md, \"Consumers\""
+            "Run this program as {owner} (e.g. sudo -u {owner} ...): the service and its \
+             consumers run under the one account chosen at install (deploy/install.sh: by \
+             default the account that ran sudo, or --user NAME); see deploy/README.md, \
+             \"Consumers\""
         )
     }
 }
@@ -153,7 +172,7 @@ mod tests {
         assert!(hint("root").contains("sudo rm -rf /tmp/iceoryx2"));
         let h = hint("dvrk-sidecar");
         assert!(
-            h.contains("sudo -u dvrk-sidecar") && h.contains("--user $USER"),
+            h.contains("sudo -u dvrk-sidecar") && h.contains("--user NAME"),
             "{h}"
         );
     }

@@ -123,6 +123,20 @@ pub enum IpcError {
         source: Box<IpcError>,
     },
 
+    /// This process runs as root while the domain's root path belongs to another account (the
+    /// service's): what root would create there (node files, segments) only root could use
+    /// again, locking the service and its consumers out. Refused before anything is created.
+    #[error(
+        "you are root, but the dVRK sidecar's shared memory {} belongs to user {owner}: files \
+         created as root would lock the service and its consumers out. Run as {owner}: \
+         sudo -u {owner} <command>",
+        path.display()
+    )]
+    RootWouldLockOut {
+        path: std::path::PathBuf,
+        owner: String,
+    },
+
     /// The timer of a predictive subscription could not be set up.
     #[error("{what} failed: {source}")]
     Timer {

@@ -121,6 +121,7 @@ pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<No
             &default_config
         }
     };
+    crate::access::refuse_root_in_anothers_domain(config)?;
     NodeBuilder::new()
         .name(&node_name)
         .config(config)
