@@ -357,37 +357,106 @@ impl ComplianceConfig {
         let mut insertion_reported = false;
         for (j, joint) in self.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
-            let (insertion_m, clamped) = joint.clamp_insertion(raw_insertion_m);
+            let (_, clamped) = joint.clamp_insertion(raw_insertion_m);
+            // The same insertion rule as the service's estimator: inside the range, extrapolated
+            // within INSERTION_MARGIN_M with a growing uncertainty, beyond it not corrected.
+            let ins = insertion_rule(joint, raw_insertion_m);
+            out.flags |= ins.flags;
             if !insertion_reported {
-                out.insertion_m = insertion_m;
+                out.insertion_m = ins.insertion_m;
                 insertion_reported = true;
             }
             out.insertion_clamped |= clamped;
             let tau_ext = tau_ext_nm[j];
-            let delta = joint.deflection_rad(self.model, tau_ext, insertion_m);
+            let k = 1.0 / cubic(&joint.inverse_compliance_nm_per_rad, ins.insertion_m);
             out.tau_ext_nm[j] = tau_ext;
             out.tau_margin_nm[j] = tau_ext.abs() - joint.threshold_nm();
-            out.delta_rad[j] = delta;
-            out.active[j] = delta != 0.0;
-            out.position[j] = position[j] - delta;
-            out.weight[j] = 1.0;
-            // The stateless formula has no noise model: its gate stands for 4 sigma.
-            let k = 1.0 / cubic(&joint.inverse_compliance_nm_per_rad, insertion_m);
-            let m = side_of_play(joint.play_rad(), delta, k, tau_ext);
-            out.bound_rad[j] = joint_bound(
-                joint.play_rad(),
-                m,
-                k,
-                joint.threshold_nm() / 4.0,
-                tau_ext,
-                STIFFNESS_REL_SIGMA,
-            );
-        }
-        if out.insertion_clamped {
-            out.flags |= trust::INSERTION_EXTRAPOLATED;
+            out.weight[j] = ins.weight;
+            let full = joint.deflection_rad(self.model, tau_ext, ins.insertion_m);
+            if ins.weight > 0.0 {
+                let delta = full;
+                out.delta_rad[j] = delta;
+                out.active[j] = delta != 0.0;
+                out.position[j] = position[j] - delta;
+                // The stateless formula has no noise model: its gate stands for 4 sigma.
+                let m = side_of_play(joint.play_rad(), delta, k, tau_ext);
+                out.bound_rad[j] = joint_bound(
+                    joint.play_rad(),
+                    m,
+                    k,
+                    joint.threshold_nm() / 4.0,
+                    tau_ext,
+                    ins.rel_k,
+                );
+            } else {
+                // Not corrected: the whole deflection the model would have removed is the error,
+                // with the stiffness's uncertainty of the clamped end on top.
+                out.bound_rad[j] = 0.95 * joint.play_rad() + full.abs() * (1.0 + ins.rel_k);
+            }
         }
         out.tip_bound_m = tip_bound_m(raw_insertion_m, out.bound_rad);
         out
+    }
+}
+
+/// Where the stiffness cubic is evaluated for a measured insertion, how far it is trusted there
+/// and what the flags say: inside the fitted range as measured; within
+/// [`INSERTION_MARGIN_M`] outside it extrapolated (if 1/K stays within its physical bounds) with
+/// a relative stiffness uncertainty growing to [`STIFFNESS_REL_SIGMA_AT_MARGIN`] more at the
+/// margin's end; beyond it (or a non-finite insertion) not corrected (`weight` 0) at the
+/// clamped end.
+#[derive(Clone, Copy, Debug)]
+struct InsertionRule {
+    insertion_m: f64,
+    rel_k: f64,
+    weight: f64,
+    flags: u32,
+}
+
+fn insertion_rule(joint: &JointModel, raw_l: f64) -> InsertionRule {
+    let [lo, hi] = joint.insertion_range_m;
+    let outside = if raw_l < lo {
+        lo - raw_l
+    } else if raw_l > hi {
+        raw_l - hi
+    } else {
+        0.0
+    };
+    let (clamped_l, _) = joint.clamp_insertion(raw_l);
+    let refuse = InsertionRule {
+        insertion_m: clamped_l,
+        rel_k: 0.5,
+        weight: 0.0,
+        flags: trust::INSERTION_OUT_OF_RANGE,
+    };
+    if !raw_l.is_finite() {
+        return InsertionRule {
+            rel_k: STIFFNESS_REL_SIGMA,
+            ..refuse
+        };
+    }
+    if outside == 0.0 {
+        return InsertionRule {
+            insertion_m: raw_l,
+            rel_k: STIFFNESS_REL_SIGMA,
+            weight: 1.0,
+            flags: 0,
+        };
+    }
+    let inv_k = cubic(&joint.inverse_compliance_nm_per_rad, raw_l);
+    let plausible = (crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[0]
+        ..=crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[1])
+        .contains(&inv_k);
+    if outside <= INSERTION_MARGIN_M && plausible {
+        InsertionRule {
+            insertion_m: raw_l,
+            rel_k: STIFFNESS_REL_SIGMA
+                + STIFFNESS_REL_SIGMA_AT_MARGIN * outside / INSERTION_MARGIN_M,
+            weight: 1.0,
+            flags: trust::INSERTION_EXTRAPOLATED,
+        }
+    } else {
+        refuse
     }
 }
 
@@ -730,37 +799,10 @@ impl Compensator {
             };
 
             // The insertion: inside the range, extrapolated within the margin, or not at all.
-            let [lo, hi] = joint.insertion_range_m;
-            let outside = if raw_l < lo {
-                lo - raw_l
-            } else if raw_l > hi {
-                raw_l - hi
-            } else {
-                0.0
-            };
-            let (clamped_l, clamped) = joint.clamp_insertion(raw_l);
-            let mut l_k = raw_l;
-            let mut rel_k = STIFFNESS_REL_SIGMA;
-            let mut w_insertion = 1.0;
-            if outside > 0.0 {
-                let inv_k = cubic(&joint.inverse_compliance_nm_per_rad, raw_l);
-                let plausible = (crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[0]
-                    ..=crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[1])
-                    .contains(&inv_k);
-                if outside <= INSERTION_MARGIN_M && plausible {
-                    flags |= trust::INSERTION_EXTRAPOLATED;
-                    rel_k += STIFFNESS_REL_SIGMA_AT_MARGIN * outside / INSERTION_MARGIN_M;
-                } else {
-                    flags |= trust::INSERTION_OUT_OF_RANGE;
-                    w_insertion = 0.0;
-                    l_k = clamped_l;
-                    rel_k = 0.5;
-                }
-            } else if !raw_l.is_finite() {
-                flags |= trust::INSERTION_OUT_OF_RANGE;
-                w_insertion = 0.0;
-                l_k = clamped_l;
-            }
+            let (_, clamped) = joint.clamp_insertion(raw_l);
+            let ins = insertion_rule(joint, raw_l);
+            flags |= ins.flags;
+            let (l_k, rel_k, w_insertion) = (ins.insertion_m, ins.rel_k, ins.weight);
             if !insertion_reported {
                 out.insertion_m = l_k;
                 insertion_reported = true;

@@ -9,6 +9,7 @@ mod common;
 use std::fs;
 use std::path::Path;
 
+use dvrk_compliance::trust;
 use dvrk_compliance::{ComplianceConfig, ComplianceParams, Correction, ModelKind};
 use proptest::prelude::*;
 
@@ -123,25 +124,50 @@ fn torque_offset_is_interpolated_and_held_beyond_the_table() {
 }
 
 #[test]
-fn insertion_above_the_range_is_clamped_and_flagged() {
+fn insertion_beyond_the_margin_is_not_corrected_and_flagged() {
     let c = worked(ModelKind::Paper).correct(&[0.5, -0.25, 0.3], &[1.125, 0.375, 0.0]);
-    // L = 0.3 is above both ranges. J1's K is constant (0.035 as before). J2 uses L = 0.2:
-    //     K = 1 / (100 * 0.2) = 0.05, delta = 0.005 + 0.05 * 0.5 = 0.03.
-    assert_close(c.delta_rad, [0.035, 0.03]);
+    // L = 0.3 is 80 mm above joint 1's range and 100 mm above joint 2's: no correction.
+    assert_close(c.delta_rad, [0.0, 0.0]);
+    assert_eq!(c.weight, [0.0, 0.0]);
     assert!(c.insertion_clamped);
-    // Reported L is joint 1's (0.22); joint 3 itself passes through unchanged.
+    assert_ne!(c.flags & trust::INSERTION_OUT_OF_RANGE, 0);
+    assert_eq!(c.position, [0.5, -0.25, 0.3]);
+    // The bound covers what was not corrected: at least the deflection the clamped model sees.
+    assert!(
+        c.bound_rad[0] >= 0.035 && c.bound_rad[1] >= 0.03,
+        "{:?}",
+        c.bound_rad
+    );
+    // Reported L is joint 1's clamped end (0.22); joint 3 itself passes through unchanged.
     assert_eq!(c.insertion_m, 0.22);
-    assert_eq!(c.position[2], 0.3);
+
+    let c = worked(ModelKind::Paper).correct(&[0.5, -0.25, 0.01], &[1.125, 0.375, 0.0]);
+    assert_close(c.delta_rad, [0.0, 0.0]);
+    assert_ne!(c.flags & trust::INSERTION_OUT_OF_RANGE, 0);
+    assert_eq!(c.insertion_m, 0.09);
 }
 
 #[test]
-fn insertion_below_the_range_is_clamped_and_flagged() {
-    let c = worked(ModelKind::Paper).correct(&[0.5, -0.25, 0.01], &[1.125, 0.375, 0.0]);
-    // J2 uses L = 0.05: K = 1 / 5 = 0.2, delta = 0.005 + 0.2 * 0.5 = 0.105.
-    assert_close(c.delta_rad, [0.035, 0.105]);
-    assert!(c.insertion_clamped);
-    assert_eq!(c.insertion_m, 0.09);
-    assert_eq!(c.position[2], 0.01);
+fn insertion_within_the_margin_is_extrapolated_with_a_wider_bound() {
+    let config = worked(ModelKind::Paper);
+    // L = 0.205: inside joint 1's range, 5 mm above joint 2's (0.2): extrapolated,
+    //     K = 1 / (100 * 0.205), delta = 0.005 + 0.5 K.
+    let c = config.correct(&[0.5, -0.25, 0.205], &[1.125, 0.375, 0.0]);
+    assert_close(c.delta_rad, [0.035, 0.005 + 0.5 / 20.5]);
+    assert_ne!(c.flags & trust::INSERTION_EXTRAPOLATED, 0);
+    assert_eq!(c.flags & trust::INSERTION_OUT_OF_RANGE, 0);
+    assert_eq!(c.weight, [1.0, 1.0]);
+    // L = 0.085: 5 mm below joint 1's range (K constant there), inside joint 2's:
+    //     K2 = 1 / 8.5, delta2 = 0.005 + 0.5 K2.
+    let below = config.correct(&[0.5, -0.25, 0.085], &[1.125, 0.375, 0.0]);
+    assert_close(below.delta_rad, [0.035, 0.005 + 0.5 / 8.5]);
+    assert_ne!(below.flags & trust::INSERTION_EXTRAPOLATED, 0);
+    // The same push inside the range has a narrower bound than at the margin.
+    let inside = config.correct(&[0.5, -0.25, 0.1], &[1.125, 0.375, 0.0]);
+    assert!(
+        below.bound_rad[0] > inside.bound_rad[0],
+        "{below:?} vs {inside:?}"
+    );
 }
 
 #[test]
@@ -160,8 +186,8 @@ fn joints_without_parameters_pass_through() {
     let mut p = common::params(WORKED).unwrap();
     p.joint.remove(0); // keep joint 2 only
     let config = ComplianceConfig::from_params(p).unwrap();
-    let c = config.correct(&[0.5, -0.25, 0.3], &[9.0, 0.375, 0.0]);
-    // J1 untouched whatever its effort; J2 as in the clamped case (L = 0.2, delta = 0.03).
+    let c = config.correct(&[0.5, -0.25, 0.2], &[9.0, 0.375, 0.0]);
+    // J1 untouched whatever its effort; J2 at its range's end (L = 0.2, delta = 0.03).
     assert_eq!(
         (c.position[0], c.delta_rad[0], c.tau_ext_nm[0]),
         (0.5, 0.0, 0.0)
@@ -169,7 +195,7 @@ fn joints_without_parameters_pass_through() {
     assert!(!c.active[0] && c.active[1]);
     assert!(close(c.delta_rad[1], 0.03));
     // The reported L is then joint 2's.
-    assert_eq!((c.insertion_m, c.insertion_clamped), (0.2, true));
+    assert_eq!((c.insertion_m, c.insertion_clamped), (0.2, false));
 
     let none = common::config("joint = []").unwrap();
     let q = [0.1, 0.2, 0.3];
@@ -257,23 +283,26 @@ fn clamping_keeps_k_bounded_at_the_joint_2_cubic_root() {
     // Just below the root K is negative: the correction would go the wrong way.
     assert!(1.0 / cubic(0.0142) < 0.0);
 
-    // The model clamps L to 0.09 m: K = 1 / 20.7586 = 0.048173 rad/N·m, and with the paper's
-    // file (backlash 0, tau_0 = 0) a 0.5 N·m push on joint 2 gives delta = 0.5 K = 0.024086 rad.
+    // Far below the fitted range (0.09 m, more than the 10 mm margin) the model corrects
+    // nothing and says so; 5 mm below it, 1/K is extrapolated (19.87 N·m/rad, within bounds).
     let config = ComplianceConfig::from_params(paper_file()).unwrap();
     for l in [root, 0.0142, 0.0, 0.05] {
         let out = config.correct(&[0.0, 0.1, l], &[0.0, 0.5, 0.0]);
         assert!(out.insertion_clamped && out.insertion_m == 0.09, "L = {l}");
-        assert!(
-            (out.delta_rad[1] - 0.5 / 20.758_635_93).abs() < 1e-9,
-            "L = {l}: {out:?}"
-        );
-        assert!((out.delta_rad[1] - 0.024_086_36).abs() < 1e-8);
+        assert_eq!(out.delta_rad, [0.0, 0.0], "L = {l}: {out:?}");
+        assert_ne!(out.flags & trust::INSERTION_OUT_OF_RANGE, 0, "L = {l}");
     }
+    let out = config.correct(&[0.0, 0.1, 0.085], &[0.0, 0.5, 0.0]);
+    let inv_k = cubic(0.085);
+    assert!((19.0..21.0).contains(&inv_k), "{inv_k}");
+    assert!((out.delta_rad[1] - 0.5 / inv_k).abs() < 1e-12, "{out:?}");
 }
 
 /// Joint limits of the Classic PSM (reference 1.2).
 fn q_strategy() -> impl Strategy<Value = [f64; 3]> {
-    (-1.588..=1.588f64, -0.925..=0.925f64, 0.0..=0.24f64).prop_map(|(a, b, c)| [a, b, c])
+    // Insertion within the fitted range of the paper's file (0.09-0.22 m), where the model is
+    // continuous; the margin and beyond have tests of their own.
+    (-1.588..=1.588f64, -0.925..=0.925f64, 0.09..=0.22f64).prop_map(|(a, b, c)| [a, b, c])
 }
 
 fn model_strategy() -> impl Strategy<Value = ModelKind> {
@@ -421,11 +450,12 @@ proptest! {
             // joint 1 (at 0.09 m: 74.03 / 12.35^2) and 0.40 for joint 2; 2 is a safe bound.
             prop_assert!((a.delta_rad[j] - b.delta_rad[j]).abs() <= 2.0 * e[j].abs() * dl.abs() + 1e-15);
         }
-        let at_top = config.correct(&[q[0], q[1], 0.22], &effort);
-        let above = config.correct(&[q[0], q[1], 0.22 + beyond], &effort);
-        prop_assert_eq!(at_top.delta_rad, above.delta_rad);
-        let at_bottom = config.correct(&[q[0], q[1], 0.09], &effort);
-        let below = config.correct(&[q[0], q[1], 0.09 - beyond], &effort);
-        prop_assert_eq!(at_bottom.delta_rad, below.delta_rad);
+        // Beyond the 10 mm margin: no correction at all.
+        if beyond > 0.0101 {
+            let above = config.correct(&[q[0], q[1], 0.22 + beyond], &effort);
+            prop_assert_eq!(above.delta_rad, [0.0, 0.0]);
+            let below = config.correct(&[q[0], q[1], 0.09 - beyond], &effort);
+            prop_assert_eq!(below.delta_rad, [0.0, 0.0]);
+        }
     }
 }
