@@ -1211,3 +1211,75 @@ fn bad_domains_and_arm_options_are_refused_by_name() {
     let e = run(&["--rate", "0"], None);
     assert!(e.contains("--rate"), "{e}");
 }
+
+/// A reliable reader that stops acknowledging (SIGSTOP) does not stall the bridge: its writers
+/// never block (`max_blocking_time` 0); once RustDDS's send window (8192 samples not yet
+/// acknowledged, 5.5 s at every cycle) is full, samples are dropped and counted, and the bridge
+/// keeps taking every cycle from shared memory. (At the default 100 Hz the window holds 82 s,
+/// longer than any reader's lease: a stalled reader is dropped before it fills.)
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn a_stalled_reliable_reader_does_not_stall_the_bridge() {
+    if !require_python(&["cyclonedds"]) {
+        return;
+    }
+    let test = "ros2-stall";
+    let prefix = unique_prefix(test);
+    let cfg = write_config(test, "sim", "shared", &prefix, "divot-push.toml");
+    let mut serve = serve(&cfg);
+    let domain = unique_domain() + 4;
+    let uri = cyclone_uri(&scratch(test));
+    let domain_s = domain.to_string();
+    let mut bridge = bridge_proc(
+        &[
+            "--prefix",
+            "PSM1",
+            "--shm-prefix",
+            &prefix,
+            "--domain",
+            &domain_s,
+            "--interface",
+            "127.0.0.1",
+            "--rate",
+            "all",
+        ],
+        None,
+    );
+    let (reader, rx) = cyclone_reader(
+        &uri,
+        domain,
+        &["rt/PSM1/compensated/measured_js"],
+        "joints",
+        1_000_000,
+        ReaderQos::ROS2_DEFAULT,
+        120,
+    );
+    // Matched and receiving: then it stops acknowledging. 8 s stays inside Cyclone's 10 s
+    // participant lease, so the bridge still counts it as a matched reliable reader.
+    let first = rx
+        .iter()
+        .find(|v| v.get("ready").is_none())
+        .expect("the reader received nothing");
+    assert_eq!(first["header"]["frame_id"], "PSM1");
+    reader.signal(libc::SIGSTOP);
+    std::thread::sleep(Duration::from_secs(8));
+    // Then it dies: RustDDS drops it when its lease ends (10 s after its last announcement),
+    // and a bridge held by blocked writes would then take the next cycle and count the cycles
+    // shared memory lost meanwhile.
+    reader.signal(libc::SIGKILL);
+    std::thread::sleep(Duration::from_secs(5));
+    let (st, log) = bridge.terminate();
+    assert!(st.success(), "ros2-bridge exited with {st}: {log}");
+    let (st, slog) = serve.terminate();
+    assert!(st.success(), "serve exited with {st}: {slog}");
+    let s = summaries(&log, "ros2-bridge")["PSM1"];
+    eprintln!("stalled reader: {s:?}");
+    // The window filled and the writes that found it full were dropped, not waited for.
+    assert!(s.dropped > 0, "{s:?}");
+    // Blocked writes would have held the bridge for many cycles each, and shared memory would
+    // have lost most cycles; it lost few, if any (a loaded machine may starve it briefly).
+    assert!(s.lost * 10 < s.cycles, "{s:?}");
+}
