@@ -6,9 +6,13 @@ The IDL types are declared here from the ROS 2 message definitions, with the DDS
 ROS 2 rmw layers register (`geometry_msgs::msg::dds_::PoseStamped_`), so a match proves that a
 ROS 2 node would receive them.
 
-Usage: cyclone_reader.py --domain N --topic rt/PSM1/compensated/local/measured_cp
+Usage: cyclone_reader.py --domain N --topic rt/PSM1/compensated/local/measured_cp [--topic ...]
                          --type pose|joints --count K --timeout-s T
-Exit status 0 when K samples were read, 2 on timeout.
+                         [--reliability reliable|best-effort] [--durability volatile|transient-local]
+                         [--depth D]
+The QoS is by default ROS 2's default subscriber profile: RELIABLE, KEEP_LAST 10, VOLATILE.
+Each line carries the topic; every topic (all of one type) must bring K samples.
+Exit status 0 when K samples were read on every topic, 2 on timeout.
 """
 
 import argparse
@@ -88,35 +92,40 @@ def to_json(kind, s):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--domain", type=int, required=True)
-    ap.add_argument("--topic", required=True)
+    ap.add_argument("--topic", action="append", required=True)
     ap.add_argument("--type", choices=["pose", "joints"], required=True)
     ap.add_argument("--count", type=int, required=True)
     ap.add_argument("--timeout-s", type=float, default=30.0)
-    ap.add_argument("--reliable", action="store_true",
-                    help="request reliable delivery (the bridge must run with --reliable)")
+    ap.add_argument("--reliability", choices=["reliable", "best-effort"], default="reliable")
+    ap.add_argument("--durability", choices=["volatile", "transient-local"], default="volatile")
+    ap.add_argument("--depth", type=int, default=10,
+                    help="KEEP_LAST depth (ROS 2's default 10; deeper so that a starved reader "
+                         "loses nothing of a burst)")
     a = ap.parse_args()
 
     dp = DomainParticipant(a.domain)
     ty = PoseStamped if a.type == "pose" else JointState
-    topic = Topic(dp, a.topic, ty)
-    # ROS 2's sensor-data profile on the reading side too (or reliable); a deep history so that
-    # no sample of a burst is lost between two takes.
-    rel = (Policy.Reliability.Reliable(duration(milliseconds=100)) if a.reliable
+    rel = (Policy.Reliability.Reliable(duration(milliseconds=100)) if a.reliability == "reliable"
            else Policy.Reliability.BestEffort)
-    qos = Qos(rel, Policy.History.KeepLast(1000))
-    reader = DataReader(dp, topic, qos=qos)
+    dur = (Policy.Durability.TransientLocal if a.durability == "transient-local"
+           else Policy.Durability.Volatile)
+    qos = Qos(rel, dur, Policy.History.KeepLast(a.depth))
+    readers = [(name, DataReader(dp, Topic(dp, name, ty), qos=qos)) for name in a.topic]
     print(json.dumps({"ready": True}), flush=True)
-    got = 0
+    got = {name: 0 for name in a.topic}
     end = time.monotonic() + a.timeout_s
-    while got < a.count and time.monotonic() < end:
-        for s in reader.take(N=1000):
-            if got < a.count:
-                print(json.dumps(to_json(a.type, s)), flush=True)
-                got += 1
-        if got < a.count:
+    while min(got.values()) < a.count and time.monotonic() < end:
+        for name, reader in readers:
+            for s in reader.take(N=1000):
+                if got[name] < a.count:
+                    out = to_json(a.type, s)
+                    out["topic"] = name
+                    print(json.dumps(out), flush=True)
+                    got[name] += 1
+        if min(got.values()) < a.count:
             time.sleep(0.002)
-    if got < a.count:
-        print(f"timeout: {got} of {a.count} samples on {a.topic}", file=sys.stderr)
+    if min(got.values()) < a.count:
+        print(f"timeout: {got} of {a.count} samples each", file=sys.stderr)
         return 2
     return 0
 

@@ -125,19 +125,29 @@ impl ConsoleQos {
     }
 }
 
-/// The DDS domain from `ROS_DOMAIN_ID` as ROS 2 reads it: unset or empty is 0.
+/// The DDS domain from `ROS_DOMAIN_ID` as ROS 2 reads it: unset or empty is 0; anything but
+/// an integer 0..=232 is an error naming the variable and its value.
 pub fn ros_domain_id() -> Result<u16, BridgeError> {
-    match std::env::var("ROS_DOMAIN_ID") {
-        Err(_) => Ok(0),
-        Ok(s) if s.trim().is_empty() => Ok(0),
-        Ok(s) => match s.trim().parse::<u16>() {
-            Ok(d) if d <= MAX_DOMAIN_ID => Ok(d),
-            _ => Err(BridgeError::InvalidArgument {
-                what: "ROS_DOMAIN_ID",
-                value: s,
-                reason: "must be an integer 0..=232",
-            }),
-        },
+    domain_id_from(std::env::var_os("ROS_DOMAIN_ID").as_deref())
+}
+
+fn domain_id_from(value: Option<&std::ffi::OsStr>) -> Result<u16, BridgeError> {
+    let Some(v) = value else { return Ok(0) };
+    let bad = || BridgeError::InvalidArgument {
+        what: "ROS_DOMAIN_ID",
+        value: v.to_string_lossy().into_owned(),
+        reason: "must be an integer 0..=232, as ROS 2 requires (or unset: domain 0)",
+    };
+    let s = v.to_str().ok_or_else(bad)?.trim();
+    if s.is_empty() {
+        return Ok(0);
+    }
+    if !s.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(bad());
+    }
+    match s.parse::<u16>() {
+        Ok(d) if d <= MAX_DOMAIN_ID => Ok(d),
+        _ => Err(bad()),
     }
 }
 
@@ -882,4 +892,29 @@ pub fn wait_until(timeout: Duration, step: Duration, mut f: impl FnMut() -> bool
 /// The current time as a ROS stamp (CLOCK_REALTIME).
 pub fn ros_now() -> RosTime {
     now_stamp()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ros_domain_id_is_read_as_ros_2_does() {
+        use std::ffi::OsStr;
+        let d = |v: &str| domain_id_from(Some(OsStr::new(v)));
+        assert_eq!(domain_id_from(None).unwrap(), 0);
+        assert_eq!(d("").unwrap(), 0);
+        assert_eq!(d("42").unwrap(), 42);
+        assert_eq!(d(" 7 ").unwrap(), 7);
+        assert_eq!(d("232").unwrap(), 232);
+        for bad in ["233", "-1", "+5", "abc", "1e3", "65536"] {
+            let e = d(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("ROS_DOMAIN_ID")
+                    && e.contains(&format!("{bad:?}"))
+                    && e.contains("0..=232"),
+                "{e}"
+            );
+        }
+    }
 }

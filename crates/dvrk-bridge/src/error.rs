@@ -87,4 +87,30 @@ pub enum BridgeError {
         #[source]
         source: std::io::Error,
     },
+
+    /// `record` got no message from any of its arms: no `serve` published them.
+    #[error(
+        "nothing recorded: no message from {arms} within {waited_s:.1} s (is `dvrk-sidecar serve` \
+         running with these prefixes?){removed}"
+    )]
+    NothingRecorded {
+        /// The arms waited for, with their shared-memory prefixes.
+        arms: String,
+        waited_s: f64,
+        /// What became of the file (`; run.mcap, which held no message, was removed`).
+        removed: String,
+    },
+
+    /// The thread that writes the recording stopped before an arm's thread (it failed: its
+    /// error is the one reported).
+    #[error("the recording's writer stopped")]
+    WriterStopped,
+
+    /// A thread could not be started.
+    #[error("starting the thread of {arm}: {source}")]
+    Thread {
+        arm: String,
+        #[source]
+        source: std::io::Error,
+    },
 }

@@ -1,18 +1,20 @@
 //! dvrk-bridge: carries the compensated topics of dvrk-sidecar to ROS 2 and to MCAP files.
 //!
 //! Both bridges are consumer processes of the sidecar's shared memory (dvrk-ipc): they wake on
-//! the cycle event, so nothing they do can slow the cycle. They need no ROS installation:
+//! the cycle event, so nothing they do can slow the cycle. They need no ROS installation. One
+//! process serves every arm of a service ([`SourceOptions::arms`]):
 //!
 //! - [`run_ros2_bridge`] publishes DDS topics that a ROS 2 node sees as
 //!   `/PSM1/compensated/local/measured_cp` and `/PSM1/compensated/measured_cp`
 //!   (`geometry_msgs/PoseStamped`), `/PSM1/compensated/measured_js` (6 joints) and
 //!   `/PSM1/compensated/jaw/measured_js` (`sensor_msgs/JointState`), and
 //!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]; the ROS 2
-//!   interface package is in `ros2/dvrk_sidecar_msgs` for a colcon workspace), with
-//!   RustDDS (RTPS in pure Rust) and hand-written CDR ([`cdr`]). QoS is ROS 2's sensor-data
-//!   profile by default. It never publishes under the console's own names.
-//! - [`run_record`] writes the same topics to an MCAP file (`ros2msg` schemas, CDR payloads),
-//!   and the uncompensated ones under the console's names (`/PSM1/measured_js`,
+//!   interface package is in `ros2/dvrk_sidecar_msgs` for a colcon workspace), for each arm, with
+//!   RustDDS (RTPS in pure Rust) and hand-written CDR ([`cdr`]). QoS is the console's own
+//!   (RELIABLE, KEEP_LAST 100, VOLATILE; [`QosProfile`]), at 100 Hz by default ([`Rate`]). It
+//!   never publishes under the console's own names.
+//! - [`run_record`] writes the same topics of every arm to one MCAP file (`ros2msg` schemas, CDR
+//!   payloads), and the uncompensated ones under the console's names (`/PSM1/measured_js`,
 //!   `/PSM1/local/measured_cp`, ...) unless told to keep to the compensated ones.
 //!
 //! The shared memory already carries the dVRK's names and both clocks: each ROS 2 topic is the
@@ -29,60 +31,197 @@ pub mod dds;
 mod error;
 pub mod msgdefs;
 pub mod record;
+mod run;
 pub mod source;
 
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
-use std::time::{Duration, Instant};
 
 pub use convert::{ArmFrames, Decimator, Encoder, OutTopic, ros_time};
-pub use dds::{DdsOptions, DdsSink, QosProfile};
+pub use dds::{DdsOptions, DdsParticipant, DdsSink, IncompatibleReaders, QosProfile};
 pub use error::BridgeError;
 pub use record::McapSink;
-pub use source::{RunStats, ShmSource, Sink};
+pub use run::{ArmReport, NOTHING_TIMEOUT, run_record, run_ros2_bridge};
+pub use source::{RunStats, Sample, ShmSource, Sink};
+
+/// One arm the bridges carry.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ArmSpec {
+    /// The ROS namespace and frame names (`PSM1`): one ROS name token.
+    pub arm: String,
+    /// Shared-memory prefix of the `serve` that publishes the arm (`PSM1`, `lab/PSM1`).
+    pub shm_prefix: String,
+    /// Frame id of `measured_cp` (the console's reference frame of the arm's base frame, e.g.
+    /// `ECM`); `None`: `<arm>_base`.
+    pub base_frame_id: Option<String>,
+}
+
+impl ArmSpec {
+    /// `--prefix ARM [--shm-prefix P] [--base-frame-id F]`: the arm `arm` (a ROS name token),
+    /// read under `shm_prefix` (default: `arm`, as `serve` names it).
+    pub fn new(
+        arm: &str,
+        shm_prefix: Option<&str>,
+        base_frame_id: Option<&str>,
+    ) -> Result<Self, BridgeError> {
+        validate_arm(arm)?;
+        Ok(ArmSpec {
+            arm: arm.to_owned(),
+            shm_prefix: shm_prefix.unwrap_or(arm).to_owned(),
+            base_frame_id: base_frame_id.map(str::to_owned),
+        })
+    }
+
+    /// An arm of a service configuration, named by its shared-memory prefix (an arm's `name`
+    /// or the single-arm `prefix`: `PSM1`, or a namespaced `lab/PSM1`). Its ROS namespace is the
+    /// prefix's last segment: the console's name of the arm.
+    pub fn from_service_prefix(prefix: &str) -> Result<Self, BridgeError> {
+        let arm = prefix.rsplit('/').next().unwrap_or(prefix);
+        if dvrk_ipc::arm_name_problem(arm).is_some() {
+            return Err(BridgeError::InvalidArgument {
+                what: "arm name of the service configuration",
+                value: prefix.to_owned(),
+                reason: "its last '/' segment, the ROS namespace, must be one ROS name token \
+                         (ASCII letters, digits and '_', not starting with a digit, e.g. PSM1)",
+            });
+        }
+        Ok(ArmSpec {
+            arm: arm.to_owned(),
+            shm_prefix: prefix.to_owned(),
+            base_frame_id: None,
+        })
+    }
+
+    /// `PSM1`, or `PSM1 (shared memory lab/PSM1)` when the prefix differs from the name.
+    pub fn describe(&self) -> String {
+        if self.shm_prefix == self.arm {
+            self.arm.clone()
+        } else {
+            format!("{} (shared memory {})", self.arm, self.shm_prefix)
+        }
+    }
+
+    fn encoder(&self) -> Encoder {
+        let frames = ArmFrames::new(&self.arm, self.base_frame_id.as_deref());
+        tracing::info!(
+            "{}: stamps are the samples' ROS time (CLOCK_REALTIME, from the message headers); \
+             frames: local/measured_cp in {}, measured_cp in {}",
+            self.arm,
+            frames.local_frame_id,
+            frames.base_frame_id
+        );
+        Encoder::new(frames)
+    }
+}
+
+/// How many cycles per second the bridges pass on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Rate {
+    /// Every cycle of the sidecar (1.5 kHz on a dVRK).
+    EveryCycle,
+    /// At most this many cycles per second: the first cycle of each 1/rate slot of the
+    /// sample clock (see [`Decimator`]).
+    Hz(f64),
+}
+
+impl Rate {
+    /// The ROS 2 bridge's default: the rate of the console's own state topics (100 Hz), what
+    /// rqt, rviz, `ros2 topic echo` and `ros2 bag record` cope with.
+    pub const ROS2_DEFAULT: Rate = Rate::Hz(100.0);
+    /// `record`'s default: every cycle, all a logger is for.
+    pub const RECORD_DEFAULT: Rate = Rate::EveryCycle;
+
+    /// The decimation period, `None` for every cycle; or why the rate is not usable.
+    pub fn period_ns(self) -> Result<Option<u64>, BridgeError> {
+        match self {
+            Rate::EveryCycle => Ok(None),
+            Rate::Hz(hz) => Decimator::period_from_rate(hz).map(Some).map_err(|reason| {
+                BridgeError::InvalidArgument {
+                    what: "--rate",
+                    value: hz.to_string(),
+                    reason,
+                }
+            }),
+        }
+    }
+}
+
+impl core::fmt::Display for Rate {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Rate::EveryCycle => f.write_str("every cycle"),
+            Rate::Hz(hz) => write!(f, "{hz} Hz"),
+        }
+    }
+}
+
+impl core::str::FromStr for Rate {
+    type Err = BridgeError;
+
+    /// `all` (every cycle) or a number of Hz above 0.
+    fn from_str(s: &str) -> Result<Self, BridgeError> {
+        if s == "all" {
+            return Ok(Rate::EveryCycle);
+        }
+        let bad = |reason| BridgeError::InvalidArgument {
+            what: "--rate",
+            value: s.to_owned(),
+            reason,
+        };
+        let hz: f64 = s
+            .parse()
+            .map_err(|_| bad("expected a number of Hz, or `all` for every cycle"))?;
+        let rate = Rate::Hz(hz);
+        rate.period_ns()
+            .map_err(|_| bad("the rate must be a finite number of Hz above 0"))?;
+        Ok(rate)
+    }
+}
 
 /// What both bridges read.
 #[derive(Debug, Clone)]
 pub struct SourceOptions {
-    /// Arm name: the ROS namespace and frame names (`PSM1`).
-    pub arm: String,
-    /// Shared-memory prefix of the sidecar's services; `None`: `<arm>`, as `serve` names them.
-    pub shm_prefix: Option<String>,
-    /// Frame id of `measured_cp` (the console's reference frame of the arm's base frame, e.g.
-    /// `ECM`); `None`: `<arm>_base`.
-    pub base_frame_id: Option<String>,
-    /// Publish at most this many cycles per second; `None`: every cycle.
-    pub rate_hz: Option<f64>,
+    /// The arms, each in a thread of its own.
+    pub arms: Vec<ArmSpec>,
+    pub rate: Rate,
 }
 
 impl SourceOptions {
-    /// The shared-memory prefix in use.
-    pub fn shm_prefix(&self) -> String {
-        self.shm_prefix.clone().unwrap_or_else(|| self.arm.clone())
-    }
-
+    /// Checks the options; returns the decimation period.
     fn validate(&self) -> Result<Option<u64>, BridgeError> {
-        validate_arm(&self.arm)?;
-        self.rate_hz
-            .map(|hz| {
-                Decimator::period_from_rate(hz).map_err(|reason| BridgeError::InvalidArgument {
-                    what: "--rate",
-                    value: hz.to_string(),
-                    reason,
-                })
-            })
-            .transpose()
+        if self.arms.is_empty() {
+            return Err(BridgeError::InvalidArgument {
+                what: "arms",
+                value: String::new(),
+                reason: "no arm to bridge",
+            });
+        }
+        for (i, a) in self.arms.iter().enumerate() {
+            validate_arm(&a.arm)?;
+            if self.arms[..i].iter().any(|b| b.arm == a.arm) {
+                return Err(BridgeError::InvalidArgument {
+                    what: "arm name",
+                    value: a.arm.clone(),
+                    reason: "two arms would publish under the same ROS namespace",
+                });
+            }
+            if self.arms[..i].iter().any(|b| b.shm_prefix == a.shm_prefix) {
+                return Err(BridgeError::InvalidArgument {
+                    what: "shared-memory prefix",
+                    value: a.shm_prefix.clone(),
+                    reason: "two arms read the same shared memory",
+                });
+            }
+        }
+        self.rate.period_ns()
     }
 
-    fn encoder(&self) -> Result<Encoder, BridgeError> {
-        let frames = ArmFrames::new(&self.arm, self.base_frame_id.as_deref());
-        tracing::info!(
-            "stamps are the samples' ROS time (CLOCK_REALTIME, from the message headers); \
-             frames: local/measured_cp in {}, measured_cp in {}",
-            frames.local_frame_id,
-            frames.base_frame_id
-        );
-        Ok(Encoder::new(frames))
+    /// `PSM1, PSM2 (shared memory lab/PSM2)`.
+    pub fn describe_arms(&self) -> String {
+        self.arms
+            .iter()
+            .map(ArmSpec::describe)
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 }
 
@@ -99,25 +238,6 @@ pub fn validate_arm(arm: &str) -> Result<(), BridgeError> {
     }
 }
 
-/// Runs the ROS 2 bridge until `stop` is raised.
-pub fn run_ros2_bridge(
-    src: &SourceOptions,
-    dds: &DdsOptions,
-    stop: &AtomicBool,
-) -> Result<(RunStats, u64), BridgeError> {
-    let period = src.validate()?;
-    let mut sink = DdsSink::new(src.encoder()?, dds)?;
-    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-ros2-bridge", false)?;
-    tracing::info!(
-        "ros2-bridge: {} -> DDS domain {} topics rt/{}/compensated/...",
-        src.shm_prefix(),
-        dds.domain,
-        src.arm
-    );
-    let stats = source.run(&mut sink, period, stop, None)?;
-    Ok((stats, sink.written()))
-}
-
 /// What [`run_record`] writes.
 #[derive(Debug, Clone)]
 pub struct RecordOptions {
@@ -127,45 +247,6 @@ pub struct RecordOptions {
     /// Only the compensated topics; by default the uncompensated ones are recorded too, under
     /// the console's names (`/PSM1/measured_js`, ...), so a recording holds both sides.
     pub compensated_only: bool,
-}
-
-/// Records to an MCAP file until `stop` is raised or `--seconds` pass; returns the counters and
-/// the number of messages written.
-pub fn run_record(
-    src: &SourceOptions,
-    rec: &RecordOptions,
-    stop: &AtomicBool,
-) -> Result<(RunStats, u64), BridgeError> {
-    let period = src.validate()?;
-    let until = match rec.seconds {
-        None => None,
-        Some(s) if s.is_finite() && s > 0.0 && s < 1e9 => {
-            Some(Instant::now() + Duration::from_secs_f64(s))
-        }
-        Some(s) => {
-            return Err(BridgeError::InvalidArgument {
-                what: "--seconds",
-                value: s.to_string(),
-                reason: "must be a finite number of seconds above 0",
-            });
-        }
-    };
-    let raw = !rec.compensated_only;
-    let mut source = ShmSource::new(&src.shm_prefix(), "dvrk-sidecar-record", raw)?;
-    let mut sink = McapSink::create(src.encoder()?, &rec.out, raw)?;
-    tracing::info!("record: {} -> {}", src.shm_prefix(), rec.out.display());
-    match source.run(&mut sink, period, stop, until) {
-        Ok(stats) => Ok((stats, sink.finish()?)),
-        Err(e) => {
-            // Nothing recorded is deleted: the footer is written if the file still takes it
-            // (an error of the source), otherwise (a full disk) the file keeps every chunk
-            // closed before the error.
-            if let Err(f) = sink.finish() {
-                tracing::warn!("record: no footer written ({f}); the closed chunks are kept");
-            }
-            Err(e)
-        }
-    }
 }
 
 #[cfg(test)]
@@ -182,21 +263,73 @@ mod tests {
                 e.contains("--prefix") && e.contains(&format!("{bad:?}")),
                 "{e}"
             );
+            assert!(ArmSpec::new(bad, None, None).is_err());
         }
     }
 
     #[test]
-    fn rate_and_prefix_are_checked() {
+    fn a_service_prefix_publishes_under_its_last_segment() {
+        let a = ArmSpec::from_service_prefix("PSM2").unwrap();
+        assert_eq!((a.arm.as_str(), a.shm_prefix.as_str()), ("PSM2", "PSM2"));
+        assert_eq!(a.describe(), "PSM2");
+        let a = ArmSpec::from_service_prefix("lab/left/PSM1").unwrap();
+        assert_eq!(
+            (a.arm.as_str(), a.shm_prefix.as_str()),
+            ("PSM1", "lab/left/PSM1")
+        );
+        assert_eq!(a.describe(), "PSM1 (shared memory lab/left/PSM1)");
+        for bad in ["lab/1x", "", "lab/"] {
+            let e = ArmSpec::from_service_prefix(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("last '/' segment") && e.contains(&format!("{bad:?}")),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn rates_parse_as_hz_or_all() {
+        assert_eq!("all".parse::<Rate>().unwrap(), Rate::EveryCycle);
+        assert_eq!("100".parse::<Rate>().unwrap(), Rate::Hz(100.0));
+        assert_eq!(
+            "12.5".parse::<Rate>().unwrap().period_ns().unwrap(),
+            Some(80_000_000)
+        );
+        assert_eq!(Rate::EveryCycle.period_ns().unwrap(), None);
+        assert_eq!(Rate::ROS2_DEFAULT.period_ns().unwrap(), Some(10_000_000));
+        for bad in ["0", "-3", "NaN", "inf", "fast", ""] {
+            let e = bad.parse::<Rate>().unwrap_err().to_string();
+            assert!(
+                e.contains("--rate") && e.contains(&format!("{bad:?}")),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn arms_must_not_collide() {
         let mut s = SourceOptions {
-            arm: "PSM1".into(),
-            shm_prefix: None,
-            base_frame_id: None,
-            rate_hz: Some(0.0),
+            arms: vec![
+                ArmSpec::from_service_prefix("PSM1").unwrap(),
+                ArmSpec::from_service_prefix("lab/PSM2").unwrap(),
+            ],
+            rate: Rate::Hz(100.0),
         };
-        let e = s.validate().unwrap_err().to_string();
-        assert!(e.contains("--rate") && e.contains('0'), "{e}");
-        s.rate_hz = Some(100.0);
         assert_eq!(s.validate().unwrap(), Some(10_000_000));
-        assert_eq!(s.shm_prefix(), "PSM1");
+        assert_eq!(s.describe_arms(), "PSM1, PSM2 (shared memory lab/PSM2)");
+        s.arms
+            .push(ArmSpec::from_service_prefix("other/PSM1").unwrap());
+        let e = s.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("PSM1") && e.contains("same ROS namespace"),
+            "{e}"
+        );
+        s.arms.pop();
+        s.arms
+            .push(ArmSpec::new("PSM3", Some("PSM1"), None).unwrap());
+        let e = s.validate().unwrap_err().to_string();
+        assert!(e.contains("same shared memory"), "{e}");
+        s.arms.clear();
+        assert!(s.validate().is_err());
     }
 }

@@ -4,21 +4,21 @@
 use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
 use std::io::BufWriter;
+use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use dvrk_ipc::{CompensationStatusV4, JawStateV1, JointStateV2, PoseV2};
 use mcap::records::MessageHeader;
 
 use crate::convert::{Encoder, OutTopic};
 use crate::error::BridgeError;
-use crate::source::Sink;
+use crate::source::Sample;
 
 /// The longest a chunk stays open: what a SIGKILL or a power loss can cost of a recording.
 pub const CHUNK_INTERVAL: Duration = Duration::from_secs(1);
 
-/// An MCAP file being written: one channel per recorded [`OutTopic`], named by its ROS 2 topic
-/// name (`/PSM1/compensated/local/measured_cp`, `/PSM1/measured_js`).
+/// An MCAP file being written: one channel per arm and recorded [`OutTopic`], named by its ROS 2
+/// topic name (`/PSM1/compensated/local/measured_cp`, `/PSM2/measured_js`).
 ///
 /// The file is written at its own name from the start and survives any end of the recording:
 /// - a chunk is closed, flushed and synced to the disk at least every [`CHUNK_INTERVAL`] (and
@@ -27,24 +27,30 @@ pub const CHUNK_INTERVAL: Duration = Duration::from_secs(1);
 ///   message up to the last finished chunk;
 /// - [`McapSink::finish`] writes the summary and footer (a clean stop: SIGINT, SIGTERM,
 ///   `--seconds`, or an error of the source), so the seeking readers open the file too;
-/// - nothing is ever deleted: after a write error (a full disk) the file keeps every finished
-///   chunk.
+/// - nothing recorded is ever deleted: after a write error (a full disk) the file keeps every
+///   finished chunk. Only a file that holds no message is removed, by [`McapSink::discard`].
 ///
 /// An existing path is refused ([`McapSink::create`]): a recording never replaces a file.
 ///
 /// Log and publish times are the message's ROS stamp (the sample time in CLOCK_REALTIME ns), and
 /// the MCAP sequence is the low 32 bits of the sidecar's `seq`.
 pub struct McapSink {
-    encoder: Encoder,
+    arms: Vec<McapArm>,
     path: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
     /// The same open file as the writer's, to sync each closed chunk to the disk.
     file: File,
     /// When the open chunk was started (the last chunk closed).
     chunk_since: Instant,
+    payload: Vec<u8>,
+    written: u64,
+}
+
+/// One arm's encoder, channels and count.
+struct McapArm {
+    encoder: Encoder,
     /// Channel of each topic of [`OutTopic::RECORDED`] that is recorded.
     channels: [Option<u16>; OutTopic::RECORDED.len()],
-    payload: Vec<u8>,
     written: u64,
 }
 
@@ -58,9 +64,10 @@ impl core::fmt::Debug for McapSink {
 }
 
 impl McapSink {
-    /// Starts the file that will become `path` and registers the schemas and the channels of
-    /// the compensated topics and, with `raw`, of the uncompensated ones.
-    pub fn create(encoder: Encoder, path: &Path, raw: bool) -> Result<Self, BridgeError> {
+    /// Creates the file `path` and registers the schemas and, for the arm of each of
+    /// `encoders`, the channels of the compensated topics and, with `raw`, of the uncompensated
+    /// ones.
+    pub fn create(encoders: Vec<Encoder>, path: &Path, raw: bool) -> Result<Self, BridgeError> {
         if path.file_name().is_none() {
             return Err(BridgeError::InvalidArgument {
                 what: "--out",
@@ -108,41 +115,48 @@ impl McapSink {
             .profile("ros2")
             .create(BufWriter::new(file))
             .map_err(&mcap_err)?;
-        let mut channels = [None; OutTopic::RECORDED.len()];
         let mut schemas: BTreeMap<&str, u16> = BTreeMap::new();
-        for (i, t) in OutTopic::RECORDED.into_iter().enumerate() {
-            if t.is_raw() && !raw {
-                continue;
-            }
-            let ty = t.msg_type();
-            let schema = match schemas.get(ty.ros_name) {
-                Some(&id) => id,
-                None => {
-                    let id = writer
-                        .add_schema(ty.ros_name, "ros2msg", ty.schema.as_bytes())
-                        .map_err(mcap_err)?;
-                    schemas.insert(ty.ros_name, id);
-                    id
+        let mut arms = Vec::with_capacity(encoders.len());
+        for encoder in encoders {
+            let mut channels = [None; OutTopic::RECORDED.len()];
+            for (i, t) in OutTopic::RECORDED.into_iter().enumerate() {
+                if t.is_raw() && !raw {
+                    continue;
                 }
-            };
-            channels[i] = Some(
-                writer
-                    .add_channel(
-                        schema,
-                        &t.ros_name(&encoder.frames.arm),
-                        "cdr",
-                        &BTreeMap::new(),
-                    )
-                    .map_err(mcap_err)?,
-            );
+                let ty = t.msg_type();
+                let schema = match schemas.get(ty.ros_name) {
+                    Some(&id) => id,
+                    None => {
+                        let id = writer
+                            .add_schema(ty.ros_name, "ros2msg", ty.schema.as_bytes())
+                            .map_err(mcap_err)?;
+                        schemas.insert(ty.ros_name, id);
+                        id
+                    }
+                };
+                channels[i] = Some(
+                    writer
+                        .add_channel(
+                            schema,
+                            &t.ros_name(&encoder.frames.arm),
+                            "cdr",
+                            &BTreeMap::new(),
+                        )
+                        .map_err(mcap_err)?,
+                );
+            }
+            arms.push(McapArm {
+                encoder,
+                channels,
+                written: 0,
+            });
         }
         let mut sink = McapSink {
-            encoder,
+            arms,
             path: path.to_owned(),
             writer,
             file: sync,
             chunk_since: Instant::now(),
-            channels,
             payload: Vec::new(),
             written: 0,
         };
@@ -173,6 +187,11 @@ impl McapSink {
         self.written
     }
 
+    /// Messages written so far of the arm of `encoders[arm]` given to [`McapSink::create`].
+    pub fn written_of(&self, arm: usize) -> u64 {
+        self.arms.get(arm).map_or(0, |a| a.written)
+    }
+
     /// The file being written.
     pub fn path(&self) -> &Path {
         &self.path
@@ -200,11 +219,61 @@ impl McapSink {
         Ok(self.written)
     }
 
-    fn write(&mut self, t: OutTopic, header: &dvrk_ipc::Header) -> Result<(), BridgeError> {
+    /// Removes the file if no message was written to it and it is still the file this sink
+    /// created (same device and inode at its name): a recording that got nothing leaves nothing
+    /// behind, and a file put at the name since is never touched. Returns whether it was removed.
+    pub fn discard(mut self) -> Result<bool, BridgeError> {
+        if self.written > 0 {
+            return Ok(false);
+        }
+        // The summary and footer are not needed: the file goes. A write error here changes
+        // nothing about that.
+        let _ = self.writer.finish();
+        let ours = self
+            .file
+            .metadata()
+            .map_err(|source| BridgeError::CreateFile {
+                path: self.path.clone(),
+                source,
+            })?;
+        match std::fs::symlink_metadata(&self.path) {
+            Ok(now) if now.dev() == ours.dev() && now.ino() == ours.ino() => {}
+            _ => return Ok(false),
+        }
+        std::fs::remove_file(&self.path).map_err(|source| BridgeError::CreateFile {
+            path: self.path.clone(),
+            source,
+        })?;
+        Ok(true)
+    }
+
+    /// Writes `s`, a sample of the arm of `encoders[arm]` given to [`McapSink::create`].
+    pub fn write(&mut self, arm: usize, s: &Sample) -> Result<(), BridgeError> {
+        let Some(a) = self.arms.get_mut(arm) else {
+            return Ok(());
+        };
+        let (t, header) = match s {
+            Sample::Pose(t, p) => {
+                a.encoder.pose(*t, p);
+                (*t, &p.header)
+            }
+            Sample::Joints(t, js) => {
+                a.encoder.joints(js);
+                (*t, &js.header)
+            }
+            Sample::Jaw(t, jaw) => {
+                a.encoder.jaw(jaw);
+                (*t, &jaw.header)
+            }
+            Sample::Status(st) => {
+                a.encoder.status(st);
+                (OutTopic::Status, &st.header)
+            }
+        };
         let Some(channel_id) = OutTopic::RECORDED
             .iter()
             .position(|&x| x == t)
-            .and_then(|i| self.channels[i])
+            .and_then(|i| a.channels[i])
         else {
             // A topic without a channel (raw while recording compensated only): not recorded.
             return Ok(());
@@ -214,7 +283,7 @@ impl McapSink {
         self.payload.clear();
         self.payload
             .extend_from_slice(&crate::cdr::ENCAPSULATION_CDR_LE);
-        self.payload.extend_from_slice(self.encoder.last_body());
+        self.payload.extend_from_slice(a.encoder.last_body());
         self.writer
             .write_to_known_channel(
                 &MessageHeader {
@@ -229,32 +298,11 @@ impl McapSink {
                 path: self.path.clone(),
                 source,
             })?;
+        a.written += 1;
         self.written += 1;
         if self.chunk_since.elapsed() >= CHUNK_INTERVAL {
             self.close_chunk()?;
         }
         Ok(())
-    }
-}
-
-impl Sink for McapSink {
-    fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
-        self.encoder.pose(topic, p);
-        self.write(topic, &p.header)
-    }
-
-    fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
-        self.encoder.joints(js);
-        self.write(topic, &js.header)
-    }
-
-    fn jaw(&mut self, topic: OutTopic, jaw: &JawStateV1) -> Result<(), BridgeError> {
-        self.encoder.jaw(jaw);
-        self.write(topic, &jaw.header)
-    }
-
-    fn status(&mut self, s: &CompensationStatusV4) -> Result<(), BridgeError> {
-        self.encoder.status(s);
-        self.write(OutTopic::Status, &s.header)
     }
 }

@@ -30,6 +30,28 @@ pub trait Sink {
     fn status(&mut self, s: &CompensationStatusV4) -> Result<(), BridgeError>;
 }
 
+/// One sample on its way to a [`Sink`], by value: what a thread that reads one arm hands to the
+/// thread that writes every arm's (see [`crate::run_record`]). Fixed size, no heap.
+#[derive(Debug, Clone, Copy)]
+pub enum Sample {
+    Pose(OutTopic, PoseV2),
+    Joints(OutTopic, JointStateV2),
+    Jaw(OutTopic, JawStateV1),
+    Status(CompensationStatusV4),
+}
+
+impl Sample {
+    /// Passes the sample to the [`Sink`] method of its kind.
+    pub fn deliver<K: Sink + ?Sized>(&self, sink: &mut K) -> Result<(), BridgeError> {
+        match self {
+            Sample::Pose(t, p) => sink.pose(*t, p),
+            Sample::Joints(t, js) => sink.joints(*t, js),
+            Sample::Jaw(t, jaw) => sink.jaw(*t, jaw),
+            Sample::Status(s) => sink.status(s),
+        }
+    }
+}
+
 /// Silence after which the run logs that no samples arrive (once per silence).
 const SILENCE_REPORT_NS: u64 = 1_000_000_000;
 
