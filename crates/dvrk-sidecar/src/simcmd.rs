@@ -17,6 +17,11 @@
 //! The library does not choose the multicast interface itself, so on one machine loopback needs
 //! `ip link set lo multicast on` and `ip route add 224.0.0.0/4 dev lo` (root); without them its
 //! discovery stops at the hub's Ethernet-status read, the first request sent by multicast.
+//! Tried again on 2026-11-26 with `sim --arms PSM1,PSM2 --listen 0.0.0.0:1394` (in a private
+//! network namespace, `unshare -n`, with the two settings above): `qlacommand` found nodes 6, 7,
+//! 8 and 9 (BoardId = node, QLA1, Rev 9) as FPGA_V2 and as FPGA_V3, and `qladisp 8 9 -br` ran
+//! the broadcast query, read and write on PSM2's boards with the hub on board 6, about 2000
+//! cycles per mode with StateError 0 and PacketError 0.
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
