@@ -243,3 +243,30 @@ pub fn eventually<T>(limit: Duration, mut f: impl FnMut() -> Option<T>) -> Optio
     }
     None
 }
+
+/// Starts `dvrk-sidecar sim --listen IP:PORT ARGS...` (stderr captured, `RUST_LOG=info`) and
+/// returns once it has bound the port; `ip` is 127.0.0.1, or 0.0.0.0 as the dVRK host library
+/// and `drive` need it in Ethernet-only mode (reference §10).
+pub fn emulator_with(ip: &str, port: u16, args: &[&str]) -> Proc {
+    let mut p = Proc::spawn(
+        "sim",
+        Command::new(sidecar_bin())
+            .args(["sim", "--listen", &format!("{ip}:{port}")])
+            .args(args)
+            .current_dir(repo())
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let bound = eventually(Duration::from_secs(30), || {
+        UdpSocket::bind((ip, port)).is_err().then_some(())
+    });
+    if bound.is_none() {
+        let st = p.wait_timeout(Duration::from_millis(10));
+        panic!(
+            "the emulator did not bind {ip}:{port} (status {st:?}): {}",
+            p.stderr_text()
+        );
+    }
+    p
+}

@@ -8,9 +8,17 @@
 //! It writes to the boards, so it refuses any address that is not loopback: it exists to load
 //! the emulator like a console does, never to drive a robot.
 //!
+//! Which boards: by default every board the node scan finds. With `--arms PSM1,PSM2` it runs
+//! the I/O of those arms, as a console configured with them does: exactly their boards (PSM1
+//! 6-7, PSM2 8-9, PSM3 10-11) in its reads, query mask and command blocks, and it stops with
+//! an error naming any of them that discovery did not find (e.g. against `sim --arms
+//! PSM1,PSM2`, the console traffic of both arms).
+//!
 //! The loop allocates nothing: buffers and the record are reserved before the first cycle.
 //! At the end it prints its cycle statistics (`drive: ...` lines on stdout) and, with
-//! `--record`, one CSV line per cycle with the board timestamps and encoder counts it read.
+//! `--record`, one CSV line per cycle with the board timestamps and encoder counts it read:
+//! `cycle,t_start_ns,t_read_ns,ok`, then `ts<i>` per board, then `c<i>_<axis>` per board and
+//! axis 0-3, boards in ascending id (two boards: `ts0,ts1,c0_0..c0_3,c1_0..c1_3`).
 
 use std::io::Write;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
@@ -20,6 +28,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use dvrk_io::wire::firewire::{BROADCAST_NODE, LABEL_MASK};
+use dvrk_io::wire::hub::MAX_HUB_BOARDS;
 use dvrk_io::wire::hub::{HUB_ADDRESS, QUERY_ADDRESS};
 use dvrk_io::wire::{
     BlockLayout, BoardKind, BoardStatus, ControlWord, EthReply, EthRequest, FeedbackBlock,
@@ -81,6 +90,11 @@ pub struct DriveArgs {
     /// Write one CSV line per cycle: the read's time, board timestamps and encoder counts.
     #[arg(long)]
     record: Option<PathBuf>,
+    /// The console's arms, comma-separated Classic PSMs (PSM1 boards 6-7, PSM2 8-9, PSM3
+    /// 10-11): read and write exactly their boards, and fail if one is not found. Default:
+    /// every board discovery finds.
+    #[arg(long, value_name = "ARM,ARM")]
+    arms: Option<String>,
 }
 
 /// What discovery found.
@@ -93,14 +107,14 @@ struct Found {
     boards: Vec<u8>,
 }
 
-/// One cycle's read, as recorded.
+/// One cycle's read, as recorded (boards in the order driven, at most a full chain).
 #[derive(Clone, Copy, Debug, Default)]
 struct CycleRecord {
     t_start_ns: u64,
     t_read_ns: u64,
     ok: bool,
-    timestamp: [u32; 2],
-    counts: [[i32; 4]; 2],
+    timestamp: [u32; MAX_HUB_BOARDS],
+    counts: [[i32; 4]; MAX_HUB_BOARDS],
 }
 
 /// The stand-in's UDP engine: addressing like the dVRK host library, labels, generation.
@@ -385,14 +399,52 @@ fn take_block(rec: &mut CycleRecord, slot: usize, data: &[u8], lay: BlockLayout)
     let Ok(b) = FeedbackBlock::new_checked(data, lay) else {
         return false;
     };
-    if slot >= 2 {
+    let (Some(ts), Some(counts)) = (rec.timestamp.get_mut(slot), rec.counts.get_mut(slot)) else {
         return true;
-    }
-    rec.timestamp[slot] = b.timestamp().0;
-    for axis in 0..4 {
-        rec.counts[slot][axis] = b.encoder_position(axis).map_or(0, |e| e.counts());
+    };
+    *ts = b.timestamp().0;
+    for (axis, c) in counts.iter_mut().enumerate() {
+        *c = b.encoder_position(axis).map_or(0, |e| e.counts());
     }
     true
+}
+
+/// The boards to drive: those of `--arms` (ascending id), all of which discovery must have
+/// found, or every board found.
+fn boards_to_drive(arms: Option<&str>, found: &[u8]) -> Result<Vec<u8>> {
+    let Some(text) = arms else {
+        return Ok(found.to_vec());
+    };
+    let mut want: Vec<u8> = crate::simcmd::parse_arms(Some(text))?
+        .iter()
+        .flat_map(|(_, b)| *b)
+        .collect();
+    want.sort_unstable();
+    let missing: Vec<u8> = want
+        .iter()
+        .copied()
+        .filter(|b| !found.contains(b))
+        .collect();
+    if !missing.is_empty() {
+        bail!("--arms {text}: board(s) {missing:?} did not answer the node scan (found {found:?})");
+    }
+    Ok(want)
+}
+
+/// The record's CSV header for `n` boards.
+fn record_header(n: usize) -> String {
+    use std::fmt::Write as _;
+    let mut h = String::from("cycle,t_start_ns,t_read_ns,ok");
+    for i in 0..n {
+        let _ = write!(h, ",ts{i}");
+    }
+    for i in 0..n {
+        for a in 0..4 {
+            let _ = write!(h, ",c{i}_{a}");
+        }
+    }
+    h.push('\n');
+    h
 }
 
 pub fn run(args: &DriveArgs) -> Result<()> {
@@ -400,11 +452,21 @@ pub fn run(args: &DriveArgs) -> Result<()> {
     if !(args.rate.is_finite() && args.rate > 0.0 && args.rate <= 20_000.0) {
         bail!("--rate {}: must be in (0, 20000] Hz", args.rate);
     }
+    if let Some(a) = &args.arms {
+        crate::simcmd::parse_arms(Some(a))?;
+    }
     let stop = StopFlag::install()?;
     let mut c = Console::open(base, port)?;
-    let found = c
+    let mut found = c
         .discover()
         .with_context(|| format!("discovering the boards at {base}:{port}"))?;
+    found.boards = boards_to_drive(args.arms.as_deref(), &found.boards)?;
+    if found.boards.len() > MAX_HUB_BOARDS {
+        bail!(
+            "{} boards: a chain has at most {MAX_HUB_BOARDS}",
+            found.boards.len()
+        );
+    }
     let local = c.sock.local_addr()?;
     info!(
         boards = ?found.boards, hub = found.hub, firmware = found.hub_firmware,
@@ -518,7 +580,9 @@ pub fn run(args: &DriveArgs) -> Result<()> {
                             if size != lay.len_quadlets() + 1 || h.sequence_lsb() != seq as u8 {
                                 break;
                             }
-                            let blk = &data[off + 4..off + size * 4];
+                            let Some(blk) = data.get(off + 4..off + size * 4) else {
+                                break;
+                            };
                             let id = FeedbackBlock::new_checked(blk, lay)
                                 .map(|b| b.status().board_id())
                                 .unwrap_or(0xFF);
@@ -594,29 +658,24 @@ pub fn run(args: &DriveArgs) -> Result<()> {
         c.timeouts
     );
     if let Some(path) = &args.record {
-        let mut out = String::with_capacity(records.len() * 96 + 128);
-        out.push_str(
-            "cycle,t_start_ns,t_read_ns,ok,ts0,ts1,c0_0,c0_1,c0_2,c0_3,c1_0,c1_1,c1_2,c1_3\n",
-        );
+        let mut out = String::with_capacity(records.len() * (48 + 60 * nb) + 128);
+        out.push_str(&record_header(nb));
         for (i, r) in records.iter().enumerate() {
             use std::fmt::Write as _;
-            let _ = writeln!(
+            let _ = write!(
                 out,
-                "{i},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{i},{},{},{}",
                 r.t_start_ns,
                 r.t_read_ns,
-                u8::from(r.ok),
-                r.timestamp[0],
-                r.timestamp[1],
-                r.counts[0][0],
-                r.counts[0][1],
-                r.counts[0][2],
-                r.counts[0][3],
-                r.counts[1][0],
-                r.counts[1][1],
-                r.counts[1][2],
-                r.counts[1][3]
+                u8::from(r.ok)
             );
+            for ts in &r.timestamp[..nb] {
+                let _ = write!(out, ",{ts}");
+            }
+            for c in r.counts[..nb].iter().flatten() {
+                let _ = write!(out, ",{c}");
+            }
+            out.push('\n');
         }
         // Through the checked writer: never onto a device, FIFO or symbolic link (issue 22).
         crate::calib::data::write_atomically(path, out.as_bytes())?;
@@ -654,6 +713,36 @@ mod tests {
         let e = parse_boards("169.254.0.100").unwrap_err().to_string();
         assert!(e.contains("169.254.0.100") && e.contains("loopback"), "{e}");
         assert!(parse_boards("nonsense").is_err());
+    }
+
+    #[test]
+    fn arms_choose_the_boards_and_name_the_missing_ones() {
+        assert_eq!(boards_to_drive(None, &[6, 7, 8, 9]).unwrap(), [6, 7, 8, 9]);
+        assert_eq!(
+            boards_to_drive(Some("PSM2,PSM1"), &[6, 7, 8, 9]).unwrap(),
+            [6, 7, 8, 9]
+        );
+        assert_eq!(
+            boards_to_drive(Some("PSM2"), &[6, 7, 8, 9]).unwrap(),
+            [8, 9]
+        );
+        let e = boards_to_drive(Some("PSM1,PSM2"), &[6, 7])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("[8, 9] did not answer"), "{e}");
+        assert!(boards_to_drive(Some("PSM9"), &[6, 7]).is_err());
+    }
+
+    #[test]
+    fn the_record_header_has_every_board() {
+        assert_eq!(
+            record_header(2),
+            "cycle,t_start_ns,t_read_ns,ok,ts0,ts1,c0_0,c0_1,c0_2,c0_3,c1_0,c1_1,c1_2,c1_3\n"
+        );
+        let h4 = record_header(4);
+        assert!(h4.starts_with("cycle,t_start_ns,t_read_ns,ok,ts0,ts1,ts2,ts3,c0_0,"));
+        assert!(h4.ends_with(",c3_3\n"));
+        assert_eq!(h4.split(',').count(), 4 + 4 + 16);
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! Emulator of the two QLA boards of a Classic PSM1 (board ids 6 and 7, firmware Rev 9; FPGA V2
 //! bridging Ethernet to FireWire, or FPGA V3 Ethernet-only as the scenario's `ethernet` field
-//! says), driven by the physics.
+//! says), driven by the physics; or, built by [`Emulator::chain`], of one chain of boards for
+//! several arms (PSM1 6-7, PSM2 8-9, PSM3 10-11), each arm with its own physics and scenario,
+//! answering on one port as one FireWire chain behind one hub does.
 //!
 //! [`Emulator::handle`] takes one host datagram (2-byte control word + FireWire request, reference
 //! dvrk-board-protocol.md §3.1) and writes the FPGA's reply (FireWire response + 8 bytes of extra
@@ -18,8 +20,10 @@
 //! - quadlet and block writes: control/status, watchdog period, IP, PHY request, DAC/amp enable,
 //!   encoder preload, the Rev 8+ command block (single board or broadcast). Writes get no reply
 //!   over Ethernet.
-//! - broadcast requests (node 0x3F): writes go to both boards; reads are answered by the hub
-//!   board (board 6, the one "directly connected"), as in the discovery sequence (§3.3, §9).
+//! - broadcast requests (node 0x3F): writes go to every board; reads are answered by the hub
+//!   board (the lowest id, board 6 for PSM1, the one "directly connected"), as in the discovery
+//!   sequence (§3.3, §9). The hub memory holds, after a query, the blocks of the boards of its
+//!   mask in ascending board id (§3.4), and any board returns it.
 //!
 //! Node numbers equal board ids (as in Rev 9 Ethernet-only mode). Requests to other nodes get no
 //! reply. Malformed datagrams (short, bad tcode, bad header or data CRC, wrong destination bus)
@@ -36,7 +40,7 @@ use dvrk_io::wire::block::{
 };
 use dvrk_io::wire::eth::extra_flags;
 use dvrk_io::wire::firewire::{BROADCAST_NODE, LOCAL_BUS, MAX_BLOCK_BYTES, node_id};
-use dvrk_io::wire::hub::{HUB_ADDRESS, QUERY_ADDRESS};
+use dvrk_io::wire::hub::{HUB_ADDRESS, MAX_HUB_BOARDS, QUERY_ADDRESS};
 use dvrk_io::wire::{
     Adc, BlockLayout, BoardKind, EncoderPeriod, EncoderPosition, EthReply, EthRequest, ExtraData,
     FeedbackBlock, HubHeader, HubLayout, HubView, Quarter, RequestKind, RequestRepr, ResponseKind,
@@ -280,6 +284,8 @@ pub struct EmulatorCounters {
 #[derive(Clone, Debug)]
 struct Board {
     id: u8,
+    /// Index of the arm (in [`Emulator::chain`]'s order) whose actuators this board drives.
+    arm: usize,
     /// Actuator index (0..7) on each axis.
     axis_actuator: [Option<usize>; QLA_AXES],
     ip: u32,
@@ -298,7 +304,7 @@ struct Board {
 }
 
 impl Board {
-    fn new(id: u8, map: &ActuatorMap) -> Self {
+    fn new(id: u8, arm: usize, map: &ActuatorMap) -> Self {
         let mut axis_actuator = [None; QLA_AXES];
         for (i, a) in map.actuators.iter().enumerate() {
             if a.board_id == id && usize::from(a.axis) < QLA_AXES {
@@ -313,6 +319,7 @@ impl Board {
         ];
         Self {
             id,
+            arm,
             axis_actuator,
             ip: 0xFFFF_FFFF,
             watchdog_period: 0,
@@ -407,24 +414,65 @@ impl Board {
     }
 }
 
-/// The two emulated boards and the physics behind them.
+/// One arm of the chain: the physics and measurement models behind its two boards.
 #[derive(Clone, Debug)]
-pub struct Emulator {
+struct Arm {
     psm: SimPsm,
     driver: MotionDriver,
     sensors: Sensors,
     map: ActuatorMap,
-    layout: BlockLayout,
-    hub_layout: HubLayout,
-    ethernet: EthernetMode,
-    boards: [Board; 2],
-    hub: [u8; 512],
-    hub_sequence: u16,
-    epoch_ns: Option<u64>,
-    now_ns: u64,
+    boards: [u8; 2],
+    /// Simulated time of this arm since the first `advance_to`, ns (a multiple of `dt_ns`).
     sim_ns: u64,
     dt_ns: u64,
     dt_s: f64,
+}
+
+/// One arm of a chain given to [`Emulator::chain`]: its scenario (physics, motion, noise, seed),
+/// the bit conversions of its boards, and its two board ids (the dVRK numbers Classic PSM1
+/// boards 6-7, PSM2 8-9, PSM3 10-11; [`CLASSIC_PSM_BOARDS`]).
+#[derive(Clone, Copy, Debug)]
+pub struct ArmSpec<'a> {
+    pub scenario: &'a Scenario,
+    pub map: ActuatorMap,
+    pub boards: [u8; 2],
+}
+
+/// The dVRK's board ids of the Classic PSMs (reference §1.1): actuators 1-4 on the first board,
+/// 5-7 on the second.
+pub const CLASSIC_PSM_BOARDS: [(&str, [u8; 2]); 3] =
+    [("PSM1", [6, 7]), ("PSM2", [8, 9]), ("PSM3", [10, 11])];
+
+/// The board ids of the Classic PSM named `name` (`PSM1`, `PSM2`, `PSM3`, as the console names
+/// them), or `None`.
+pub fn classic_psm_boards(name: &str) -> Option<[u8; 2]> {
+    CLASSIC_PSM_BOARDS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, b)| *b)
+}
+
+/// Hub memory: one header and one Rev 9 QLA block (32 quadlets) per board of a full chain (16
+/// boards), plus the timing quadlet.
+const HUB_MEMORY_BYTES: usize = MAX_HUB_BOARDS * (4 + 128) + 4;
+
+/// The emulated boards and the physics behind them: one chain of boards on one Ethernet port,
+/// the boards of one arm ([`Emulator::new`]) or of several ([`Emulator::chain`]), each arm with
+/// its own physics and scenario.
+#[derive(Clone, Debug)]
+pub struct Emulator {
+    /// At least one; `arms[0]` is the arm of the single-arm accessors (`psm`, `set_motion`, ...).
+    arms: Vec<Arm>,
+    layout: BlockLayout,
+    ethernet: EthernetMode,
+    /// Ascending board id; `boards[0]` is the hub (the board the host is connected to).
+    boards: Vec<Board>,
+    hub: [u8; HUB_MEMORY_BYTES],
+    /// Bytes of hub data of the last broadcast query (every board before the first).
+    hub_len: usize,
+    hub_sequence: u16,
+    epoch_ns: Option<u64>,
+    now_ns: u64,
     counters: EmulatorCounters,
     scratch: [u8; MAX_BLOCK_BYTES],
 }
@@ -438,38 +486,97 @@ impl Emulator {
 
     /// Boards 6 and 7 driven by the scenario's arm, with the bit conversions of `map`.
     pub fn with_map(scenario: &Scenario, map: ActuatorMap) -> Result<Self, SimError> {
-        for (i, a) in map.actuators.iter().enumerate() {
-            if !BOARD_IDS.contains(&a.board_id) || usize::from(a.axis) >= QLA_AXES {
-                return Err(SimError::ActuatorPlacement {
-                    actuator: i + 1,
-                    board_id: a.board_id,
-                    axis: a.axis,
+        Self::chain(&[ArmSpec {
+            scenario,
+            map,
+            boards: BOARD_IDS,
+        }])
+    }
+
+    /// One chain of boards for several arms, answering on one Ethernet port as the real
+    /// hardware does: every board answers its own requests (per-board unicast, node = board
+    /// id), broadcast writes reach every board, the broadcast query samples every board of its
+    /// mask into the hub memory, which any board returns, and the lowest board id is the hub
+    /// (it answers the broadcast reads of discovery and, in Ethernet-only mode, sends the hub
+    /// data after a query). Each arm has its own physics, motion, noise and seed; the hub's
+    /// (lowest-board) arm's scenario sets the Ethernet mode of the chain.
+    ///
+    /// Errors: no arm, a board id above 15 or on two arms, an arm whose two boards are one, an
+    /// actuator not on its arm's boards (axes 0-3).
+    pub fn chain(arms: &[ArmSpec<'_>]) -> Result<Self, SimError> {
+        if arms.is_empty() {
+            return Err(SimError::Chain {
+                board: None,
+                reason: "no arm to emulate",
+            });
+        }
+        let mut boards: Vec<Board> = Vec::with_capacity(2 * arms.len());
+        for (k, spec) in arms.iter().enumerate() {
+            if spec.boards[0] == spec.boards[1] {
+                return Err(SimError::Chain {
+                    board: Some(spec.boards[0]),
+                    reason: "an arm has two boards with distinct ids",
                 });
             }
+            for &id in &spec.boards {
+                if usize::from(id) >= MAX_HUB_BOARDS {
+                    return Err(SimError::Chain {
+                        board: Some(id),
+                        reason: "board ids are 0-15",
+                    });
+                }
+                if boards.iter().any(|b| b.id == id) {
+                    return Err(SimError::Chain {
+                        board: Some(id),
+                        reason: "the board is on two arms",
+                    });
+                }
+                boards.push(Board::new(id, k, &spec.map));
+            }
+            for (i, a) in spec.map.actuators.iter().enumerate() {
+                if !spec.boards.contains(&a.board_id) || usize::from(a.axis) >= QLA_AXES {
+                    return Err(SimError::ActuatorPlacement {
+                        actuator: i + 1,
+                        board_id: a.board_id,
+                        axis: a.axis,
+                        boards: spec.boards,
+                    });
+                }
+            }
         }
+        boards.sort_by_key(|b| b.id);
         let layout = BlockLayout::new(FIRMWARE_VERSION, BoardKind::Qla).map_err(SimError::Wire)?;
-        let hub_layout = HubLayout::new(&[(BOARD_IDS[0], layout), (BOARD_IDS[1], layout)])
-            .map_err(SimError::Wire)?;
-        let dt_ns = (scenario.dt_s * 1e9).round().max(1.0) as u64;
+        let hub_len = HubLayout::from_boards(boards.iter().map(|b| (b.id, layout)))
+            .map_err(SimError::Wire)?
+            .len_bytes();
+        let ethernet = arms[boards[0].arm].scenario.ethernet;
+        let arms: Vec<Arm> = arms
+            .iter()
+            .map(|spec| {
+                let sc = spec.scenario;
+                let dt_ns = (sc.dt_s * 1e9).round().max(1.0) as u64;
+                Arm {
+                    psm: sc.build_psm(),
+                    driver: sc.motion_driver(),
+                    sensors: Sensors::new(sc.noise, sc.seed),
+                    map: spec.map,
+                    boards: spec.boards,
+                    sim_ns: 0,
+                    dt_ns,
+                    dt_s: dt_ns as f64 * 1e-9,
+                }
+            })
+            .collect();
         let mut emu = Self {
-            psm: scenario.build_psm(),
-            driver: scenario.motion_driver(),
-            sensors: Sensors::new(scenario.noise, scenario.seed),
-            map,
+            arms,
             layout,
-            hub_layout,
-            ethernet: scenario.ethernet,
-            boards: [
-                Board::new(BOARD_IDS[0], &map),
-                Board::new(BOARD_IDS[1], &map),
-            ],
-            hub: [0; 512],
+            ethernet,
+            boards,
+            hub: [0; HUB_MEMORY_BYTES],
+            hub_len,
             hub_sequence: 0,
             epoch_ns: None,
             now_ns: 0,
-            sim_ns: 0,
-            dt_ns,
-            dt_s: dt_ns as f64 * 1e-9,
             counters: EmulatorCounters::default(),
             scratch: [0; MAX_BLOCK_BYTES],
         };
@@ -477,20 +584,55 @@ impl Emulator {
         Ok(emu)
     }
 
-    /// The arm physics.
+    /// The arm physics (of the first arm of a chain).
     pub fn psm(&self) -> &SimPsm {
-        &self.psm
+        &self.arms[0].psm
     }
 
-    /// The arm physics, to command setpoints or change the environment.
+    /// The arm physics, to command setpoints or change the environment (first arm of a chain).
     pub fn psm_mut(&mut self) -> &mut SimPsm {
-        &mut self.psm
+        &mut self.arms[0].psm
     }
 
     /// Replace the scenario's motion (e.g. [`MotionDriver::HOLD`] before commanding setpoints by
-    /// hand in a calibration procedure).
+    /// hand in a calibration procedure); first arm of a chain.
     pub fn set_motion(&mut self, driver: MotionDriver) {
-        self.driver = driver;
+        self.arms[0].driver = driver;
+    }
+
+    /// Number of arms (1 unless built by [`Emulator::chain`]).
+    pub fn arm_count(&self) -> usize {
+        self.arms.len()
+    }
+
+    /// Physics of arm `k` (in [`Emulator::chain`]'s order).
+    pub fn arm_psm(&self, k: usize) -> Option<&SimPsm> {
+        self.arms.get(k).map(|a| &a.psm)
+    }
+
+    /// Physics of arm `k`, to command setpoints or change the environment.
+    pub fn arm_psm_mut(&mut self, k: usize) -> Option<&mut SimPsm> {
+        self.arms.get_mut(k).map(|a| &mut a.psm)
+    }
+
+    /// Replace the motion of arm `k`; `false` when there is no such arm.
+    pub fn set_arm_motion(&mut self, k: usize, driver: MotionDriver) -> bool {
+        self.arms.get_mut(k).map(|a| a.driver = driver).is_some()
+    }
+
+    /// Board ids of arm `k`.
+    pub fn arm_boards(&self, k: usize) -> Option<[u8; 2]> {
+        self.arms.get(k).map(|a| a.boards)
+    }
+
+    /// Bit conversions of arm `k`.
+    pub fn arm_actuator_map(&self, k: usize) -> Option<&ActuatorMap> {
+        self.arms.get(k).map(|a| &a.map)
+    }
+
+    /// Board ids of the whole chain, ascending (the first is the hub).
+    pub fn board_ids(&self) -> impl Iterator<Item = u8> + '_ {
+        self.boards.iter().map(|b| b.id)
     }
 
     pub fn counters(&self) -> EmulatorCounters {
@@ -507,13 +649,15 @@ impl Emulator {
         self.ethernet = mode;
     }
 
+    /// Bit conversions (of the first arm of a chain).
     pub fn actuator_map(&self) -> &ActuatorMap {
-        &self.map
+        &self.arms[0].map
     }
 
-    /// Simulated time since the first `advance_to`, ns (a multiple of the physics step).
+    /// Simulated time since the first `advance_to`, ns (a multiple of the physics step; of the
+    /// first arm of a chain).
     pub fn sim_time_ns(&self) -> u64 {
-        self.sim_ns
+        self.arms[0].sim_ns
     }
 
     /// The latest host time given to `advance_to`.
@@ -521,9 +665,9 @@ impl Emulator {
         self.now_ns
     }
 
-    /// Physics step, s.
+    /// Physics step, s (of the first arm of a chain).
     pub fn dt_s(&self) -> f64 {
-        self.dt_s
+        self.arms[0].dt_s
     }
 
     /// Step the physics at its fixed step up to host time `t_ns` (CLOCK_MONOTONIC or any
@@ -547,25 +691,35 @@ impl Emulator {
         }
         self.now_ns = t_ns;
         let mut target = t_ns - epoch;
-        if target > self.sim_ns + MAX_CATCH_UP_NS {
-            let skip = target - self.sim_ns - MAX_CATCH_UP_NS;
-            self.epoch_ns = Some(epoch + skip);
+        let behind = self.arms.iter().map(|a| a.sim_ns).min().unwrap_or(0);
+        let mut epoch = epoch;
+        if target > behind + MAX_CATCH_UP_NS {
+            let skip = target - behind - MAX_CATCH_UP_NS;
+            epoch += skip;
+            self.epoch_ns = Some(epoch);
             target -= skip;
             self.counters.time_skips += 1;
         }
-        while self.sim_ns + self.dt_ns <= target {
-            self.check_watchdogs(epoch + self.sim_ns);
-            self.driver.apply(self.sim_ns as f64 * 1e-9, &mut self.psm);
-            self.psm.step(self.dt_s);
-            self.sim_ns += self.dt_ns;
-            self.counters.physics_steps += 1;
+        for k in 0..self.arms.len() {
+            while self.arms[k].sim_ns + self.arms[k].dt_ns <= target {
+                self.check_watchdogs(Some(k), epoch + self.arms[k].sim_ns);
+                let a = &mut self.arms[k];
+                a.driver.apply(a.sim_ns as f64 * 1e-9, &mut a.psm);
+                a.psm.step(a.dt_s);
+                a.sim_ns += a.dt_ns;
+                self.counters.physics_steps += 1;
+            }
         }
-        self.check_watchdogs(t_ns);
+        self.check_watchdogs(None, t_ns);
     }
 
-    fn check_watchdogs(&mut self, now_ns: u64) {
+    /// Watchdog timeouts at host time `now_ns` of the boards of arm `arm` (every board: `None`).
+    fn check_watchdogs(&mut self, arm: Option<usize>, now_ns: u64) {
         let mut changed = false;
         for b in &mut self.boards {
+            if arm.is_some_and(|k| k != b.arm) {
+                continue;
+            }
             if b.watchdog_period != 0 && !b.watchdog_timeout {
                 // Units of 256 / 49.152 MHz = 5.208 µs (reference §1.2, register 3).
                 let period_ns =
@@ -581,18 +735,20 @@ impl Emulator {
         }
     }
 
-    /// The arm's motors turn only while the amplifiers of joints 1-3 are on.
+    /// An arm's motors turn only while the amplifiers of its joints 1-3 are on.
     fn sync_amps(&mut self) {
-        let mut on = true;
-        for a in &self.map.actuators[..3] {
-            let Some(b) = self.boards.iter().find(|b| b.id == a.board_id) else {
-                on = false;
-                continue;
-            };
-            on &= b.amp_on(usize::from(a.axis));
-        }
-        if on != self.psm.amps_enabled() {
-            self.psm.set_amps_enabled(on);
+        for arm in &mut self.arms {
+            let mut on = true;
+            for a in &arm.map.actuators[..3] {
+                let Some(b) = self.boards.iter().find(|b| b.id == a.board_id) else {
+                    on = false;
+                    continue;
+                };
+                on &= b.amp_on(usize::from(a.axis));
+            }
+            if on != arm.psm.amps_enabled() {
+                arm.psm.set_amps_enabled(on);
+            }
         }
     }
 
@@ -761,11 +917,10 @@ impl Emulator {
                 0x8000_0000,
             );
         };
-        let js = self.psm.joint_state();
-        let (pos, vel, eff) = self
-            .map
-            .to_actuators(&js.position, &js.velocity, &js.effort);
-        let s = self.map.actuators[act].scales;
+        let arm = &mut self.arms[b.arm];
+        let js = arm.psm.joint_state();
+        let (pos, vel, eff) = arm.map.to_actuators(&js.position, &js.velocity, &js.effort);
+        let s = arm.map.actuators[act].scales;
         let counts_f = (pos[act] - s.encoder_offset) / s.encoder_position_per_count;
         let counts = s
             .encoder_counts(pos[act])
@@ -799,7 +954,7 @@ impl Emulator {
         };
         let effort = if b.amp_on(axis) { eff[act] } else { 0.0 };
         let adc = if want_adc {
-            self.sensors.adc_quadlet(&s, pos[act], effort)
+            arm.sensors.adc_quadlet(&s, pos[act], effort)
         } else {
             0
         };
@@ -874,10 +1029,12 @@ impl Emulator {
 
     fn write_register(&mut self, board: usize, addr: u16, data: u32, now: u64) {
         let physical_counts = |emu: &Self, axis: usize| -> i32 {
-            emu.boards[board].axis_actuator[axis].map_or(0, |act| {
-                let js = emu.psm.joint_state();
-                let (pos, _, _) = emu.map.to_actuators(&js.position, &js.velocity, &js.effort);
-                emu.map.actuators[act].scales.encoder_counts(pos[act])
+            let b = &emu.boards[board];
+            b.axis_actuator[axis].map_or(0, |act| {
+                let arm = &emu.arms[b.arm];
+                let js = arm.psm.joint_state();
+                let (pos, _, _) = arm.map.to_actuators(&js.position, &js.velocity, &js.effort);
+                arm.map.actuators[act].scales.encoder_counts(pos[act])
             })
         };
         self.boards[board].touch(now);
@@ -984,22 +1141,33 @@ impl Emulator {
         }
     }
 
-    /// Broadcast query `seq<<16 | board_mask`: every board in the mask samples into hub memory.
+    /// Broadcast query `seq<<16 | board_mask`: every board of the chain in the mask samples
+    /// into hub memory, in ascending board id (reference §3.4); bits of absent boards are
+    /// ignored.
     fn broadcast_query(&mut self, data: u32, _now: u64) {
         self.counters.broadcast_queries += 1;
         let mask = data as u16;
         let seq = (data >> 16) as u16;
         self.hub_sequence = seq;
         let nq = self.layout.len_quadlets() as u8;
+        let layout = self.layout;
+        let in_mask = |b: &Board| mask & (1 << (b.id & 0x0F)) != 0;
+        let Ok(lay) = HubLayout::from_boards(
+            self.boards
+                .iter()
+                .filter(|b| in_mask(b))
+                .map(|b| (b.id, layout)),
+        ) else {
+            return;
+        };
+        self.hub_len = lay.len_bytes().min(self.hub.len());
+        let mut slot = 0;
         for i in 0..self.boards.len() {
-            let id = self.boards[i].id;
-            let slot = i;
-            if mask & (1 << id) == 0 {
+            if !in_mask(&self.boards[i]) {
                 continue;
             }
             self.sample(i);
             let block = self.boards[i].block;
-            let lay = self.hub_layout;
             let Some(mem) = self.hub.get_mut(..lay.len_bytes()) else {
                 continue;
             };
@@ -1012,6 +1180,14 @@ impl Emulator {
                 let n = dst.len().min(block.len());
                 dst[..n].copy_from_slice(&block[..n]);
             }
+            slot += 1;
+        }
+        // The timing quadlet (not modelled) ends the data.
+        if let Some(t) = self
+            .hub
+            .get_mut(self.hub_len.saturating_sub(4)..self.hub_len)
+        {
+            t.fill(0);
         }
     }
 
@@ -1023,7 +1199,7 @@ impl Emulator {
         extra: &ExtraData,
         reply: &mut [u8],
     ) -> Option<usize> {
-        let n = self.hub_layout.len_bytes().min(self.hub.len());
+        let n = self.hub_len.min(self.hub.len());
         let len = u16::try_from(n).ok()?;
         self.counters.unsolicited_hub_replies += 1;
         self.counters.hub_reads += 1;
@@ -1051,7 +1227,7 @@ impl Emulator {
         }
         if addr == HUB_ADDRESS {
             self.counters.hub_reads += 1;
-            let n = self.hub_layout.len_bytes().min(len).min(self.hub.len());
+            let n = self.hub_len.min(len).min(self.hub.len());
             self.scratch[..n].copy_from_slice(&self.hub[..n]);
             self.scratch[n..len].fill(0);
             return;
@@ -1157,5 +1333,388 @@ mod ethernet_mode_tests {
             assert_eq!(hub.block(i).unwrap().status().board_id(), id);
         }
         assert_eq!(e.counters().unsolicited_hub_replies, 1);
+    }
+}
+
+#[cfg(test)]
+mod chain_tests {
+    //! Two arms on one chain (PSM1 boards 6-7, PSM2 boards 8-9): every board answers, the hub
+    //! data carries every board of the query's mask, each arm follows its own scenario, and no
+    //! datagram makes it panic.
+    use super::*;
+    use crate::rng::SimRng;
+    use dvrk_io::wire::ControlWord;
+
+    const IO: &str = include_str!("../../../config/io/psm-classic.toml");
+
+    fn io(boards: [u8; 2]) -> IoConfig {
+        let text = IO
+            .replace("board_id = 6", &format!("board_id = {}", boards[0]))
+            .replace("board_id = 7", &format!("board_id = {}", boards[1]));
+        IoConfig::from_params(toml::from_str(&text).unwrap()).unwrap()
+    }
+
+    /// A noise-free arm holding `q` (so replies can be compared with the physics exactly).
+    fn holding(q: [f64; 7], mode: &str) -> Scenario {
+        let text = format!(
+            r#"
+seed = 3
+dt_s = 0.0001
+ethernet = "{mode}"
+initial_position = {q:?}
+[environment]
+kind = "free"
+[motion]
+kind = "hold"
+[noise]
+current_noise_amps = 0.0
+pot_noise_volts = 0.0
+"#
+        );
+        Scenario::from_params(toml::from_str(&text).unwrap()).unwrap()
+    }
+
+    const Q1: [f64; 7] = [0.1, -0.2, 0.12, 0.3, 0.2, -0.1, 0.4];
+    const Q2: [f64; 7] = [-0.3, 0.15, 0.08, -0.5, -0.2, 0.25, 0.6];
+
+    fn two_arms(mode: &str) -> (Emulator, [IoConfig; 2]) {
+        let (s1, s2) = (holding(Q1, mode), holding(Q2, mode));
+        let ios = [io([6, 7]), io([8, 9])];
+        let mut e = Emulator::chain(&[
+            ArmSpec {
+                scenario: &s1,
+                map: ActuatorMap::from_io_config(&ios[0]).unwrap(),
+                boards: [6, 7],
+            },
+            ArmSpec {
+                scenario: &s2,
+                map: ActuatorMap::from_io_config(&ios[1]).unwrap(),
+                boards: [8, 9],
+            },
+        ])
+        .unwrap();
+        e.advance_to(1_000_000);
+        e.advance_to(50_000_000);
+        (e, ios)
+    }
+
+    fn request(node: u8, label: u8, addr: u16, kind: RequestKind, payload: &[u8]) -> Vec<u8> {
+        let req = RequestRepr::host(node, label, u64::from(addr), kind);
+        let mut buf = vec![0u8; 2100];
+        let n = EthRequest::emit(
+            &mut buf,
+            ControlWord::new(false, BUS_GENERATION),
+            &req,
+            payload,
+        )
+        .unwrap();
+        buf.truncate(n);
+        buf
+    }
+
+    /// (source node, quadlet data or block payload) of the reply to `req`.
+    fn ask(e: &mut Emulator, req: &[u8]) -> Option<(u8, u32, Vec<u8>)> {
+        let mut reply = [0u8; MAX_REPLY_BYTES];
+        let n = e.handle(req, &mut reply)?;
+        let p = EthReply::parse(&reply[..n]).unwrap().packet.unwrap();
+        let r = ResponseRepr::parse(&p).unwrap();
+        Some(match r.kind {
+            ResponseKind::Quadlet { data } => (p.src_node(), data, Vec::new()),
+            ResponseKind::Block { .. } => (p.src_node(), 0, p.payload().to_vec()),
+        })
+    }
+
+    fn lay() -> BlockLayout {
+        BlockLayout::new(FIRMWARE_VERSION, BoardKind::Qla).unwrap()
+    }
+
+    /// Encoder counts of actuator `i` (0-based) of an arm holding `q`, through `io`.
+    fn counts(io: &IoConfig, q: &[f64; 7], i: usize) -> i32 {
+        io.actuators()[i].position_to_counts(io.joint_to_actuator_position(q)[i])
+    }
+
+    #[test]
+    fn every_board_of_both_arms_answers_for_itself() {
+        let (mut e, _) = two_arms("bridge");
+        assert_eq!(e.arm_count(), 2);
+        assert_eq!(e.board_ids().collect::<Vec<_>>(), [6, 7, 8, 9]);
+        // Discovery's node scan: boards 6-9 answer, each with its own id; no other node does.
+        let mut found = Vec::new();
+        for node in 0..16u8 {
+            let hw = ask(&mut e, &request(node, 1, 4, RequestKind::QuadletRead, &[]));
+            if let Some((src, hw, _)) = hw {
+                assert_eq!(src, node);
+                assert_eq!(hw, hardware::QLA1);
+                let (_, st, _) =
+                    ask(&mut e, &request(node, 2, 0, RequestKind::QuadletRead, &[])).unwrap();
+                assert_eq!((st >> 24) & 0xF, u32::from(node));
+                found.push(node);
+            }
+        }
+        assert_eq!(found, [6, 7, 8, 9]);
+        assert_eq!(e.counters().unknown_node, 12);
+        // Broadcast reads are answered by the hub, the lowest board.
+        let (src, _, _) = ask(
+            &mut e,
+            &request(BROADCAST_NODE, 3, 0, RequestKind::QuadletRead, &[]),
+        )
+        .unwrap();
+        assert_eq!(src, 6);
+        // Block reads of address 0: each board its own block, with its id.
+        for id in [6u8, 7, 8, 9] {
+            let len = lay().len_bytes() as u16;
+            let (src, _, data) = ask(
+                &mut e,
+                &request(id, 4, 0, RequestKind::BlockRead { len }, &[]),
+            )
+            .unwrap();
+            assert_eq!(src, id);
+            let b = FeedbackBlock::new_checked(&data[..], lay()).unwrap();
+            assert_eq!(b.status().board_id(), id);
+        }
+        assert_eq!(e.counters().block_reads_address0, 4);
+    }
+
+    #[test]
+    fn each_arm_encoders_follow_its_own_scenario() {
+        let (mut e, ios) = two_arms("bridge");
+        let mut seen = [[0i32; 7]; 2];
+        for (k, (q, io)) in [(Q1, &ios[0]), (Q2, &ios[1])].into_iter().enumerate() {
+            let js = e.arm_psm(k).unwrap().joint_state();
+            for (i, a) in io.actuators().iter().enumerate() {
+                // Per-channel quadlet read of the encoder position (address ch<<4 | 5).
+                let addr = ((u16::from(a.axis) + 1) << 4) | 5;
+                let (_, raw, _) = ask(
+                    &mut e,
+                    &request(a.board_id, 9, addr, RequestKind::QuadletRead, &[]),
+                )
+                .unwrap();
+                let got = EncoderPosition(raw).counts();
+                assert_eq!(got, counts(io, &js.position, i), "arm {k} actuator {i}");
+                // Holding its own initial pose (within the controller's small error).
+                assert!(
+                    (got - counts(io, &q, i)).abs() <= 200,
+                    "arm {k} actuator {i}"
+                );
+                seen[k][i] = got;
+            }
+        }
+        assert_ne!(seen[0], seen[1], "the two arms read the same encoders");
+        // A setpoint for arm 2 moves arm 2 only.
+        let before1 = e.arm_psm(0).unwrap().joint_state().position;
+        let mut sp = Q2;
+        sp[0] += 0.2;
+        e.set_arm_motion(1, MotionDriver::HOLD);
+        e.arm_psm_mut(1).unwrap().set_setpoints(&sp);
+        e.advance_to(1_050_000_000);
+        assert_eq!(e.arm_psm(0).unwrap().joint_state().position, before1);
+        assert!((e.arm_psm(1).unwrap().joint_state().position[0] - sp[0]).abs() < 0.02);
+    }
+
+    fn hub_boards(data: &[u8], seq: u8) -> Vec<u8> {
+        let mut ids = Vec::new();
+        let mut off = 0;
+        while let Some(h) = data.get(off..off + 4) {
+            let h = HubHeader(u32::from_be_bytes([h[0], h[1], h[2], h[3]]));
+            if h.size_quadlets() as usize != lay().len_quadlets() + 1 {
+                break;
+            }
+            assert_eq!(h.sequence_lsb(), seq);
+            let b = FeedbackBlock::new_checked(&data[off + 4..], lay()).unwrap();
+            ids.push(b.status().board_id());
+            off += 4 + lay().len_bytes();
+        }
+        assert_eq!(off + 4, data.len(), "the timing quadlet ends the data");
+        ids
+    }
+
+    #[test]
+    fn hub_data_carries_every_board_of_the_mask() {
+        let (mut e, ios) = two_arms("bridge");
+        let query = |seq: u32, mask: u32| RequestKind::QuadletWrite {
+            data: (seq << 16) | mask,
+        };
+        let read = |len: usize| RequestKind::BlockRead { len: len as u16 };
+        let full = 4 * (lay().len_bytes() + 4) + 4;
+        // All four boards, read from the hub or from any board of the chain.
+        assert!(
+            ask(
+                &mut e,
+                &request(BROADCAST_NODE, 1, QUERY_ADDRESS, query(0x11, 0x3C0), &[])
+            )
+            .is_none()
+        );
+        for node in [6u8, 9] {
+            let (src, _, data) =
+                ask(&mut e, &request(node, 2, HUB_ADDRESS, read(full), &[])).unwrap();
+            assert_eq!(src, node);
+            assert_eq!(hub_boards(&data, 0x11), [6, 7, 8, 9]);
+        }
+        // The slots of PSM2 carry PSM2's encoders.
+        let (_, _, data) = ask(&mut e, &request(6, 3, HUB_ADDRESS, read(full), &[])).unwrap();
+        let hl = HubLayout::new(&[(6, lay()), (7, lay()), (8, lay()), (9, lay())]).unwrap();
+        let hub = HubView::new_checked(&data[..], hl).unwrap();
+        let js2 = e.arm_psm(1).unwrap().joint_state();
+        let enc = hub.block(2).unwrap().encoder_position(0).unwrap().counts();
+        assert_eq!(enc, counts(&ios[1], &js2.position, 0));
+        // Only PSM2's boards: the hub data holds boards 8 and 9, first (ascending id).
+        ask(
+            &mut e,
+            &request(BROADCAST_NODE, 4, QUERY_ADDRESS, query(0x12, 0x300), &[]),
+        );
+        let half = 2 * (lay().len_bytes() + 4) + 4;
+        let (_, _, data) = ask(&mut e, &request(8, 5, HUB_ADDRESS, read(half), &[])).unwrap();
+        assert_eq!(hub_boards(&data, 0x12), [8, 9]);
+        // Bits of boards that are not on the chain are ignored.
+        ask(
+            &mut e,
+            &request(BROADCAST_NODE, 6, QUERY_ADDRESS, query(0x13, 0xFFFF), &[]),
+        );
+        let (_, _, data) = ask(&mut e, &request(6, 7, HUB_ADDRESS, read(full), &[])).unwrap();
+        assert_eq!(hub_boards(&data, 0x13), [6, 7, 8, 9]);
+        assert_eq!(e.counters().broadcast_queries, 3);
+    }
+
+    #[test]
+    fn ethernet_only_hub_sends_every_board_of_the_mask_unasked() {
+        let (mut e, _) = two_arms("ethernet-only");
+        let q = RequestKind::QuadletWrite {
+            data: (0x21 << 16) | 0x3C0,
+        };
+        let (src, _, data) = ask(&mut e, &request(BROADCAST_NODE, 9, QUERY_ADDRESS, q, &[]))
+            .expect("the Ethernet-only hub answers the query with its data");
+        assert_eq!(src, 6, "from the hub");
+        assert_eq!(hub_boards(&data, 0x21), [6, 7, 8, 9]);
+        assert_eq!(e.counters().unsolicited_hub_replies, 1);
+    }
+
+    #[test]
+    fn broadcast_command_reaches_every_board_and_watchdogs_are_per_arm() {
+        let (mut e, _) = two_arms("bridge");
+        // Watchdog of 30 ms on PSM2's boards only (quadlet writes of register 3).
+        for id in [8u8, 9] {
+            let w = RequestKind::QuadletWrite { data: 0x1680 };
+            assert!(ask(&mut e, &request(id, 1, 3, w, &[])).is_none());
+        }
+        e.advance_to(200_000_000);
+        assert!(e.arm_psm(0).unwrap().amps_enabled());
+        assert!(!e.arm_psm(1).unwrap().amps_enabled(), "PSM2's watchdog");
+        // A broadcast command block for the four boards (zero current, enable all, power on)
+        // clears the timeout and sets every DAC.
+        let mut cmd = Vec::new();
+        for id in [6u32, 7, 8, 9] {
+            cmd.extend_from_slice(&((id << 8) | 6).to_be_bytes());
+            for _ in 0..4 {
+                cmd.extend_from_slice(&(0xB000_8123u32).to_be_bytes());
+            }
+            cmd.extend_from_slice(&(0x000C_0000u32).to_be_bytes());
+        }
+        let len = cmd.len() as u16;
+        let b = request(BROADCAST_NODE, 2, 0, RequestKind::BlockWrite { len }, &cmd);
+        assert!(ask(&mut e, &b).is_none());
+        assert!(e.arm_psm(1).unwrap().amps_enabled());
+        for id in [6u8, 7, 8, 9] {
+            let (_, dac, _) =
+                ask(&mut e, &request(id, 3, 0x11, RequestKind::QuadletRead, &[])).unwrap();
+            assert_eq!(dac & 0xFFFF, 0x8123, "board {id}");
+        }
+    }
+
+    #[test]
+    fn bad_datagrams_to_any_board_do_not_panic() {
+        let (mut e, _) = two_arms("ethernet-only");
+        let mut rng = SimRng::new(21);
+        let mut reply = [0u8; MAX_REPLY_BYTES];
+        let mut sent = 0u64;
+        for id in [6u8, 7, 8, 9, BROADCAST_NODE] {
+            let len = lay().len_bytes() as u16;
+            let goods = [
+                request(id, 1, 0, RequestKind::BlockRead { len }, &[]),
+                request(
+                    id,
+                    2,
+                    HUB_ADDRESS,
+                    RequestKind::BlockRead { len: 2020 },
+                    &[],
+                ),
+                request(id, 3, 0x15, RequestKind::QuadletRead, &[]),
+                request(
+                    id,
+                    4,
+                    QUERY_ADDRESS,
+                    RequestKind::QuadletWrite { data: 0xFFFF_FFFF },
+                    &[],
+                ),
+                request(id, 5, 0, RequestKind::BlockWrite { len: 8 }, &[0xFF; 8]),
+            ];
+            for good in &goods {
+                // Every truncation, then random byte flips (CRCs recomputed or not).
+                for n in 0..good.len() {
+                    e.handle(&good[..n], &mut reply);
+                    sent += 1;
+                }
+                for _ in 0..300 {
+                    let mut d = good.clone();
+                    let k = (rng.next_u64() % d.len() as u64) as usize;
+                    d[k] ^= (rng.next_u64() as u8) | 1;
+                    e.handle(&d, &mut reply);
+                    sent += 1;
+                }
+            }
+        }
+        // Random garbage of every length up to 64 bytes.
+        for n in 0..64 {
+            let d: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
+            e.handle(&d, &mut reply);
+            sent += 1;
+        }
+        let c = e.counters();
+        assert_eq!(c.requests, sent);
+        assert!(c.malformed > sent / 2, "{c:?}");
+        // Still answering: each board its own status.
+        for id in [6u8, 7, 8, 9] {
+            let (_, st, _) =
+                ask(&mut e, &request(id, 7, 0, RequestKind::QuadletRead, &[])).unwrap();
+            assert_eq!((st >> 24) & 0xF, u32::from(id));
+        }
+    }
+
+    #[test]
+    fn a_chain_refuses_shared_or_misplaced_boards() {
+        let s = holding(Q1, "bridge");
+        let m1 = ActuatorMap::from_io_config(&io([6, 7])).unwrap();
+        let spec = |boards| ArmSpec {
+            scenario: &s,
+            map: m1,
+            boards,
+        };
+        let e = Emulator::chain(&[spec([6, 7]), spec([6, 7])]).unwrap_err();
+        assert!(matches!(e, SimError::Chain { board: Some(6), .. }), "{e}");
+        let e = Emulator::chain(&[spec([6, 7]), spec([8, 9])]).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                SimError::ActuatorPlacement {
+                    boards: [8, 9],
+                    board_id: 6,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("boards 8 and 9"), "{e}");
+        assert!(matches!(
+            Emulator::chain(&[]).unwrap_err(),
+            SimError::Chain { board: None, .. }
+        ));
+        assert!(matches!(
+            Emulator::chain(&[spec([16, 7])]).unwrap_err(),
+            SimError::Chain {
+                board: Some(16),
+                ..
+            }
+        ));
+        assert_eq!(classic_psm_boards("PSM2"), Some([8, 9]));
+        assert_eq!(classic_psm_boards("psm2"), None);
     }
 }

@@ -4,7 +4,8 @@
 //!   backlash, contacts) with ground truth ([`Truth`]).
 //! - [`measure`]: measurement models (encoder quantization, motor-current ADC with noise, pots).
 //! - [`scenario`]: config/sim/*.toml: seed, step, pose, environment, motion, noise.
-//! - [`emulator`]: boards 6 and 7 (QLA1, Rev 9) answering the real Ethernet/FireWire protocol.
+//! - [`emulator`]: boards 6 and 7 (QLA1, Rev 9) answering the real Ethernet/FireWire protocol,
+//!   or one chain of boards for several arms (PSM1 6-7, PSM2 8-9, PSM3 10-11).
 //! - [`link`]: [`SimLink`], the emulator as an in-process `dvrk_io::Link`; [`SimPort`].
 //! - [`server`]: `serve_udp`, the standalone UDP shell (the only place that reads a clock).
 
@@ -21,7 +22,10 @@ pub mod rng;
 pub mod scenario;
 pub mod server;
 
-pub use emulator::{ActuatorMap, ActuatorSlot, Emulator, EmulatorCounters};
+pub use emulator::{
+    ActuatorMap, ActuatorSlot, ArmSpec, CLASSIC_PSM_BOARDS, Emulator, EmulatorCounters,
+    classic_psm_boards,
+};
 pub use link::{SimLink, SimPort, sim_port};
 pub use measure::{ActuatorScales, NoiseParams};
 pub use physics::{
@@ -42,14 +46,23 @@ pub enum SimError {
         value: String,
         reason: &'static str,
     },
-    /// An actuator of the IO config is not on board 6 or 7, axis 0..3.
+    /// An actuator of the IO config is not on its arm's boards (6 and 7 for one arm), axis 0..3.
     #[error(
-        "io config: actuator {actuator} on board {board_id} axis {axis}: the emulator has boards 6 and 7 with axes 0-3"
+        "io config: actuator {actuator} on board {board_id} axis {axis}: the emulator has boards {} and {} with axes 0-3",
+        boards[0], boards[1]
     )]
     ActuatorPlacement {
         actuator: usize,
         board_id: u8,
         axis: u8,
+        /// The arm's boards.
+        boards: [u8; 2],
+    },
+    /// The arms of a chain cannot share one set of boards ([`Emulator::chain`]).
+    #[error("chain of boards{}: {reason}", board.map(|b| format!(", board {b}")).unwrap_or_default())]
+    Chain {
+        board: Option<u8>,
+        reason: &'static str,
     },
     /// The IO config does not describe what the emulator emulates.
     #[error("io config field `{field}` = {value}: {reason}")]
