@@ -125,7 +125,7 @@ fn preflight_arm(cfg: &SidecarConfig) -> Result<()> {
             .scenario
             .as_ref()
             .context("source = \"sim\" needs a [sim] scenario")?;
-        dvrk_sim::Emulator::new(scenario, &cfg.io).context("starting the simulated PSM")?;
+        sim_emulator(cfg, scenario)?;
     }
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
@@ -212,6 +212,25 @@ impl<P: Port> SampleSource for ArmReader<P> {
     }
 }
 
+/// The simulated PSM of `cfg` on the arm's own boards (PSM2 of a several-arm file on 8 and 9).
+fn sim_emulator(cfg: &SidecarConfig, scenario: &dvrk_sim::Scenario) -> Result<dvrk_sim::Emulator> {
+    let ids = cfg.io.board_ids();
+    let [a, b] = ids else {
+        anyhow::bail!(
+            "the simulated PSM has two boards; the io file gives {} ({ids:?})",
+            ids.len()
+        );
+    };
+    let map =
+        dvrk_sim::ActuatorMap::from_io_config(&cfg.io).context("starting the simulated PSM")?;
+    dvrk_sim::Emulator::chain(&[dvrk_sim::ArmSpec {
+        scenario,
+        map,
+        boards: [*a, *b],
+    }])
+    .context("starting the simulated PSM")
+}
+
 /// The simulated PSM in-process: its physics is advanced to the cycle's time, then read
 /// through the real board protocol.
 pub struct SimSource {
@@ -225,8 +244,7 @@ impl SimSource {
             .scenario
             .as_ref()
             .context("source = \"sim\" needs a scenario")?;
-        let emulator =
-            dvrk_sim::Emulator::new(scenario, &cfg.io).context("starting the simulated PSM")?;
+        let emulator = sim_emulator(cfg, scenario)?;
         let port = dvrk_sim::SimPort::new(dvrk_sim::SimLink::new(emulator));
         Ok(Self {
             reader: ArmReader::new(port, cfg.io.clone(), cfg.access),
