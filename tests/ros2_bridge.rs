@@ -815,15 +815,15 @@ fn record_follows_a_restarted_serve() {
 }
 
 /// A two-arm service under `base` (arms `base/PSM1` and `base/PSM2`, as `[[arm]]` tables): the
-/// configuration `--config` reads, and two single-arm `serve`s with those prefixes, PSM1 in a
-/// divot push and PSM2 palpating (what one two-arm `serve` publishes). Without `serve`, only
-/// the configuration.
+/// configuration `--config` reads and, with `run`, the board emulator of both arms (`sim --arms
+/// PSM1,PSM2`, PSM1 in a divot push, PSM2 palpating, over UDP on loopback) and one `serve` of
+/// both arms reading it. Without `run`, only the configuration.
 fn two_arm_service(test: &str, run: bool) -> (PathBuf, String, Vec<Proc>) {
     let base = unique_prefix(test);
     let c = repo().join("config");
+    let port = free_udp_port();
     let mut text = format!(
-        "source = \"sim\"\naccess = \"shared\"\nrate = 1500\n\n[sim]\nscenario = \"{}\"\n",
-        c.join("sim/divot-push.toml").display()
+        "source = \"udp:127.0.0.1:{port}\"\naccess = \"shared\"\nrate = 1500\n"
     );
     for (i, arm) in ["PSM1", "PSM2"].iter().enumerate() {
         text += &format!(
@@ -837,26 +837,32 @@ fn two_arm_service(test: &str, run: bool) -> (PathBuf, String, Vec<Proc>) {
     }
     let cfg = scratch(test).join("two-arms.toml");
     std::fs::write(&cfg, text).unwrap();
-    let mut serves = Vec::new();
+    let mut procs = Vec::new();
     if run {
-        for (arm, scenario) in [("PSM1", "divot-push.toml"), ("PSM2", "palpation.toml")] {
-            let one = write_config(
-                &format!("{test}-{arm}"),
-                "sim",
-                "shared",
-                &format!("{base}/{arm}"),
-                scenario,
-            );
-            serves.push(serve(&one));
-        }
+        let divot = c.join("sim/divot-push.toml");
+        let palpation = format!("PSM2={}", c.join("sim/palpation.toml").display());
+        procs.push(emulator_with(
+            "127.0.0.1",
+            port,
+            &[
+                "--arms",
+                "PSM1,PSM2",
+                "--scenario",
+                divot.to_str().unwrap(),
+                "--arm-scenario",
+                &palpation,
+            ],
+        ));
+        procs.push(serve(&cfg));
     }
-    (cfg, base, serves)
+    (cfg, base, procs)
 }
 
-fn stop_all(serves: Vec<Proc>) {
-    for mut s in serves {
-        let (st, log) = s.terminate();
-        assert!(st.success(), "serve exited with {st}: {log}");
+/// Stops the service (the last process) first, then the emulator; both must exit cleanly.
+fn stop_all(procs: Vec<Proc>) {
+    for mut p in procs.into_iter().rev() {
+        let (st, log) = p.terminate();
+        assert!(st.success(), "{} exited with {st}: {log}", p.name);
     }
 }
 
@@ -885,7 +891,22 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
         return;
     }
     let test = "ros2multi";
-    let (cfg, _, serves) = two_arm_service(test, true);
+    let (cfg, base, serves) = two_arm_service(test, true);
+    // Both arms in shared memory, every cycle in order, each its own arm (echo, another process).
+    let mut echoed = Vec::new();
+    for arm in ["PSM1", "PSM2"] {
+        let v = echo_json(&format!("{base}/{arm}/measured_js"), 300, Duration::from_secs(60));
+        for w in v.windows(2) {
+            assert_eq!(
+                w[1]["header"]["seq"].as_u64().unwrap(),
+                w[0]["header"]["seq"].as_u64().unwrap() + 1,
+                "{arm}: seq jumped"
+            );
+        }
+        assert!(v.iter().all(|s| s["header"]["valid"] == Value::Bool(true)), "{arm}");
+        echoed.push(f64s(&v[v.len() - 1]["position"]));
+    }
+    assert_ne!(echoed[0], echoed[1], "echo shows the same arm under both names");
     // A domain of its own, given only by ROS_DOMAIN_ID.
     let domain = unique_domain() + 2;
     let uri = cyclone_uri(&scratch(test));
