@@ -135,3 +135,158 @@ fn check_config_names_the_arm_at_fault() {
         );
     }
 }
+
+/// `sim --arms PSM1,PSM2` (boards 6-9, PSM2 palpating while PSM1 pushes in a divot) read by one
+/// `serve` of both arms in `access` mode: every cycle of each arm in order and valid, each arm
+/// its own.
+fn two_arms_every_seq_in_order(test: &str, access: &str) {
+    let port = free_udp_port();
+    let c = repo().join("config");
+    let palpation = format!("PSM2={}", c.join("sim/palpation.toml").display());
+    let _emu = emulator_with(
+        "127.0.0.1",
+        port,
+        &[
+            "--arms",
+            "PSM1,PSM2",
+            "--scenario",
+            c.join("sim/divot-push.toml").to_str().unwrap(),
+            "--arm-scenario",
+            &palpation,
+        ],
+    );
+    let p1 = unique_prefix(&format!("{test}1"));
+    let p2 = unique_prefix(&format!("{test}2"));
+    let cfg = write_arms_config(
+        test,
+        &format!("udp:127.0.0.1:{port}"),
+        access,
+        &[(&p1, [6, 7], "idle.toml"), (&p2, [8, 9], "idle.toml")],
+    );
+    let mut serve = serve(&cfg);
+    let mut last = Vec::new();
+    for p in [&p1, &p2] {
+        let v = echo_json(&format!("{p}/compensated/measured_js"), 1500, LIVENESS);
+        assert_eq!(v.len(), 1500);
+        assert_consecutive(&format!("{test} {p}"), &seqs(&v));
+        assert!(
+            v.iter().all(|s| s["header"]["valid"] == Value::Bool(true)),
+            "{test} {p}: every sample valid"
+        );
+        last.push(v[v.len() - 1]["position"].clone());
+    }
+    assert_ne!(last[0], last[1], "{test}: both names carry the same arm");
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "{test}: serve exited with {st}: {log}");
+    assert!(log.contains("boards of every arm found"), "{log}");
+}
+
+#[test]
+fn two_arms_from_one_emulator_shared() {
+    two_arms_every_seq_in_order("two_shared", "shared");
+}
+
+#[test]
+fn two_arms_from_one_emulator_exclusive() {
+    two_arms_every_seq_in_order("two_exclusive", "exclusive");
+}
+
+/// The passive tap with two arms: the console stand-in (`drive --arms PSM1,PSM2`) runs the I/O
+/// of both arms against `sim --arms PSM1,PSM2`; one `serve` with `source = "tap:lo:PORT"`
+/// publishes both arms from the console's own traffic, each its own, and sends nothing.
+#[cfg_attr(
+    not(has_root),
+    ignore = "needs root: the tap's AF_PACKET capture needs CAP_NET_RAW (sudo -E cargo test --test multi_arm)"
+)]
+#[test]
+fn the_tap_publishes_both_arms_from_the_consoles_traffic() {
+    // SAFETY: geteuid has no preconditions.
+    assert!(
+        unsafe { libc::geteuid() } == 0,
+        "the tap needs root; CI runs as root"
+    );
+    let test = "two_tap";
+    let port = free_udp_port();
+    let c = repo().join("config");
+    let palpation = format!("PSM2={}", c.join("sim/palpation.toml").display());
+    let mut sim = emulator_with(
+        "0.0.0.0",
+        port,
+        &[
+            "--arms",
+            "PSM1,PSM2",
+            "--scenario",
+            c.join("sim/free-motion.toml").to_str().unwrap(),
+            "--arm-scenario",
+            &palpation,
+        ],
+    );
+    let p1 = unique_prefix("two_tap1");
+    let p2 = unique_prefix("two_tap2");
+    let cfg = write_arms_config(
+        test,
+        &format!("tap:lo:{port}"),
+        "shared",
+        &[(&p1, [6, 7], "idle.toml"), (&p2, [8, 9], "idle.toml")],
+    );
+    std::fs::write(
+        &cfg,
+        std::fs::read_to_string(&cfg)
+            .unwrap()
+            .replace("rate = 1500", "rate = \"follow\""),
+    )
+    .unwrap();
+    let mut serve = serve(&cfg);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut drive = Proc::spawn(
+        "drive",
+        std::process::Command::new(sidecar_bin())
+            .args([
+                "drive",
+                "--boards",
+                &format!("127.0.0.1:{port}"),
+                "--arms",
+                "PSM1,PSM2",
+                "--protocol",
+                "sequential-read-broadcast-write",
+                "--rate",
+                "1500",
+                "--duration",
+                "30",
+            ])
+            .env("RUST_LOG", "warn")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped()),
+    );
+    let mut last = Vec::new();
+    for p in [&p1, &p2] {
+        // The console's reads, once it runs: skip what was published before (NO_SOURCE).
+        let valid = eventually(LIVENESS, || {
+            let v = echo_json(&format!("{p}/measured_js"), 500, LIVENESS);
+            let n = v
+                .iter()
+                .filter(|s| s["header"]["valid"] == Value::Bool(true))
+                .count();
+            (n == v.len()).then_some(v)
+        })
+        .unwrap_or_else(|| panic!("{p}: no run of 500 valid samples from the console's traffic"));
+        last.push(valid[valid.len() - 1]["position"].clone());
+    }
+    drive.signal(libc::SIGTERM);
+    let _ = drive.wait_timeout(Duration::from_secs(20));
+    let (st, log) = serve.terminate();
+    assert!(st.success(), "serve exited with {st}: {log}");
+    let (_, sim_log) = sim.terminate();
+    assert_ne!(last[0], last[1], "both names carry the same arm");
+    // Only the stand-in asked the boards anything: one peer in the emulator's log.
+    let peers = sim_log
+        .split("requests_by_peer=")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .unwrap_or_else(|| panic!("requests_by_peer in the emulator log: {sim_log}"));
+    assert_eq!(
+        peers.split(',').count(),
+        1,
+        "requests from more than the stand-in: {peers}"
+    );
+}

@@ -822,9 +822,7 @@ fn two_arm_service(test: &str, run: bool) -> (PathBuf, String, Vec<Proc>) {
     let base = unique_prefix(test);
     let c = repo().join("config");
     let port = free_udp_port();
-    let mut text = format!(
-        "source = \"udp:127.0.0.1:{port}\"\naccess = \"shared\"\nrate = 1500\n"
-    );
+    let mut text = format!("source = \"udp:127.0.0.1:{port}\"\naccess = \"shared\"\nrate = 1500\n");
     for (i, arm) in ["PSM1", "PSM2"].iter().enumerate() {
         text += &format!(
             "\n[[arm]]\nname = \"{base}/{arm}\"\nboards = [{}, {}]\nio = \"{}\"\nkind = \"classic\"\n\
@@ -895,7 +893,11 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
     // Both arms in shared memory, every cycle in order, each its own arm (echo, another process).
     let mut echoed = Vec::new();
     for arm in ["PSM1", "PSM2"] {
-        let v = echo_json(&format!("{base}/{arm}/measured_js"), 300, Duration::from_secs(60));
+        let v = echo_json(
+            &format!("{base}/{arm}/measured_js"),
+            300,
+            Duration::from_secs(60),
+        );
         for w in v.windows(2) {
             assert_eq!(
                 w[1]["header"]["seq"].as_u64().unwrap(),
@@ -903,10 +905,16 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
                 "{arm}: seq jumped"
             );
         }
-        assert!(v.iter().all(|s| s["header"]["valid"] == Value::Bool(true)), "{arm}");
+        assert!(
+            v.iter().all(|s| s["header"]["valid"] == Value::Bool(true)),
+            "{arm}"
+        );
         echoed.push(f64s(&v[v.len() - 1]["position"]));
     }
-    assert_ne!(echoed[0], echoed[1], "echo shows the same arm under both names");
+    assert_ne!(
+        echoed[0], echoed[1],
+        "echo shows the same arm under both names"
+    );
     // A domain of its own, given only by ROS_DOMAIN_ID.
     let domain = unique_domain() + 2;
     let uri = cyclone_uri(&scratch(test));
