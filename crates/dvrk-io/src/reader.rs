@@ -153,6 +153,13 @@ impl<P: Port> ArmReader<P> {
             .has_potentiometers()
             .then_some(&self.last.pot_position)
     }
+    /// [`ActuatorState::pot_minus_encoder`] of the last read; None when the io file calibrates
+    /// no pot.
+    pub fn pot_minus_encoder(&self) -> Option<[f64; NUM_JOINTS]> {
+        self.cfg
+            .has_potentiometers()
+            .then(|| self.last.pot_minus_encoder())
+    }
 
     /// Reads all boards of the arm and converts. On failure `out` still carries `t_ns`,
     /// `valid = false` and the health flags that explain why, and the first error is returned.

@@ -504,6 +504,17 @@ fn pots_are_read_in_shared_exclusive_and_hub_modes() {
     );
     shared.read(1, &mut s).unwrap();
     check_pots(&io, &s, shared.pots());
+    // The difference the pot/encoder check looks at, from the same read.
+    let d = shared.pot_minus_encoder().unwrap();
+    let last = shared.last_actuators();
+    for (i, d) in d.iter().enumerate() {
+        assert_eq!(*d, last.pot_position[i] - last.position[i]);
+    }
+    assert_relative_eq!(
+        shared.pot_minus_encoder().unwrap()[0],
+        11_000.0 * 4.5 / 65536.0 * -1.547_377_78 + 3.5 + 1000.0 * K_YAW,
+        epsilon = 1e-9
+    );
     assert_eq!(
         shared.port_mut().link_mut().boards.log.len(),
         16,
@@ -532,7 +543,7 @@ fn pots_are_read_in_shared_exclusive_and_hub_modes() {
         AccessMode::Exclusive,
     );
     none.read(1, &mut s).unwrap();
-    assert!(none.pots().is_none());
+    assert!(none.pots().is_none() && none.pot_minus_encoder().is_none());
     assert!(
         none.last_actuators()
             .pot_position

@@ -79,6 +79,15 @@ pub struct ActuatorState {
     pub pot_position: [f64; NUM_JOINTS],
 }
 
+impl ActuatorState {
+    /// Per actuator, pot minus encoder position of this sample (rad or m; NaN without pot):
+    /// what the dVRK's pot/encoder check compares, independent of any instrument coupling a
+    /// caller converts joint values back with.
+    pub fn pot_minus_encoder(&self) -> [f64; NUM_JOINTS] {
+        core::array::from_fn(|i| self.pot_position[i] - self.position[i])
+    }
+}
+
 impl Default for ActuatorState {
     fn default() -> Self {
         Self {

@@ -165,6 +165,13 @@ impl TapDecoder {
             .has_potentiometers()
             .then_some(&self.last.pot_position)
     }
+    /// [`ActuatorState::pot_minus_encoder`] of the last sample; None when the io file calibrates
+    /// no pot.
+    pub fn pot_minus_encoder(&self) -> Option<[f64; NUM_JOINTS]> {
+        self.cfg
+            .has_potentiometers()
+            .then(|| self.last.pot_minus_encoder())
+    }
 
     /// Feedback blocks seen per board slot (order of `config().board_ids()`).
     pub fn blocks_seen(&self) -> [u64; MAX_BOARDS] {

@@ -504,6 +504,11 @@ fn the_tap_decodes_the_pots_of_the_consoles_reads() {
         d.last_actuators().position[0],
         c.actuators()[0].counts_to_position(10)
     );
+    let diff = d.pot_minus_encoder().unwrap();
+    assert_eq!(
+        diff[0],
+        d.pots().unwrap()[0] - c.actuators()[0].counts_to_position(10)
+    );
     // A broadcast query and its hub data.
     let mut d = TapDecoder::new(c.clone());
     let q = RequestKind::QuadletWrite {
@@ -526,5 +531,6 @@ fn the_tap_decodes_the_pots_of_the_consoles_reads() {
     );
     expect_tap_pots(&c, &d);
     // No pot calibration, no pots.
-    assert!(TapDecoder::new(cfg()).pots().is_none());
+    let no_pots = TapDecoder::new(cfg());
+    assert!(no_pots.pots().is_none() && no_pots.pot_minus_encoder().is_none());
 }
