@@ -1,6 +1,9 @@
 //! [`ArmReader`]: one call per cycle turns the boards' registers into an [`ArmSample`].
 //!
 //! Access modes (reference §8):
+//! Every mode decodes the potentiometers too, from the ADC quadlet's bits 31–16 that each mode
+//! reads anyway (reference §2.3): [`ArmReader::pots`].
+//!
 //! - [`AccessMode::Shared`] (default on real hardware, beside the dVRK console): only quadlet
 //!   reads of the board status (register 0), per-channel ADC (ch<<4 | 0) and encoder position
 //!   (ch<<4 | 5), which neither take a new sample nor reset the board timestamp the console
@@ -141,6 +144,21 @@ impl<P: Port> ArmReader<P> {
     /// Actuator-space values of the last read.
     pub fn last_actuators(&self) -> &ActuatorState {
         &self.last
+    }
+    /// Potentiometer positions of the last read, actuator space (rad or m; NaN for an
+    /// actuator without pot calibration), for the pot/encoder check
+    /// ([`crate::plausibility::SampleCheck::check`]). None when the io file calibrates no pot.
+    pub fn pots(&self) -> Option<&[f64; NUM_JOINTS]> {
+        self.cfg
+            .has_potentiometers()
+            .then_some(&self.last.pot_position)
+    }
+    /// [`ActuatorState::pot_minus_encoder`] of the last read; None when the io file calibrates
+    /// no pot.
+    pub fn pot_minus_encoder(&self) -> Option<[f64; NUM_JOINTS]> {
+        self.cfg
+            .has_potentiometers()
+            .then(|| self.last.pot_minus_encoder())
     }
 
     /// Reads all boards of the arm and converts. On failure `out` still carries `t_ns`,

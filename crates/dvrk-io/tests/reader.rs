@@ -448,3 +448,106 @@ fn exclusive_software_velocity_uses_the_board_sample_interval() {
         max_relative = 1e-9
     );
 }
+
+const SAW_JSON: &str = include_str!("../../../tests/data/io/sawRobotIO1394-PSM1-00000.json");
+/// Pot bits per actuator, all different.
+const POT_BITS: [u16; 7] = [11_000, 22_000, 33_000, 44_000, 5_000, 15_000, 25_000];
+
+/// Rev 9 boards whose ADC quadlets carry [`POT_BITS`] (bits 31-16) beside mid-range currents.
+fn boards_with_pots(io: &IoConfig) -> Boards {
+    let mut b = posed(9);
+    for (i, a) in io.actuators().iter().enumerate() {
+        b.board(a.board_id).edit(|blk| {
+            let current = blk.adc(a.axis as usize).unwrap().current_bits();
+            blk.set_adc(
+                a.axis as usize,
+                dvrk_io::wire::Adc::new(POT_BITS[i], current),
+            )
+            .unwrap()
+        });
+    }
+    b
+}
+
+fn check_pots(io: &IoConfig, s: &ArmSample, pots: Option<&[f64; 7]>) {
+    assert!(s.valid);
+    // The encoders and currents of the same reads are what they were without pots.
+    assert_relative_eq!(s.position[0], -1000.0 * K_YAW, max_relative = 1e-6);
+    assert_relative_eq!(s.position[2], 50_000.0 * K_INS, max_relative = 1e-6);
+    assert_relative_eq!(
+        s.effort[0],
+        -1.379_394_531_25 * 56.5 * 0.0438,
+        max_relative = 1e-5
+    );
+    let pots = pots.expect("the io file calibrates the pots");
+    for (i, a) in io.actuators().iter().enumerate() {
+        let want = a.pot_bits_to_position(POT_BITS[i]).unwrap();
+        assert_eq!(pots[i], want, "actuator {}", i + 1);
+    }
+    // Actuator 1 by hand: V = bits * 4.5/65536, position = V * -1.54737778 + 3.5 (the JSON's).
+    assert_relative_eq!(
+        pots[0],
+        11_000.0 * 4.5 / 65536.0 * -1.547_377_78 + 3.5,
+        epsilon = 1e-12
+    );
+}
+
+#[test]
+fn pots_are_read_in_shared_exclusive_and_hub_modes() {
+    let io = common::io_from_saw_json(SAW_JSON).unwrap();
+    let mut s = ArmSample::default();
+    // Shared: the ADC quadlet (ch<<4 | 0) it reads anyway, no extra request.
+    let mut shared = ArmReader::new(
+        EthPort::new(InProcLink::new(boards_with_pots(&io))),
+        io.clone(),
+        AccessMode::Shared,
+    );
+    shared.read(1, &mut s).unwrap();
+    check_pots(&io, &s, shared.pots());
+    // The difference the pot/encoder check looks at, from the same read.
+    let d = shared.pot_minus_encoder().unwrap();
+    let last = shared.last_actuators();
+    for (i, d) in d.iter().enumerate() {
+        assert_eq!(*d, last.pot_position[i] - last.position[i]);
+    }
+    assert_relative_eq!(
+        shared.pot_minus_encoder().unwrap()[0],
+        11_000.0 * 4.5 / 65536.0 * -1.547_377_78 + 3.5 + 1000.0 * K_YAW,
+        epsilon = 1e-9
+    );
+    assert_eq!(
+        shared.port_mut().link_mut().boards.log.len(),
+        16,
+        "2 status + 7 x (encoder, ADC)"
+    );
+    // Exclusive: the feedback block.
+    let mut exclusive = ArmReader::new(
+        EthPort::new(InProcLink::new(boards_with_pots(&io))),
+        io.clone(),
+        AccessMode::Exclusive,
+    );
+    exclusive.read(1, &mut s).unwrap();
+    check_pots(&io, &s, exclusive.pots());
+    // Broadcast query + hub read.
+    let mut port = EthPort::new(InProcLink::new(boards_with_pots(&io)));
+    port.allow_writes().enable_broadcast_query();
+    let mut hub =
+        ArmReader::new(&mut port, io.clone(), AccessMode::Exclusive).with_broadcast_query(true);
+    hub.read(1, &mut s).unwrap();
+    check_pots(&io, &s, hub.pots());
+    assert_eq!(hub.counters().hub_reads, 1);
+    // An io file without pot calibration: no pots.
+    let mut none = ArmReader::new(
+        EthPort::new(InProcLink::new(boards_with_pots(&io))),
+        cfg(),
+        AccessMode::Exclusive,
+    );
+    none.read(1, &mut s).unwrap();
+    assert!(none.pots().is_none() && none.pot_minus_encoder().is_none());
+    assert!(
+        none.last_actuators()
+            .pot_position
+            .iter()
+            .all(|p| p.is_nan())
+    );
+}

@@ -191,6 +191,14 @@ pub trait SampleSource {
     /// Converts with another instrument's actuator-to-joint coupling from the next read on (the
     /// console reported a new instrument). No allocation.
     fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool;
+    /// Per actuator, potentiometer minus encoder position of the last read, both as the source
+    /// decoded them (actuator space; NaN where the io file has no pot calibration), for the
+    /// pot/encoder check; None: this source reads no pots. A difference, so that it holds
+    /// whatever coupling the check converts joints back with; a copy, so that a source behind
+    /// a `RefCell` (the tap) can give it too.
+    fn pot_minus_encoder(&self) -> Option<[f64; dvrk_io::NUM_JOINTS]> {
+        None
+    }
 }
 
 fn outcome(r: Result<(), dvrk_io::reader::ReadError>) -> ReadOutcome {
@@ -209,6 +217,9 @@ impl<P: Port> SampleSource for ArmReader<P> {
     }
     fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
         self.config_mut().set_coupling(*coupling).is_ok()
+    }
+    fn pot_minus_encoder(&self) -> Option<[f64; dvrk_io::NUM_JOINTS]> {
+        ArmReader::pot_minus_encoder(self)
     }
 }
 
@@ -879,7 +890,14 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
             let actuator_effort = io.joint_to_actuator_effort(&s.effort);
             let amps: [f64; dvrk_io::NUM_JOINTS] =
                 core::array::from_fn(|i| io.actuators()[i].effort_to_amps(actuator_effort[i]));
-            if check.check(s, &actuator_position, &amps, None).is_err() {
+            let pots: Option<[f64; dvrk_io::NUM_JOINTS]> = self
+                .source
+                .pot_minus_encoder()
+                .map(|d| core::array::from_fn(|i| actuator_position[i] + d[i]));
+            if check
+                .check(s, &actuator_position, &amps, pots.as_ref())
+                .is_err()
+            {
                 read = ReadOutcome::Implausible;
                 c.implausible += 1;
                 c.window_implausible += 1;

@@ -107,7 +107,33 @@ pub struct PotentiometerParams {
     pub bits_to_voltage: Conversion,
     /// rad (m) per V; from the robot's own `.cal` file.
     pub voltage_to_position: Conversion,
+    /// How far and how long pot and encoder may disagree. Absent: the dVRK's default for the
+    /// arm (`dvrk_io::plausibility`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<PotTolerance>,
 }
+
+/// The dVRK's pot/encoder consistency rule for one actuator (sawRobotIO1394
+/// `potentiometers.tolerances[]`, same field names and SI units): an error only once
+/// |pot − encoder| has stayed above `distance` for longer than `latency`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PotTolerance {
+    /// rad, or m for a prismatic actuator.
+    pub distance: f64,
+    /// s.
+    pub latency: f64,
+}
+
+/// Largest accepted [`PotTolerance::distance`] of a revolute actuator (rad): beyond half a
+/// turn the check compares nothing.
+pub const MAX_POT_DISTANCE_RAD: f64 = std::f64::consts::PI;
+/// Largest accepted [`PotTolerance::distance`] of a prismatic actuator (m): a PSM's whole
+/// insertion range (0.24 m Classic, 0.29 m Si).
+pub const MAX_POT_DISTANCE_M: f64 = 0.3;
+/// Largest accepted [`PotTolerance::latency`] (s). The dVRK generates 0.01 s; its pot
+/// debugging guide doubles it up to about 1 s before widening the distance instead.
+pub const MAX_POT_LATENCY_S: f64 = 5.0;
 
 /// One actuator in the TOML schema.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -206,6 +232,13 @@ pub enum IoConfigError {
     },
     #[error("actuator {actuator}: drive.maximum_current = {value} A must be positive")]
     MaximumCurrent { actuator: usize, value: f64 },
+    #[error("actuator {actuator}: {field} = {value} must be finite, positive and at most {max}")]
+    PotTolerance {
+        actuator: usize,
+        field: &'static str,
+        value: f64,
+        max: f64,
+    },
     #[error("coupling.actuator_to_joint_position[{row}][{col}] = {value} is not finite")]
     CouplingNotFinite { row: usize, col: usize, value: f64 },
     #[error("coupling.actuator_to_joint_position is singular (determinant {determinant:e})")]
@@ -267,7 +300,7 @@ impl Actuator {
     pub fn effort_to_current_bits(&self, effort: f64) -> u16 {
         self.amps_to_current_bits(self.effort_to_amps(effort))
     }
-    /// Pot position (rad or m); None without a potentiometer section.
+    /// Pot position (rad or m, actuator space); None without a potentiometer section.
     pub fn pot_bits_to_position(&self, bits: u16) -> Option<f64> {
         self.potentiometer.map(|p| {
             p.voltage_to_position
@@ -318,6 +351,36 @@ fn check_scale(actuator: usize, field: &'static str, c: &Conversion) -> Result<(
             field,
             value: c.offset,
         });
+    }
+    Ok(())
+}
+
+fn check_pot_tolerance(
+    actuator: usize,
+    joint_type: JointType,
+    t: &PotTolerance,
+) -> Result<(), IoConfigError> {
+    let max_distance = match joint_type {
+        JointType::Revolute => MAX_POT_DISTANCE_RAD,
+        JointType::Prismatic => MAX_POT_DISTANCE_M,
+    };
+    let fields = [
+        ("potentiometer.tolerance.distance", t.distance, max_distance),
+        (
+            "potentiometer.tolerance.latency",
+            t.latency,
+            MAX_POT_LATENCY_S,
+        ),
+    ];
+    for (field, value, max) in fields {
+        if !(value.is_finite() && value > 0.0 && value <= max) {
+            return Err(IoConfigError::PotTolerance {
+                actuator,
+                field,
+                value,
+                max,
+            });
+        }
     }
     Ok(())
 }
@@ -458,6 +521,9 @@ impl IoConfig {
                     "potentiometer.voltage_to_position",
                     &pot.voltage_to_position,
                 )?;
+                if let Some(t) = &pot.tolerance {
+                    check_pot_tolerance(n, a.joint_type, t)?;
+                }
             }
             out.push(Actuator {
                 board_id: a.board_id,
@@ -595,6 +661,10 @@ impl IoConfig {
     }
     pub fn actuators(&self) -> &[Actuator; NUM_JOINTS] {
         &self.actuators
+    }
+    /// Whether any actuator has a pot calibration (its pots are decoded and checked).
+    pub fn has_potentiometers(&self) -> bool {
+        self.actuators.iter().any(|a| a.potentiometer.is_some())
     }
     pub fn instrument(&self) -> Option<&str> {
         self.instrument.as_deref()

@@ -64,7 +64,7 @@ pub struct ArmSample {
 }
 
 /// Actuator-space values of one sample (before coupling), SI units.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ActuatorState {
     /// rad, m for insertion.
     pub position: [f64; NUM_JOINTS],
@@ -74,6 +74,30 @@ pub struct ActuatorState {
     pub effort: [f64; NUM_JOINTS],
     /// Motor current, A.
     pub current_amps: [f64; NUM_JOINTS],
+    /// Potentiometer position (ADC bits 31–16 through the io file's `potentiometer` section),
+    /// rad or m; NaN where the io file has no pot calibration or the axis was not read.
+    pub pot_position: [f64; NUM_JOINTS],
+}
+
+impl ActuatorState {
+    /// Per actuator, pot minus encoder position of this sample (rad or m; NaN without pot):
+    /// what the dVRK's pot/encoder check compares, independent of any instrument coupling a
+    /// caller converts joint values back with.
+    pub fn pot_minus_encoder(&self) -> [f64; NUM_JOINTS] {
+        core::array::from_fn(|i| self.pot_position[i] - self.position[i])
+    }
+}
+
+impl Default for ActuatorState {
+    fn default() -> Self {
+        Self {
+            position: [0.0; NUM_JOINTS],
+            velocity: [0.0; NUM_JOINTS],
+            effort: [0.0; NUM_JOINTS],
+            current_amps: [0.0; NUM_JOINTS],
+            pot_position: [f64::NAN; NUM_JOINTS],
+        }
+    }
 }
 
 /// Raw per-cycle values of shared mode (quadlet reads only): the status of each board slot and
@@ -144,6 +168,7 @@ pub fn decode_blocks<T: AsRef<[u8]>>(
     let mut vel = [0.0; NUM_JOINTS];
     let mut eff = [0.0; NUM_JOINTS];
     let mut cur = [0.0; NUM_JOINTS];
+    let mut pot = [f64::NAN; NUM_JOINTS];
     for (i, a) in cfg.actuators().iter().enumerate() {
         let axis = a.axis as usize;
         let Some(b) = blocks.get(a.board_slot as usize).and_then(|b| b.as_ref()) else {
@@ -166,6 +191,7 @@ pub fn decode_blocks<T: AsRef<[u8]>>(
         let amps = a.current_bits_to_amps(adc.current_bits());
         cur[i] = amps;
         eff[i] = a.amps_to_effort(amps);
+        pot[i] = a.pot_bits_to_position(adc.pot_bits()).unwrap_or(f64::NAN);
         let status = b.status();
         let mut h = AxisHealth {
             encoder_overflow: enc.overflow(),
@@ -194,6 +220,7 @@ pub fn decode_blocks<T: AsRef<[u8]>>(
         velocity: vel,
         effort: eff,
         current_amps: cur,
+        pot_position: pot,
     }
 }
 
@@ -218,6 +245,7 @@ pub fn decode_shared(
     let mut pos = [0.0; NUM_JOINTS];
     let mut eff = [0.0; NUM_JOINTS];
     let mut cur = [0.0; NUM_JOINTS];
+    let mut pot = [f64::NAN; NUM_JOINTS];
     for (i, a) in cfg.actuators().iter().enumerate() {
         let (Some(enc), Some(adc)) = (raw.encoder_position[i], raw.adc[i]) else {
             out.axes[i] = AxisHealth::default();
@@ -230,6 +258,7 @@ pub fn decode_shared(
         let amps = a.current_bits_to_amps(adc.current_bits());
         cur[i] = amps;
         eff[i] = a.amps_to_effort(amps);
+        pot[i] = a.pot_bits_to_position(adc.pot_bits()).unwrap_or(f64::NAN);
         let status = raw
             .status
             .get(a.board_slot as usize)
@@ -256,5 +285,6 @@ pub fn decode_shared(
         velocity: [0.0; NUM_JOINTS],
         effort: eff,
         current_amps: cur,
+        pot_position: pot,
     }
 }

@@ -1,11 +1,15 @@
 //! Import of the dVRK's own sawRobotIO1394 JSON, `"$version": "6"` (reference §5.1), so a lab
 //! reuses its calibrated file.
 //!
-//! This is a foreign format: unknown keys (brakes, digital inputs, Dallas chips, tolerances,
-//! limits, ...) are ignored, unlike this crate's own TOML. The fields used are read strictly:
+//! This is a foreign format: unknown keys (brakes, digital inputs, Dallas chips, limits, ...)
+//! are ignored, unlike this crate's own TOML. The fields used are read strictly:
 //! `robots[].{name, hardware_version, actuators[].{board_id, axis_id, joint_type,
 //! drive.{bits_to_current, effort_to_current, maximum_current}, encoder.{bits_to_position,
-//! velocity_source}, potentiometer.{bits_to_voltage, voltage_to_position}}}`. The instrument
+//! velocity_source}, potentiometer.{bits_to_voltage, voltage_to_position}},
+//! potentiometers.tolerances[].{distance, latency}}`. The tolerances are taken in actuator
+//! order, as sawRobotIO1394 applies them (its `axis_id` is not used for the pairing); a distance
+//! of 0 is the dVRK's "no check for this actuator", and such an actuator is imported without
+//! its pot. The instrument
 //! coupling is not in this file (it comes from the tool file): it stays identity until
 //! [`IoConfig::set_coupling`]. `//` and `/* */` comments, which the dVRK's JSON reader accepts,
 //! are stripped first.
@@ -14,7 +18,7 @@ use serde::Deserialize;
 
 use super::{
     ActuatorParams, Conversion, DriveParams, EncoderParams, IoConfig, IoConfigError, IoParams,
-    JointType, PotentiometerParams, VelocitySource,
+    JointType, PotTolerance, PotentiometerParams, VelocitySource,
 };
 
 /// A sawRobotIO1394 JSON file as deserialised by the application (e.g. with `serde_json`,
@@ -44,6 +48,18 @@ struct SawRobot {
     hardware_version: Option<String>,
     #[serde(default)]
     actuators: Vec<SawActuator>,
+    potentiometers: Option<SawPots>,
+}
+
+#[derive(Deserialize)]
+struct SawPots {
+    tolerances: Option<Vec<SawTolerance>>,
+}
+
+#[derive(Deserialize)]
+struct SawTolerance {
+    distance: Option<f64>,
+    latency: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -182,13 +198,36 @@ impl IoConfig {
                     return Err(missing(n, "encoder.velocity_source (FIRMWARE or SOFTWARE)"));
                 }
             };
+            let tolerance = match robot
+                .potentiometers
+                .as_ref()
+                .and_then(|p| p.tolerances.as_ref())
+            {
+                None => None,
+                Some(all) => {
+                    let t = all
+                        .get(i)
+                        .ok_or_else(|| missing(n, "potentiometers.tolerances[actuator - 1]"))?;
+                    Some(PotTolerance {
+                        distance: t.distance.ok_or_else(|| {
+                            missing(n, "potentiometers.tolerances[actuator - 1].distance")
+                        })?,
+                        latency: t.latency.ok_or_else(|| {
+                            missing(n, "potentiometers.tolerances[actuator - 1].latency")
+                        })?,
+                    })
+                }
+            };
             let potentiometer = match &a.potentiometer {
+                // distance 0: sawRobotIO1394 skips the check of this actuator.
+                _ if tolerance.is_some_and(|t| t.distance == 0.0) => None,
                 Some(SawPot {
                     bits_to_voltage: Some(b),
                     voltage_to_position: Some(v),
                 }) => Some(PotentiometerParams {
                     bits_to_voltage: *b,
                     voltage_to_position: *v,
+                    tolerance,
                 }),
                 _ => None,
             };

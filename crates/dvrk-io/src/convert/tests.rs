@@ -465,3 +465,183 @@ fn decode_shared_hand_computed() {
     decode_shared(&c, &raw, 8, &mut s);
     assert!(!s.valid);
 }
+
+/// The shipped TOML with actuator 1 given a pot calibration and `extra` inside its
+/// `potentiometer` table.
+fn toml_with_pot(extra: &str) -> String {
+    toml_with(
+        "maximum_current = 1.34 }\n",
+        &format!(
+            "maximum_current = 1.34 }}\npotentiometer = {{ bits_to_voltage = {{ scale = \
+             6.866455078125e-05 }}, voltage_to_position = {{ scale = 1.0, offset = -2.25 }}{extra} }}\n"
+        ),
+    )
+}
+
+#[test]
+fn toml_pot_tolerance_is_optional_and_validated() {
+    let c = from_toml_str(&toml_with_pot("")).unwrap();
+    assert!(c.has_potentiometers() && !cfg().has_potentiometers());
+    assert_eq!(c.actuators()[0].potentiometer.unwrap().tolerance, None);
+    let c = from_toml_str(&toml_with_pot(
+        ", tolerance = { distance = 0.0873, latency = 0.02 }",
+    ))
+    .unwrap();
+    assert_eq!(
+        c.actuators()[0].potentiometer.unwrap().tolerance,
+        Some(PotTolerance {
+            distance: 0.0873,
+            latency: 0.02
+        })
+    );
+    assert_eq!(IoConfig::from_params(c.to_params()).unwrap(), c);
+    let bad = [
+        ("distance = 0.0, latency = 0.01", "distance", 0.0),
+        ("distance = -0.1, latency = 0.01", "distance", -0.1),
+        ("distance = 4.0, latency = 0.01", "distance", 4.0),
+        ("distance = nan, latency = 0.01", "distance", f64::NAN),
+        ("distance = 0.1, latency = 0.0", "latency", 0.0),
+        ("distance = 0.1, latency = 60.0", "latency", 60.0),
+        ("distance = 0.1, latency = inf", "latency", f64::INFINITY),
+    ];
+    for (t, field, value) in bad {
+        let e = from_toml_str(&toml_with_pot(&format!(", tolerance = {{ {t} }}"))).unwrap_err();
+        match e.config() {
+            IoConfigError::PotTolerance {
+                actuator: 1,
+                field: f,
+                value: v,
+                ..
+            } => {
+                assert_eq!(*f, format!("potentiometer.tolerance.{field}"), "{t}");
+                assert!(v == &value || (v.is_nan() && value.is_nan()), "{t}: {v}");
+            }
+            other => panic!("{t}: {other}"),
+        }
+        let text = e.to_string();
+        assert!(
+            text.contains("actuator 1") && text.contains(field),
+            "{text}"
+        );
+    }
+    // The insertion's distance is in metres: 0.3 m at most.
+    let ins = toml_with(
+        "maximum_current = 0.67 }\n",
+        "maximum_current = 0.67 }\npotentiometer = { bits_to_voltage = { scale = 1e-4 }, \
+         voltage_to_position = { scale = 0.06 }, tolerance = { distance = 0.5, latency = 0.01 } }\n",
+    );
+    let e = from_toml_str(&ins).unwrap_err();
+    assert!(
+        matches!(
+            e.config(),
+            IoConfigError::PotTolerance { actuator: 3, max, .. } if *max == MAX_POT_DISTANCE_M
+        ),
+        "{e}"
+    );
+    let e = from_toml_str(&toml_with_pot(
+        ", tolerance = { distance = 0.1, latency = 0.01, unit = \"deg\" }",
+    ))
+    .unwrap_err();
+    assert!(e.to_string().contains("unit"), "{e}");
+}
+
+#[test]
+fn saw_json_pot_tolerances_are_imported_in_actuator_order() {
+    let j = from_saw_json_str(SAW_JSON).unwrap();
+    let tol = |i: usize| j.actuators()[i].potentiometer.unwrap().tolerance.unwrap();
+    assert_eq!(tol(0).distance, 0.087_266_462_599_716_47);
+    assert_eq!(tol(2).distance, 0.005);
+    assert!((0..7).all(|i| tol(i).latency == 0.01));
+    // distance 0: the dVRK checks nothing for that actuator, so neither pot nor check.
+    let off = SAW_JSON.replacen("\"distance\": 0.005", "\"distance\": 0.0", 1);
+    let j = from_saw_json_str(&off).unwrap();
+    assert!(j.actuators()[2].potentiometer.is_none());
+    assert!(j.actuators()[3].potentiometer.is_some());
+    let neg = SAW_JSON.replacen("\"distance\": 0.005", "\"distance\": -0.005", 1);
+    let e = from_saw_json_str(&neg).unwrap_err();
+    assert!(
+        matches!(e.config(), IoConfigError::PotTolerance { actuator: 3, .. }),
+        "{e}"
+    );
+    let no_latency = SAW_JSON.replacen("\"latency\": 0.01", "\"latency_s\": 0.01", 1);
+    let e = from_saw_json_str(&no_latency).unwrap_err();
+    assert!(
+        e.to_string().contains("actuator 1") && e.to_string().contains("latency"),
+        "{e}"
+    );
+    // Six tolerances for seven actuators: the seventh is missing, and named.
+    let start = SAW_JSON.find("\"axis_id\": 6,\n").unwrap();
+    let open = SAW_JSON[..start].rfind(",").unwrap();
+    let close = start + SAW_JSON[start..].find('}').unwrap();
+    let six = format!("{}{}", &SAW_JSON[..open], &SAW_JSON[close + 1..]);
+    let e = from_saw_json_str(&six).unwrap_err();
+    assert!(e.to_string().contains("actuator 7"), "{e}");
+}
+
+#[test]
+fn pots_are_decoded_from_the_adc_quadlet_in_both_decoders() {
+    let saw = from_saw_json_str(SAW_JSON).unwrap();
+    let lay = BlockLayout::new(9, BoardKind::Qla).unwrap();
+    let mut b6 = block_bytes(lay, 6, [0; 4], [0x8000; 4], None);
+    let b7 = block_bytes(lay, 7, [0; 4], [0x8000; 4], None);
+    {
+        let mut v = FeedbackBlock::new_checked(&mut b6[..], lay).unwrap();
+        v.set_adc(0, Adc::new(10_000, 0x8000)).unwrap();
+        v.set_adc(2, Adc::new(50_000, 0x8123)).unwrap();
+    }
+    let blocks = [
+        Some(FeedbackBlock::new_checked(&b6[..], lay).unwrap()),
+        Some(FeedbackBlock::new_checked(&b7[..], lay).unwrap()),
+    ];
+    let mut s = ArmSample::default();
+    let st = decode_blocks(&saw, &blocks, 1, &mut s);
+    let v = |bits: f64| bits * 4.5 / 65536.0;
+    // Actuator 1: V * -1.54737778 + 3.5; actuator 3: V * 0.25486222 - 0.01 (the JSON's values).
+    assert_relative_eq!(
+        st.pot_position[0],
+        v(10_000.0) * -1.547_377_78 + 3.5,
+        epsilon = 1e-12
+    );
+    assert_relative_eq!(
+        st.pot_position[2],
+        v(50_000.0) * 0.254_862_22 - 0.01,
+        epsilon = 1e-12
+    );
+    // Board 7 axis 0 is actuator 5, its pot at mid-range.
+    assert_eq!(
+        st.pot_position[4],
+        saw.actuators()[4].pot_bits_to_position(0x8000).unwrap()
+    );
+    // The current bits of the same quadlet are unaffected by the pot bits.
+    assert_relative_eq!(
+        st.current_amps[2],
+        saw.actuators()[2].current_bits_to_amps(0x8123),
+        epsilon = 1e-12
+    );
+    // Without pot calibration: NaN.
+    let st = decode_blocks(&cfg(), &blocks, 1, &mut s);
+    assert!(st.pot_position.iter().all(|p| p.is_nan()));
+
+    let mut raw = SharedRaw {
+        status: [Some(0x060F_0F00), Some(0x070F_0F00)],
+        ..Default::default()
+    };
+    for i in 0..7 {
+        raw.encoder_position[i] = Some(EncoderPosition::from_counts(0).0);
+        raw.adc[i] = Some(Adc::new(1000 * (i as u16 + 1), 0x8000).0);
+    }
+    let st = decode_shared(&saw, &raw, 2, &mut s);
+    for (i, a) in saw.actuators().iter().enumerate() {
+        let want = a.pot_bits_to_position(1000 * (i as u16 + 1)).unwrap();
+        assert_eq!(st.pot_position[i], want, "actuator {}", i + 1);
+    }
+    assert_relative_eq!(
+        st.pot_position[0],
+        v(1000.0) * -1.547_377_78 + 3.5,
+        epsilon = 1e-12
+    );
+    // An axis not read has no pot either.
+    raw.adc[5] = None;
+    let st = decode_shared(&saw, &raw, 3, &mut s);
+    assert!(st.pot_position[5].is_nan() && !st.pot_position[4].is_nan());
+}

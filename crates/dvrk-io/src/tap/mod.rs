@@ -24,7 +24,7 @@ pub use frame::{Datagram, LinkType, Skip, emit_frame, parse_frame};
 
 use std::net::SocketAddrV4;
 
-use crate::convert::{ArmSample, IoConfig, MAX_BOARDS, decode_blocks};
+use crate::convert::{ActuatorState, ArmSample, IoConfig, MAX_BOARDS, NUM_JOINTS, decode_blocks};
 use crate::wire::firewire::BROADCAST_NODE;
 use crate::wire::hub::{HUB_ADDRESS, HubHeader, QUERY_ADDRESS};
 use crate::wire::{
@@ -113,6 +113,8 @@ pub struct TapDecoder {
     fresh: [bool; MAX_BOARDS],
     /// Blocks seen per board slot since construction (the shell names boards that stop).
     seen: [u64; MAX_BOARDS],
+    /// Actuator-space values of the last sample (pots included).
+    last: ActuatorState,
     counters: TapCounters,
 }
 
@@ -128,6 +130,7 @@ impl TapDecoder {
             layouts: [None; MAX_BOARDS],
             fresh: [false; MAX_BOARDS],
             seen: [0; MAX_BOARDS],
+            last: ActuatorState::default(),
             counters: TapCounters::default(),
         }
     }
@@ -148,6 +151,26 @@ impl TapDecoder {
 
     pub fn counters(&self) -> TapCounters {
         self.counters
+    }
+
+    /// Actuator-space values of the last sample.
+    pub fn last_actuators(&self) -> &ActuatorState {
+        &self.last
+    }
+
+    /// Potentiometer positions of the last sample, actuator space (rad or m; NaN for an
+    /// actuator without pot calibration). None when the io file calibrates no pot.
+    pub fn pots(&self) -> Option<&[f64; NUM_JOINTS]> {
+        self.cfg
+            .has_potentiometers()
+            .then_some(&self.last.pot_position)
+    }
+    /// [`ActuatorState::pot_minus_encoder`] of the last sample; None when the io file calibrates
+    /// no pot.
+    pub fn pot_minus_encoder(&self) -> Option<[f64; NUM_JOINTS]> {
+        self.cfg
+            .has_potentiometers()
+            .then(|| self.last.pot_minus_encoder())
     }
 
     /// Feedback blocks seen per board slot (order of `config().board_ids()`).
@@ -402,7 +425,7 @@ impl TapDecoder {
             let lay = self.layouts[slot]?;
             FeedbackBlock::new_checked(&self.blocks[slot][..], lay).ok()
         });
-        decode_blocks(&self.cfg, &blocks, t_ns, out);
+        self.last = decode_blocks(&self.cfg, &blocks, t_ns, out);
         self.fresh = [false; MAX_BOARDS];
         self.counters.samples += 1;
     }

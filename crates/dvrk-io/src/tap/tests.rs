@@ -435,3 +435,102 @@ fn a_reply_from_another_address_than_the_request_went_to_is_not_taken() {
         "169.254.0.107:1394".parse().unwrap()
     ));
 }
+
+/// [`block`] with pot bits `1000 * (board + axis + 1)` in every ADC quadlet.
+fn block_with_pots(board: u8, counts: i32, ts: u32) -> Vec<u8> {
+    let mut b = block(board, counts, ts);
+    let mut v = FeedbackBlock::new_checked(&mut b[..], lay()).unwrap();
+    for ax in 0..4 {
+        let pot = 1000 * (u16::from(board) + ax as u16 + 1);
+        v.set_adc(ax, crate::wire::Adc::new(pot, 0x8000)).unwrap();
+    }
+    b
+}
+
+fn saw_cfg() -> IoConfig {
+    let text = include_str!("../../../../tests/data/io/sawRobotIO1394-PSM1-00000.json");
+    let file: crate::convert::SawFile =
+        serde_json::from_str(&crate::convert::strip_json_comments(text)).unwrap();
+    IoConfig::from_saw_file(file, None).unwrap()
+}
+
+fn expect_tap_pots(c: &IoConfig, d: &TapDecoder) {
+    let pots = d.pots().expect("the io file calibrates the pots");
+    for (i, a) in c.actuators().iter().enumerate() {
+        let bits = 1000 * (u16::from(a.board_id) + u16::from(a.axis) + 1);
+        assert_eq!(
+            pots[i],
+            a.pot_bits_to_position(bits).unwrap(),
+            "actuator {}",
+            i + 1
+        );
+    }
+}
+
+#[test]
+fn the_tap_decodes_the_pots_of_the_consoles_reads() {
+    let c = saw_cfg();
+    let mut d = TapDecoder::new(c.clone());
+    let mut out = ArmSample::default();
+    assert!(
+        d.pots().unwrap().iter().all(|p| p.is_nan()),
+        "nothing seen yet"
+    );
+    // Sequential block reads.
+    let len = lay().len_bytes() as u16;
+    push(
+        &mut d,
+        &request(CONSOLE, 6, 1, 0, RequestKind::BlockRead { len }),
+        &mut out,
+    );
+    push(
+        &mut d,
+        &block_reply(CONSOLE, 6, 1, &block_with_pots(6, 10, 1)),
+        &mut out,
+    );
+    push(
+        &mut d,
+        &request(CONSOLE, 7, 2, 0, RequestKind::BlockRead { len }),
+        &mut out,
+    );
+    let e = push(
+        &mut d,
+        &block_reply(CONSOLE, 7, 2, &block_with_pots(7, 10, 1)),
+        &mut out,
+    );
+    assert_eq!(e, TapEvent::Sample);
+    expect_tap_pots(&c, &d);
+    assert_eq!(
+        d.last_actuators().position[0],
+        c.actuators()[0].counts_to_position(10)
+    );
+    let diff = d.pot_minus_encoder().unwrap();
+    assert_eq!(
+        diff[0],
+        d.pots().unwrap()[0] - c.actuators()[0].counts_to_position(10)
+    );
+    // A broadcast query and its hub data.
+    let mut d = TapDecoder::new(c.clone());
+    let q = RequestKind::QuadletWrite {
+        data: (5 << 16) | 0x00C0,
+    };
+    push(
+        &mut d,
+        &request(CONSOLE, 0x3F, 3, QUERY_ADDRESS, q),
+        &mut out,
+    );
+    let mut hub = hub_data(5, &[(6, 0, 1), (7, 0, 1)]);
+    let q_len = lay().len_quadlets() * 4;
+    for (slot, board) in [6u8, 7].into_iter().enumerate() {
+        let at = 4 + slot * (q_len + 4);
+        hub[at..at + q_len].copy_from_slice(&block_with_pots(board, 0, 1));
+    }
+    assert_eq!(
+        push(&mut d, &block_reply(CONSOLE, 6, 3, &hub), &mut out),
+        TapEvent::Sample
+    );
+    expect_tap_pots(&c, &d);
+    // No pot calibration, no pots.
+    let no_pots = TapDecoder::new(cfg());
+    assert!(no_pots.pots().is_none() && no_pots.pot_minus_encoder().is_none());
+}
