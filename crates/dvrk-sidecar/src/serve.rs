@@ -281,6 +281,9 @@ impl SampleSource for SimSource {
     fn simulated(&self) -> bool {
         true
     }
+    fn pot_minus_encoder(&self) -> Option<[f64; dvrk_io::NUM_JOINTS]> {
+        self.reader.pot_minus_encoder()
+    }
 }
 
 /// One port read by every arm of the service in turn: each cycle reads arm after arm on the
@@ -382,6 +385,9 @@ impl<S: SampleSource> SampleSource for Backoff<S> {
     }
     fn set_coupling(&mut self, coupling: &[[f64; 4]; 4]) -> bool {
         self.inner.set_coupling(coupling)
+    }
+    fn pot_minus_encoder(&self) -> Option<[f64; dvrk_io::NUM_JOINTS]> {
+        self.inner.pot_minus_encoder()
     }
 }
 

@@ -594,6 +594,14 @@ impl SampleSource for TapSource {
     fn read(&mut self, t_ns: u64, out: &mut ArmSample) -> ReadOutcome {
         self.shared.borrow_mut().read(self.arm, t_ns, out)
     }
+
+    fn pot_minus_encoder(&self) -> Option<[f64; dvrk_io::NUM_JOINTS]> {
+        self.shared
+            .borrow()
+            .decs
+            .get(self.arm)
+            .and_then(|d| d.pot_minus_encoder())
+    }
 }
 
 #[cfg(test)]
