@@ -1,5 +1,5 @@
 //! The service configuration (sidecar.toml) as `serve` and `check-config` load it
-//! (`SidecarConfig::load`): parse, check every field, then load and validate the files it
+//! (`ServiceConfig::load`, one arm or several `[[arm]]`): parse, check every field, then load and validate the files it
 //! names. The input is written to a scratch directory beside links to the repository's own
 //! config files (io/, compliance/, sim/, data/ = tests/data/io, bad/ = tests/data/bad-config), so that the relative
 //! paths of real configs resolve to real files. Inputs naming an absolute path or `..` are only
@@ -12,7 +12,7 @@ mod common;
 use std::path::{Component, Path};
 use std::sync::Once;
 
-use dvrk_sidecar::config::{SidecarConfig, SidecarParams, Source};
+use dvrk_sidecar::config::{ServiceConfig, SidecarParams, Source};
 use libfuzzer_sys::fuzz_target;
 
 fn confined(p: &Path) -> bool {
@@ -45,11 +45,36 @@ fuzz_target!(|data: &[u8]| {
             return;
         }
     }
+    // A several-arm file names its files in each [[arm]]: the same confinement.
+    if let Ok(t) = toml::from_str::<toml::Table>(text)
+        && let Some(arms) = t.get("arm").and_then(|a| a.as_array())
+    {
+        let paths = arms.iter().filter_map(|a| a.as_table()).flat_map(|a| {
+            ["io", "compliance", "scenario"]
+                .into_iter()
+                .filter_map(|k| a.get(k).and_then(|v| v.as_str()).map(str::to_owned))
+        });
+        let base = t
+            .get("base_frame")
+            .and_then(|b| b.get("dvrk_json"))
+            .and_then(|v| v.as_str())
+            .map(str::to_owned);
+        if !paths.chain(base).all(|q| confined(Path::new(&q))) {
+            return;
+        }
+        if arms.iter().any(|a| a.get("base_frame").is_some()) {
+            return;
+        }
+    }
     let path = common::scratch_file("sidecar.toml", data);
-    let Ok(cfg) = SidecarConfig::load(&path) else {
+    let Ok(svc) = ServiceConfig::load(&path) else {
         return;
     };
-    let again = Source::parse(&cfg.source.to_string()).expect("a parsed source prints back");
-    assert_eq!(again, cfg.source);
-    assert_eq!(cfg.scenario.is_some(), cfg.source == Source::Sim);
+    assert!(!svc.arms.is_empty());
+    for cfg in &svc.arms {
+        let again = Source::parse(&cfg.source.to_string()).expect("a parsed source prints back");
+        assert_eq!(again, cfg.source);
+        assert_eq!(cfg.scenario.is_some(), cfg.source == Source::Sim);
+        assert_eq!(cfg.source, svc.arms[0].source, "every arm shares the source");
+    }
 });
