@@ -193,3 +193,34 @@ fn walk(dir: &std::path::Path) -> Vec<PathBuf> {
     }
     out
 }
+
+/// `serve` refuses to publish into a shared-memory directory that another account created
+/// first (it could hide the service from its consumers), naming the owner and what to do, and
+/// starts once the directory is its own.
+#[cfg_attr(
+    not(has_root),
+    ignore = "needs root to give the directory to another user (chown)"
+)]
+#[test]
+fn the_service_refuses_a_domain_directory_another_account_created() {
+    let domain = format!("hs{}_", std::process::id());
+    cleanup(&domain);
+    let root = PathBuf::from(root_path(&domain));
+    std::fs::create_dir_all(&root).unwrap();
+    std::os::unix::fs::chown(&root, Some(PUBLISHER_UID), Some(PUBLISHER_UID)).unwrap();
+    let cfg = domain_config(&domain, Some(&root_path(&domain))).unwrap();
+    let e = dvrk_ipc::access::refuse_domain_of_another(&cfg)
+        .expect_err("a directory of uid 65534 accepted for a service of uid 0")
+        .to_string();
+    std::os::unix::fs::chown(&root, Some(0), Some(0)).unwrap();
+    let ok = dvrk_ipc::access::refuse_domain_of_another(&cfg);
+    cleanup(&domain);
+    for needle in [
+        "belongs to user nobody",
+        "not to this service's account (root)",
+        "sudo rm -rf",
+    ] {
+        assert!(e.contains(needle), "{needle:?} missing from: {e}");
+    }
+    assert!(ok.is_ok(), "its own directory refused: {ok:?}");
+}

@@ -121,6 +121,24 @@ pub fn refuse_root_in_anothers_domain(config: &Config) -> Result<(), IpcError> {
     }
 }
 
+/// For the publishing service: refuses a domain whose root path exists and belongs to another
+/// account than this process's ([`IpcError::DomainOwnedByAnother`]). A consumer may use the
+/// service's domain (it must run as the same account anyway); the service itself must not
+/// publish into a directory someone else created before it.
+pub fn refuse_domain_of_another(config: &Config) -> Result<(), IpcError> {
+    // SAFETY: geteuid has no preconditions.
+    let me = unsafe { libc::geteuid() };
+    let root = PathBuf::from(config.global.root_path().to_string());
+    match std::fs::symlink_metadata(&root) {
+        Ok(m) if m.uid() != me => Err(IpcError::DomainOwnedByAnother {
+            owner: user_name(m.uid()),
+            me: user_name(me),
+            path: root,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// What to do when a file of `owner` is in the way.
 pub fn hint(owner: &str) -> String {
     if owner == "root" {

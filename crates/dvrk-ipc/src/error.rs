@@ -137,6 +137,23 @@ pub enum IpcError {
         owner: String,
     },
 
+    /// The service would publish in a domain whose root path another account owns: whoever
+    /// created it first controls what is found there (it can hide the service from its
+    /// consumers). Refused before the service starts.
+    #[error(
+        "the shared-memory directory {} belongs to user {owner}, not to this service's account \
+         ({me}): whoever creates it first controls it and can hide the service from its \
+         consumers. Run the service as {owner}, or remove the directory while no iceoryx2 \
+         program runs (sudo rm -rf {})",
+        path.display(),
+        path.display()
+    )]
+    DomainOwnedByAnother {
+        path: std::path::PathBuf,
+        owner: String,
+        me: String,
+    },
+
     /// The timer of a predictive subscription could not be set up.
     #[error("{what} failed: {source}")]
     Timer {

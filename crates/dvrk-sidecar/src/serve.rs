@@ -129,6 +129,8 @@ fn preflight_arm(cfg: &SidecarConfig) -> Result<()> {
     }
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
+    // The service publishes only into a shared-memory directory of its own account.
+    dvrk_ipc::access::refuse_domain_of_another(&iceoryx2::config::Config::default())?;
     let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar-check", None)
         .context(shm_hint())?;
     dvrk_ipc::ArmServices::open_or_create(&node, &names)
