@@ -90,7 +90,10 @@ fn free_motion(name: &str, seconds: &str) {
         "{name}: compensated mean {comp} not below 95% of raw {raw}: the play is not corrected"
     );
     let harm = num(&v, &["harm_mm", "max"]);
-    assert!(harm <= 0.01, "{name}: harm_mm.max {harm} in free motion: {v}");
+    assert!(
+        harm <= 0.01,
+        "{name}: harm_mm.max {harm} in free motion: {v}"
+    );
 }
 
 #[test]
