@@ -89,8 +89,13 @@ fn fast_free_motion_is_not_corrected_falsely() {
         comp <= raw + 0.02,
         "compensated {comp} mm vs raw {raw} mm: {v}"
     );
+    // Without contact the correction is active by design since issue 20 item 3 (the play is
+    // corrected toward the side the distal weight and inertia set), so the activation without
+    // contact is no longer false by itself: what must not happen is a cycle made worse.
     let fa = pair(&v, "false_activation_fraction");
-    assert!(fa[0] < 0.01 && fa[1] < 0.01, "{v}");
+    assert!(fa.iter().all(|f| (0.0..=1.0).contains(f)), "{v}");
+    assert!(num(&v, &["harm_mm", "max"]) <= 0.01, "{v}");
+    assert!(comp < raw, "the free-space play is not corrected: {v}");
 
     // The quasi-static model (the same file without [joint.dynamics]) cannot tell motion from
     // contact, so (issue 20, item 8) it corrects only while the arm is still: in fast motion it

@@ -2,7 +2,9 @@
 //! through `evaluate --scenario --json` with the default parameter file, and the goals the model
 //! meets are checked:
 //! - every scenario: no cycle more than 0.5 mm worse than raw (`harm_mm.max <= 0.5`);
-//! - free motion: compensated mean at most raw + 0.02 mm;
+//! - free motion: compensated mean at most raw + 0.02 mm, and at most 95% of raw (the play
+//!   corrected toward the side the distal weight and inertia set, issue 20 item 3) with no
+//!   cycle made worse than raw;
 //! - contact: compensated mean at most 30% of raw sliding over a surface, 50% in the light
 //!   scanning contact, 10% in the divot push 5 mm below the fitted insertion range;
 //! - the 95% bound covers at least 90% of the cycles (the goal's upper limit, 99.5%, is not met
@@ -80,6 +82,24 @@ fn free_motion(name: &str, seconds: &str) {
         comp <= raw + 0.02,
         "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
     );
+    // Issue 20 item 3: the free-space play is corrected toward the side the distal weight and
+    // inertia set (measured 0.63-0.91 of raw on these runs), and never the wrong way: no cycle
+    // is made worse than raw (0.000 mm measured; 0.01 mm of slack for rounding).
+    assert!(
+        comp <= 0.95 * raw,
+        "{name}: compensated mean {comp} not below 95% of raw {raw}: the play is not corrected"
+    );
+    let harm = num(&v, &["harm_mm", "max"]);
+    assert!(
+        harm <= 0.01,
+        "{name}: harm_mm.max {harm} in free motion: {v}"
+    );
+}
+
+#[test]
+fn free_motion_of_the_project() {
+    free_motion("free-motion", "10");
+    free_motion("fast-free-motion", "10");
 }
 
 #[test]

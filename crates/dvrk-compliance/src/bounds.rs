@@ -38,3 +38,8 @@ pub const PSM_JOINT_RANGE: [[f64; 2]; 3] = [[-2.964, 2.964], [-1.265, 1.301], [0
 /// The largest plausible |effort| (N·m for joints 1-2, N for insertion) in a data file: a PSM's
 /// motors saturate far below it (joint torques of a few N·m, insertion forces of tens of N).
 pub const MAX_ABS_EFFORT: f64 = 50.0;
+
+/// The largest plausible |component| of the distal part's weight in `[joint.dynamics]`, and of
+/// its uncertainty (N): an instrument's shaft and wrist beyond the compliant element weigh tens
+/// of grams (0.2 N); 10 N is a kilogram.
+pub const MAX_DISTAL_WEIGHT_N: f64 = 10.0;

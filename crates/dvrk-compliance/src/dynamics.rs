@@ -13,6 +13,14 @@
 //! before the newest. That is exact for any cubic motion, has a fixed delay of 2 cycles and no
 //! look-ahead, and averages the encoder quantization over the window.
 //!
+//! The distal part's weight (issue 20 item 3) is optional in the model: a weight vector `w`
+//! (N, in the RCM frame) lumped at the insertion L, which gives joint j the torque
+//! `G_j(q, L) = L w . du/dq_j` on the shaft side of the play (`u` the shaft direction). The
+//! torque-offset sweep measured in free space already holds the weight's reaction at its own
+//! insertion `L_ref`, so the effort holds `-(L - L_ref) w . du/dq_j` beyond `tau_0(q)`; and
+//! without contact the shaft spring carries `J_2 L^2 qdd - G_j`, which sets the side of the play
+//! the shaft rests on ([`crate::Compensator`]). See [`DistalGravityParams`].
+//!
 //! In the parameter file the model is an optional table per joint (a file without it behaves as
 //! before: `tau_ext = tau_meas - tau_0(q)`, gating at `tau_min`):
 //!
@@ -24,6 +32,8 @@
 //! stick_velocity_rad_per_s = 0.002   # v_s: below it the friction keeps its last direction
 //! residual_std_nm = 0.004            # std of tau_ext in free space after the model (the fit's)
 //! gate_sigmas = 4.0                  # correction only where |tau_ext| > tau_min + gate_sigmas * std
+//! # optional: the distal part's weight (absent = not modelled)
+//! distal_gravity = { weight_n = [0.078, 0.0, -0.162], weight_sigma_n = [0.004, 0.0, 0.02], reference_insertion_m = 0.155 }
 //! ```
 //!
 //! [`InternalTorque`] is the stateful estimator: fixed-size ring buffers, no allocation per step.
@@ -72,6 +82,73 @@ pub struct DynamicsParams {
     /// fitted before it existed; the compensator then assumes [`DEFAULT_MAX_ACCELERATION`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_acceleration_rad_per_s2: Option<f64>,
+    /// The distal part's weight (issue 20 item 3). Absent in files fitted before it existed, or
+    /// when the excitation could not separate it: not modelled (the shaft's side of the play
+    /// then comes from the distal inertia alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distal_gravity: Option<DistalGravityParams>,
+}
+
+/// The distal part's weight as the dynamics model holds it (see the module docs): the weight
+/// vector `w` lumped at the insertion L, so `G_j(q, L) = L w . du/dq_j`.
+///
+/// Its assumptions: the mass sits at L (a mass elsewhere along the shaft shows as a wrong `w`
+/// where L differs from the excitation's depths), the RCM frame's tilt is fixed (a setup-joint
+/// move needs a new fit), and the torque-offset sweep held the other joint near the pose of the
+/// excitation (its `tau_0(q_j)` holds the weight at that pose).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DistalGravityParams {
+    /// `w`: the distal part's weight in the RCM frame (N). A component that joint's excitation
+    /// cannot see (joint 1 has no lever for the y axis) is 0 with sigma 0.
+    #[serde(deserialize_with = "crate::exact::array")]
+    pub weight_n: [f64; 3],
+    /// One standard deviation of each component of `w` (N), from the fit's residual with its
+    /// correlation in time taken into account.
+    #[serde(deserialize_with = "crate::exact::array")]
+    pub weight_sigma_n: [f64; 3],
+    /// The insertion (m) at which the torque-offset table was measured (the sweep's mean
+    /// depth): the table holds the weight's reaction there.
+    pub reference_insertion_m: f64,
+}
+
+/// `du/dq1` and `du/dq2` of the shaft direction `u = (sin q1 cos q2, -sin q2, -cos q1 cos q2)`
+/// (RCM frame, the Classic PSM's modified DH at the zero wrist).
+#[inline]
+pub fn shaft_direction_derivatives(q1: f64, q2: f64) -> [[f64; 3]; 2] {
+    let (s1, c1) = q1.sin_cos();
+    let (s2, c2) = q2.sin_cos();
+    [[c1 * c2, 0.0, s1 * c2], [-s1 * s2, -c2, c1 * s2]]
+}
+
+impl DistalGravityParams {
+    /// `G_j` (N·m): the weight's torque on joint `j0` (0 = yaw, 1 = pitch) at joints `q1`, `q2`
+    /// and insertion `insertion_m` (at least 0), positive along the joint.
+    #[inline]
+    pub fn torque_nm(&self, j0: usize, q1: f64, q2: f64, insertion_m: f64) -> f64 {
+        let du = shaft_direction_derivatives(q1, q2)[j0.min(1)];
+        let w = self.weight_n;
+        insertion_m.max(0.0) * (w[0] * du[0] + w[1] * du[1] + w[2] * du[2])
+    }
+
+    /// One standard deviation (N·m) of [`DistalGravityParams::torque_nm`] from `weight_sigma_n`.
+    #[inline]
+    pub fn sigma_nm(&self, j0: usize, q1: f64, q2: f64, insertion_m: f64) -> f64 {
+        let du = shaft_direction_derivatives(q1, q2)[j0.min(1)];
+        let s = self.weight_sigma_n;
+        insertion_m.max(0.0) * (s[0] * du[0]).hypot(s[1] * du[1]).hypot(s[2] * du[2])
+    }
+
+    /// What the effort holds beyond `tau_0(q)` for the weight (N·m): the reaction of
+    /// `G_j` less the reaction the table holds at `reference_insertion_m`,
+    /// `-(L - L_ref) w . du/dq_j`.
+    #[inline]
+    pub fn internal_torque_nm(&self, j0: usize, q1: f64, q2: f64, insertion_m: f64) -> f64 {
+        let du = shaft_direction_derivatives(q1, q2)[j0.min(1)];
+        let w = self.weight_n;
+        -(insertion_m.max(0.0) - self.reference_insertion_m)
+            * (w[0] * du[0] + w[1] * du[1] + w[2] * du[2])
+    }
 }
 
 /// The acceleration range assumed for a dynamics model whose file does not state the fit's
@@ -219,11 +296,16 @@ impl DerivativeFilter {
 }
 
 /// Solves the symmetric 4x4 system by Gaussian elimination with partial pivoting.
+fn solve4(m: [[f64; 4]; 4], r: [f64; 4]) -> Option<[f64; 4]> {
+    solve_n(m, r)
+}
+
+/// Solves the N x N system by Gaussian elimination with partial pivoting.
 #[allow(clippy::needless_range_loop)] // matrix indices read clearer than iterator chains
-fn solve4(mut m: [[f64; 4]; 4], mut r: [f64; 4]) -> Option<[f64; 4]> {
-    for col in 0..4 {
+fn solve_n<const N: usize>(mut m: [[f64; N]; N], mut r: [f64; N]) -> Option<[f64; N]> {
+    for col in 0..N {
         let mut piv = col;
-        for row in col + 1..4 {
+        for row in col + 1..N {
             if m[row][col].abs() > m[piv][col].abs() {
                 piv = row;
             }
@@ -233,18 +315,18 @@ fn solve4(mut m: [[f64; 4]; 4], mut r: [f64; 4]) -> Option<[f64; 4]> {
         }
         m.swap(col, piv);
         r.swap(col, piv);
-        for row in col + 1..4 {
+        for row in col + 1..N {
             let f = m[row][col] / m[col][col];
-            for k in col..4 {
+            for k in col..N {
                 m[row][k] -= f * m[col][k];
             }
             r[row] -= f * r[col];
         }
     }
-    let mut x = [0.0; 4];
-    for row in (0..4).rev() {
+    let mut x = [0.0; N];
+    for row in (0..N).rev() {
         let mut s = r[row];
-        for k in row + 1..4 {
+        for k in row + 1..N {
             s -= m[row][k] * x[k];
         }
         x[row] = s / m[row][row];
@@ -406,6 +488,7 @@ mod tests {
             residual_std_nm: 0.0,
             gate_sigmas: 0.0,
             max_acceleration_rad_per_s2: None,
+            distal_gravity: None,
         };
         let mut s = JointDynamicsState::default();
         let dt = 1e-3;
@@ -487,7 +570,6 @@ pub fn fit_dynamics(
 /// [`fit_dynamics`] over samples made of segments (one excitation per depth) starting at the
 /// indices `starts`: the filter and the direction memory restart at each, and only samples with
 /// a full window inside their segment are used.
-#[allow(clippy::needless_range_loop)] // the four regressors index parallel arrays
 pub fn fit_dynamics_segmented(
     joint: u8,
     samples: &[DynamicsSample],
@@ -495,6 +577,37 @@ pub fn fit_dynamics_segmented(
     tau_0: impl Fn(f64) -> f64,
     gate_sigmas: f64,
 ) -> Result<DynamicsFit, DynamicsFitError> {
+    fit_dynamics_with_gravity(joint, samples, starts, tau_0, gate_sigmas, None)
+}
+
+/// Regressors of the fit: `[qdd, L^2 qdd, qd, s, -(L - L_ref) du/dq_j (3)]`.
+const FIT_COLUMNS: usize = 7;
+/// The first weight column.
+const GRAVITY_COLUMN: usize = 4;
+/// The weight needs this much spread of insertion (m) to be told from the torque offset.
+const GRAVITY_MIN_DEPTH_SPREAD_M: f64 = 0.02;
+
+/// [`fit_dynamics_segmented`] that also identifies the distal part's weight
+/// ([`DistalGravityParams`]) when `gravity_reference_m` is the insertion at which `tau_0` was
+/// measured: three more regressors `-(L - L_ref) du/dq_j` (see the module docs). The weight is
+/// found from how the free-space effort changes with the insertion, so it needs depths that
+/// differ by 2 cm or more; otherwise, or without a reference, it is not modelled (`None`). A
+/// component the joint has no lever for (joint 1, the y axis) is 0.
+///
+/// Its uncertainty (`weight_sigma_n`) is the least-squares standard error with the residual's
+/// correlation in time taken into account: the residual follows the motion, so neighbouring
+/// samples are not independent, and the variance is scaled by the integrated autocorrelation
+/// time of the residual (in samples, summed until the autocorrelation first falls below 0.05).
+#[allow(clippy::needless_range_loop)] // the regressors index parallel arrays
+pub fn fit_dynamics_with_gravity(
+    joint: u8,
+    samples: &[DynamicsSample],
+    starts: &[usize],
+    tau_0: impl Fn(f64) -> f64,
+    gate_sigmas: f64,
+    gravity_reference_m: Option<f64>,
+) -> Result<DynamicsFit, DynamicsFitError> {
+    const N: usize = FIT_COLUMNS;
     let j = usize::from(joint.clamp(1, 2) - 1);
     if samples.len() < 4 * WINDOW {
         return Err(DynamicsFitError::Data {
@@ -511,19 +624,30 @@ pub fn fit_dynamics_segmented(
             reason: "sample times must increase",
         });
     }
-    // Regressors [qdd, L^2 qdd, qd, s] and target y, aligned with the filter's delay: the
-    // estimate of sample i refers to sample i - DELAY_SAMPLES.
+    if let Some(r) = gravity_reference_m
+        && !(r.is_finite() && (0.0..=1.0).contains(&r))
+    {
+        return Err(DynamicsFitError::Data {
+            joint,
+            reason: "the torque offset's reference insertion must be within 0..1 m",
+        });
+    }
+    // Regressors and target y, aligned with the filter's delay: the estimate of sample i refers
+    // to sample i - DELAY_SAMPLES. `segment` marks where the residual's correlation restarts.
     let stick = default_stick_velocity();
     let mut filter = DerivativeFilter::default();
     let mut direction = 0.0;
-    let mut rows: Vec<([f64; 4], f64)> = Vec::with_capacity(samples.len());
+    let mut rows: Vec<([f64; N], f64)> = Vec::with_capacity(samples.len());
+    let mut row_starts: Vec<usize> = Vec::new();
     let mut in_segment = 0;
     let mut max_acc = 0.0f64;
+    let l_ref = gravity_reference_m.unwrap_or(0.0);
     for (i, s) in samples.iter().enumerate() {
         if starts.contains(&i) {
             filter.reset();
             direction = 0.0;
             in_segment = 0;
+            row_starts.push(rows.len());
         }
         in_segment += 1;
         let (v, a) = filter.push(s.t_s, s.position[j]);
@@ -539,74 +663,99 @@ pub fn fit_dynamics_segmented(
         let at = &samples[i - DELAY_SAMPLES];
         let l = at.position[2];
         let y = at.effort_nm[j] - tau_0(at.position[j]);
-        if y.is_finite() && v.is_finite() && a.is_finite() {
+        let du = shaft_direction_derivatives(at.position[0], at.position[1])[j];
+        let lever = -(l.max(0.0) - l_ref);
+        if y.is_finite() && v.is_finite() && a.is_finite() && du.iter().all(|d| d.is_finite()) {
             max_acc = max_acc.max(a.abs());
-            rows.push(([a, l * l * a, v, direction], y));
+            rows.push((
+                [
+                    a,
+                    l * l * a,
+                    v,
+                    direction,
+                    lever * du[0],
+                    lever * du[1],
+                    lever * du[2],
+                ],
+                y,
+            ));
         }
     }
-    // J_2 needs depths that differ: with less than 2 cm of spread the L^2 column is a multiple
-    // of the J_0 column, so it is left out (J_0 then holds the inertia at that depth).
+    // J_2 and the weight need depths that differ: with less than 2 cm of spread the L^2 column
+    // is a multiple of the J_0 column (J_0 then holds the inertia at that depth), and the weight
+    // cannot be told from the torque offset.
     let (l_lo, l_hi) = samples
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
             (lo.min(s.position[2]), hi.max(s.position[2]))
         });
-    let mut active = [true, l_hi - l_lo >= 0.02, true, true];
-    // Columns scaled to unit rms, so the normal equations are well conditioned.
-    let mut scale = [0.0f64; 4];
+    let gravity = gravity_reference_m.is_some() && l_hi - l_lo >= GRAVITY_MIN_DEPTH_SPREAD_M;
+    let mut active = [
+        true,
+        l_hi - l_lo >= 0.02,
+        true,
+        true,
+        gravity,
+        gravity,
+        gravity,
+    ];
+    // Columns scaled to unit rms, so the normal equations are well conditioned; a column that is
+    // (nearly) zero throughout is left out.
+    let mut scale = [0.0f64; N];
     for (x, _) in &rows {
-        for a in 0..4 {
+        for a in 0..N {
             scale[a] += x[a] * x[a];
         }
     }
+    let largest = scale.iter().cloned().fold(0.0f64, f64::max);
     for (a, sc) in scale.iter_mut().enumerate() {
+        let small = a >= GRAVITY_COLUMN && *sc <= 1e-12 * largest;
         *sc = (*sc / rows.len().max(1) as f64).sqrt();
-        if sc.is_nan() || *sc <= 0.0 {
+        if sc.is_nan() || *sc <= 0.0 || small {
             active[a] = false;
             *sc = 1.0;
         }
     }
-    let rows: Vec<([f64; 4], f64)> = rows
-        .into_iter()
-        .map(|(x, y)| {
-            (
-                [
-                    x[0] / scale[0],
-                    x[1] / scale[1],
-                    x[2] / scale[2],
-                    x[3] / scale[3],
-                ],
-                y,
-            )
-        })
-        .collect();
-    let mut coef = [0.0; 4];
-    for _ in 0..4 {
-        let mut m = [[0.0; 4]; 4];
-        let mut r = [0.0; 4];
+    for (x, _) in rows.iter_mut() {
+        for a in 0..N {
+            x[a] /= scale[a];
+        }
+    }
+    let normal = |active: &[bool; N]| {
+        let mut m = [[0.0; N]; N];
+        let mut r = [0.0; N];
         for (x, y) in &rows {
-            for a in 0..4 {
+            for a in 0..N {
                 if !active[a] {
                     continue;
                 }
                 r[a] += x[a] * y;
-                for b in 0..4 {
+                for b in 0..N {
                     if active[b] {
                         m[a][b] += x[a] * x[b];
                     }
                 }
             }
         }
-        for a in 0..4 {
+        for a in 0..N {
             if !active[a] {
-                m[a] = [0.0; 4];
+                m[a] = [0.0; N];
                 m[a][a] = 1.0;
                 r[a] = 0.0;
             }
         }
-        coef = solve4(m, r).ok_or(DynamicsFitError::Singular { joint })?;
+        (m, r)
+    };
+    let mut coef = [0.0; N];
+    let mut m = [[0.0; N]; N];
+    for _ in 0..N {
+        let (mm, r) = normal(&active);
+        m = mm;
+        coef = solve_n(m, r).ok_or(DynamicsFitError::Singular { joint })?;
+        // Negative inertia or friction is not physical: set to 0 and refit. The weight's
+        // components may have either sign.
         let mut changed = false;
-        for a in 0..4 {
+        for a in 0..GRAVITY_COLUMN {
             if active[a] && coef[a] < 0.0 {
                 active[a] = false;
                 coef[a] = 0.0;
@@ -619,15 +768,43 @@ pub fn fit_dynamics_segmented(
     }
     let n = rows.len().max(1) as f64;
     let (mut before, mut after, mut mean_after) = (0.0, 0.0, 0.0);
+    let mut residuals = Vec::with_capacity(rows.len());
     for (x, y) in &rows {
-        let e = y - (coef[0] * x[0] + coef[1] * x[1] + coef[2] * x[2] + coef[3] * x[3]);
+        let fit: f64 = (0..N).map(|a| coef[a] * x[a]).sum();
+        let e = y - fit;
         before += y * y;
         after += e * e;
         mean_after += e;
+        residuals.push(e);
     }
     mean_after /= n;
     let var = (after / n - mean_after * mean_after).max(0.0);
-    for a in 0..4 {
+    let distal_gravity = if gravity {
+        // Covariance of the weight's (scaled) coefficients: sigma^2 (X^T X)^-1, times the
+        // residual's integrated autocorrelation time.
+        let tau_int = autocorrelation_time(&residuals, &row_starts);
+        let mut weight = [0.0; 3];
+        let mut sigma = [0.0; 3];
+        for k in 0..3 {
+            let a = GRAVITY_COLUMN + k;
+            if !active[a] {
+                continue;
+            }
+            let mut e = [0.0; N];
+            e[a] = 1.0;
+            let inv = solve_n(m, e).ok_or(DynamicsFitError::Singular { joint })?;
+            weight[k] = coef[a] / scale[a];
+            sigma[k] = (var * inv[a] * tau_int).max(0.0).sqrt() / scale[a];
+        }
+        Some(DistalGravityParams {
+            weight_n: weight,
+            weight_sigma_n: sigma,
+            reference_insertion_m: l_ref,
+        })
+    } else {
+        None
+    };
+    for a in 0..N {
         coef[a] /= scale[a];
     }
     Ok(DynamicsFit {
@@ -640,11 +817,59 @@ pub fn fit_dynamics_segmented(
             residual_std_nm: var.sqrt(),
             gate_sigmas,
             max_acceleration_rad_per_s2: Some(max_acc),
+            distal_gravity,
         },
         rms_before_nm: (before / n).sqrt(),
         rms_after_nm: (after / n).sqrt(),
         samples: rows.len(),
     })
+}
+
+/// The integrated autocorrelation time (samples, at least 1) of `e`, made of segments starting
+/// at `starts`: `1 + 2 sum_k rho_k` up to the first lag whose autocorrelation is below 0.05 (at
+/// most 3000 lags, 2 s at 1.5 kHz).
+fn autocorrelation_time(e: &[f64], starts: &[usize]) -> f64 {
+    let n = e.len();
+    if n < 2 {
+        return 1.0;
+    }
+    let mean = e.iter().sum::<f64>() / n as f64;
+    let var = e.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n as f64;
+    if var.partial_cmp(&0.0) != Some(core::cmp::Ordering::Greater) {
+        return 1.0;
+    }
+    let mut bounds: Vec<(usize, usize)> = Vec::new();
+    for (i, &s) in starts.iter().enumerate() {
+        let end = starts.get(i + 1).copied().unwrap_or(n).min(n);
+        if s < end {
+            bounds.push((s, end));
+        }
+    }
+    if bounds.is_empty() {
+        bounds.push((0, n));
+    }
+    let mut tau = 1.0;
+    for lag in 1..=3000usize {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for &(s, end) in &bounds {
+            if end - s <= lag {
+                continue;
+            }
+            for i in s..end - lag {
+                sum += (e[i] - mean) * (e[i + lag] - mean);
+            }
+            count += end - s - lag;
+        }
+        if count == 0 {
+            break;
+        }
+        let rho = sum / count as f64 / var;
+        if rho < 0.05 {
+            break;
+        }
+        tau += 2.0 * rho;
+    }
+    tau
 }
 
 #[cfg(test)]
@@ -661,6 +886,7 @@ mod fit_tests {
             residual_std_nm: 0.0,
             gate_sigmas: 4.0,
             max_acceleration_rad_per_s2: None,
+            distal_gravity: None,
         };
         let dt = 1.0 / 1500.0;
         let mut samples = Vec::new();
@@ -699,5 +925,77 @@ mod fit_tests {
         // Too little data is an error naming the joint.
         let e = fit_dynamics(2, &samples[..10], |_| 0.0, 4.0).unwrap_err();
         assert!(e.to_string().starts_with("joint 2"), "{e}");
+        // No weight asked for: not modelled.
+        assert_eq!(p.distal_gravity, None);
+    }
+
+    /// Issue 20 item 3: the distal weight, as the effort shows it beyond a torque-offset table
+    /// taken at `L_ref`, is recovered with an uncertainty that covers its error; the component
+    /// joint 1 has no lever for stays 0.
+    #[test]
+    #[allow(clippy::needless_range_loop)] // three parallel arrays
+    fn recovers_the_distal_weight_with_its_uncertainty() {
+        let w = [0.078, 0.078, -0.162];
+        let truth = DistalGravityParams {
+            weight_n: w,
+            weight_sigma_n: [0.0; 3],
+            reference_insertion_m: 0.155,
+        };
+        let dt = 1.0 / 1500.0;
+        let mut samples = Vec::new();
+        let mut starts = Vec::new();
+        let mut noise = 0x2545_f491_4f6c_dd1du64;
+        for (d, l) in [0.1, 0.15, 0.2].into_iter().enumerate() {
+            starts.push(samples.len());
+            for i in 0..15_000 {
+                let t = (d * 15_000 + i) as f64 * dt;
+                let q1 = 0.25 * (1.43 * t).sin() + 0.05 * (6.9 * t).sin();
+                let q2 = 0.18 * (1.67 * t).sin() + 0.04 * (6.1 * t).sin();
+                let mut effort = [0.0; 2];
+                for (j, e) in effort.iter_mut().enumerate() {
+                    // xorshift: a small white torque noise.
+                    noise ^= noise << 13;
+                    noise ^= noise >> 7;
+                    noise ^= noise << 17;
+                    let n = (noise as f64 / u64::MAX as f64 - 0.5) * 0.01;
+                    *e = 0.1 + truth.internal_torque_nm(j, q1, q2, l) + n;
+                }
+                samples.push(DynamicsSample {
+                    t_s: t,
+                    position: [q1, q2, l],
+                    effort_nm: effort,
+                });
+            }
+        }
+        for joint in [1u8, 2] {
+            let fit =
+                fit_dynamics_with_gravity(joint, &samples, &starts, |_| 0.1, 4.0, Some(0.155))
+                    .unwrap();
+            let g = fit.params.distal_gravity.expect("the weight is modelled");
+            assert_eq!(g.reference_insertion_m, 0.155);
+            for k in 0..3 {
+                if joint == 1 && k == 1 {
+                    assert_eq!((g.weight_n[k], g.weight_sigma_n[k]), (0.0, 0.0), "{g:?}");
+                    continue;
+                }
+                let err = (g.weight_n[k] - w[k]).abs();
+                assert!(
+                    err < 4.0 * g.weight_sigma_n[k] + 1e-4,
+                    "joint {joint} {k}: {g:?}"
+                );
+                assert!(err < 0.02, "joint {joint} {k}: {g:?}");
+            }
+            // One depth cannot tell the weight from the torque offset: not modelled.
+            let one = fit_dynamics_with_gravity(
+                joint,
+                &samples[..15_000],
+                &[0],
+                |_| 0.1,
+                4.0,
+                Some(0.155),
+            )
+            .unwrap();
+            assert_eq!(one.params.distal_gravity, None);
+        }
     }
 }

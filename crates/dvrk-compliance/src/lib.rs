@@ -42,8 +42,8 @@ pub mod params;
 pub mod torque_offset;
 
 pub use dynamics::{
-    DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, fit_dynamics,
-    fit_dynamics_segmented,
+    DistalGravityParams, DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample,
+    fit_dynamics, fit_dynamics_segmented, fit_dynamics_with_gravity,
 };
 pub use instruments::{
     ANY_VERSION, Generation, Instrument, InstrumentError, ToolType, ToolTypeName, VersionRange,

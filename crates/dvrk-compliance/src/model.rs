@@ -167,6 +167,14 @@ pub const PLAY_EVIDENCE_SIGMAS: f64 = 3.0;
 pub const PLAY_EVIDENCE_FLOOR: f64 = 0.25;
 /// Time constant (s) of the average of the shaft torque that is the evidence for the play's side.
 pub const EVIDENCE_TIME_S: f64 = 0.01;
+/// Relative uncertainty (1 sigma) of the distal inertia's load `J_2 L^2 qdd` in the free-space
+/// prediction: the fit's `J_2` (the default file's is 6% off the simulator's truth) and the
+/// filtered acceleration's error.
+pub const DISTAL_INERTIA_REL_SIGMA: f64 = 0.1;
+/// Relative uncertainty (1 sigma) of the distal weight's torque on top of the fit's own
+/// standard error: the weight is lumped at L, and the torque-offset table holds it at the
+/// sweep's pose only (see [`crate::dynamics::DistalGravityParams`]).
+pub const DISTAL_GRAVITY_REL_SIGMA: f64 = 0.1;
 /// The 95% two-sided quantile of a normal distribution.
 const Z95: f64 = 1.959_964;
 
@@ -571,16 +579,28 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// # What it does per joint
 ///
 /// ```text
-/// tau_ext   = tau_meas - tau_0(q) - tau_f(qd) - J(L) qdd         (dynamics model, as before)
-/// tau_shaft = tau_ext + J_2 L^2 qdd                               (what the shaft transmits:
-///                                                                  contact plus the distal inertia)
-/// sigma     = hypot(residual_std, 0.05 J(L) qdd, 0.05 b qd)       (torque noise of the estimate,
-///                                                                  plus 2 F_c near a reversal)
-/// tau_avg   = tau_shaft averaged over EVIDENCE_TIME_S (10 ms)     (contact persists, noise not)
-/// m         = erf(max(|tau_avg| - tau_min / 4, 0) / (3 sigma sqrt 2)) sgn(tau_avg)
-///                                                                 (evidence for the play's side)
-/// delta_q   = w m (delta + K(L) |tau_shaft|)                      (0 <= w <= 1: the trust weight)
+/// tau_ext   = tau_meas - tau_0(q) - tau_f(qd) - J(L) qdd          (dynamics model, as before,
+///             + (L - L_ref) w . du/dq_j                            and the distal weight beyond
+///                                                                   the table's, if modelled)
+/// tau_free  = J_2 L^2 qdd - L w . du/dq_j                          (what the shaft carries
+///                                                                   without contact: distal
+///                                                                   inertia and weight, predicted)
+/// sigma_f   = hypot(0.1 J_2 L^2 qdd, sigma_G, 0.1 G)              (its uncertainty: the fit's
+///                                                                   standard error of w and more)
+/// tau_shaft = tau_ext + tau_free                                   (what the spring carries)
+/// sigma     = hypot(residual_std, 0.05 J(L) qdd, 0.05 b qd)        (torque noise of the estimate,
+///                                                                   plus 2 F_c near a reversal)
+/// tau_avg   = tau_ext averaged over EVIDENCE_TIME_S (10 ms)        (contact persists, noise not)
+/// e         = sgn(tau_avg) max(|tau_avg| - tau_min / 4, 0) + tau_free
+/// m         = erf(|e| / (hypot(3 sigma, sigma_f) sqrt 2)) sgn(e)   (evidence for the play's side)
+/// delta_q   = w m (delta + K(L) |tau_shaft|)                       (0 <= w <= 1: the trust weight)
 /// ```
+///
+/// Without contact the evidence is the free-space prediction alone (issue 20 item 3): the shaft
+/// rests on the side of the play its weight and inertia set, and it is corrected toward that
+/// side as far as the prediction stands out of the torque noise. A side predicted with little
+/// margin gives a small `m`, a small correction and a wide bound (the other side stays
+/// possible); a contact the torque shows outweighs the prediction as its torque grows.
 ///
 /// The hard gate of the paper (no correction below `tau_min`, all of it above) becomes the
 /// smooth `m`: the correction is made as far as the torque's sign is known, so light contact is
@@ -601,7 +621,7 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// for the trusted part, 0.95 of the play's possible error (the other side is possible while
 /// `|m| < 0.9`) plus 1.96 sigma of the elastic part (torque noise and a 1% stiffness
 /// uncertainty, growing to 16% at the end of the insertion margin); for the withheld part
-/// `1 - w`, the play and `K` times the last trusted torque and the distal inertia's load, as if
+/// `1 - w`, the play and `K` times the last trusted torque and the free-space load, as if
 /// nothing were known about the transient. The tip bound takes both joints through the lever
 /// `L + TIP_LEVER_EXTRA_M` as a 2-D 95% radius.
 ///
@@ -623,8 +643,9 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 ///
 /// The design here keeps the identified least-squares model (its residual std is the torque
 /// noise) and adds explicit, testable rules for when it does not know, each with a flag; the
-/// bound is built from the same terms. A state observer remains the way to estimate the play's
-/// side in free space once the distal part's gravity is in the model (issue 20 item 3, open).
+/// bound is built from the same terms. The play's side in free space comes from the same
+/// identified model (the distal inertia and weight, with the weight's standard error), not from
+/// an observer's prior.
 #[derive(Clone, Debug, Default)]
 pub struct Compensator {
     joints: [JointDynamicsState; 2],
@@ -687,7 +708,11 @@ impl Compensator {
             };
             match &joint.dynamics {
                 Some(d) => {
-                    tau_motion[j] = st.update(d, t_s, q, l_phys);
+                    // The distal weight's reaction beyond what the torque-offset table holds.
+                    let gravity = d.distal_gravity.map_or(0.0, |g| {
+                        g.internal_torque_nm(j, position[0], position[1], l_phys)
+                    });
+                    tau_motion[j] = st.update(d, t_s, q, l_phys) + gravity;
                     let a = st.acceleration();
                     let v = st.velocity();
                     // Near a reversal the friction's direction is uncertain for the filter's
@@ -813,31 +838,57 @@ impl Compensator {
 
             // The correction the model would make with full trust.
             let tau_ext = if ready { tau_meas - tau_motion } else { 0.0 };
-            let distal = joint
-                .dynamics
-                .map_or(0.0, |d| d.inertia_kg_m2[1] * l_phys * l_phys * a);
+            // What the shaft spring carries without contact (predicted, not measured): the
+            // distal inertia's load and the distal weight's reaction, and its uncertainty.
+            let (distal, sigma_free) = match &joint.dynamics {
+                Some(d) => {
+                    let inertial = d.inertia_kg_m2[1] * l_phys * l_phys * a;
+                    let (g, g_sigma) = d.distal_gravity.map_or((0.0, 0.0), |g| {
+                        (
+                            g.torque_nm(j, position[0], position[1], l_phys),
+                            g.sigma_nm(j, position[0], position[1], l_phys),
+                        )
+                    });
+                    let g_sigma = g_sigma.hypot(DISTAL_GRAVITY_REL_SIGMA * g);
+                    (
+                        inertial - g,
+                        (DISTAL_INERTIA_REL_SIGMA * inertial).hypot(g_sigma),
+                    )
+                }
+                None => (0.0, 0.0),
+            };
+            let (distal, sigma_free) = if ready && distal.is_finite() && sigma_free.is_finite() {
+                (distal, sigma_free)
+            } else {
+                (0.0, 0.0)
+            };
             let (full, tau_shaft, m) = match &joint.dynamics {
                 Some(_) => {
-                    let tau_shaft = tau_ext + if ready { distal } else { 0.0 };
-                    // Evidence beyond half the file's dead band: a torque that small is as
-                    // likely a torque-offset or model error as contact (`tau_min` is the
-                    // fitter's floor of both).
+                    let tau_shaft = tau_ext + distal;
+                    // The contact's evidence: the measured external torque, averaged, beyond a
+                    // quarter of the file's dead band (a torque that small is as likely a
+                    // torque-offset or model error as contact; `tau_min` is the fitter's floor
+                    // of both).
                     let dt = t_s - tr.last_t_s;
                     let alpha = if ready && dt > 0.0 && dt.is_finite() {
                         (dt / EVIDENCE_TIME_S).min(1.0)
                     } else {
                         1.0
                     };
-                    tr.tau_average += alpha * (tau_shaft - tr.tau_average);
+                    tr.tau_average += alpha * (tau_ext - tr.tau_average);
                     if !tr.tau_average.is_finite() {
                         tr.tau_average = 0.0;
                     }
-                    let evidence = tr.tau_average;
-                    let excess = (evidence.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm).max(0.0);
-                    let m = erf(
-                        excess / (PLAY_EVIDENCE_SIGMAS * sigma_tau * core::f64::consts::SQRT_2)
-                    )
-                    .copysign(evidence);
+                    let contact = tr.tau_average;
+                    let contact_excess = (contact.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm)
+                        .max(0.0)
+                        .copysign(contact);
+                    // The side of the play: the sign of contact plus the free-space load, known
+                    // as far as the torque noise and the free load's uncertainty allow.
+                    let evidence = contact_excess + distal;
+                    let scale = (PLAY_EVIDENCE_SIGMAS * sigma_tau).hypot(sigma_free);
+                    let m = erf(evidence.abs() / (scale * core::f64::consts::SQRT_2))
+                        .copysign(evidence);
                     (m * (play + k * tau_shaft.abs()), tau_shaft, m)
                 }
                 None => {
@@ -857,7 +908,7 @@ impl Compensator {
             let delta = w * full;
 
             // The bound: trusted part and withheld part, weighted.
-            let trusted = joint_bound(play, m, k, sigma_tau, tau_shaft, rel_k);
+            let trusted = joint_bound(play, m, k, sigma_tau.hypot(sigma_free), tau_shaft, rel_k);
             let reference = if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
                 tau_shaft
             } else {

@@ -24,7 +24,8 @@ use crate::model::{ComplianceConfig, JointModel, ModelKind, cubic};
 use crate::torque_offset::TorqueOffsetTable;
 
 pub use crate::bounds::{
-    INSERTION_LIMITS_M, MAX_BACKLASH_RAD, MAX_INERTIA_KG_M2, MAX_TAU_MIN_NM, PSM_JOINT_RANGE,
+    INSERTION_LIMITS_M, MAX_BACKLASH_RAD, MAX_DISTAL_WEIGHT_N, MAX_INERTIA_KG_M2, MAX_TAU_MIN_NM,
+    PSM_JOINT_RANGE,
 };
 
 /// The smallest plausible `1/K(L)` (N·m/rad): see [`crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD`].
@@ -255,10 +256,22 @@ impl ComplianceParams {
                     .max_acceleration_rad_per_s2
                     .map(|a| format!(", max_acceleration_rad_per_s2 = {}", toml_float(a)))
                     .unwrap_or_default();
+                let gravity = d
+                    .distal_gravity
+                    .map(|g| {
+                        format!(
+                            ", distal_gravity = {{ weight_n = {}, weight_sigma_n = {}, \
+                             reference_insertion_m = {} }}",
+                            toml_array(&g.weight_n),
+                            toml_array(&g.weight_sigma_n),
+                            toml_float(g.reference_insertion_m)
+                        )
+                    })
+                    .unwrap_or_default();
                 let _ = writeln!(
                     s,
                     "dynamics = {{ inertia_kg_m2 = {}, viscous_nm_s_per_rad = {}, coulomb_nm = {}, \
-                     stick_velocity_rad_per_s = {}, residual_std_nm = {}, gate_sigmas = {}{max_acc} }}",
+                     stick_velocity_rad_per_s = {}, residual_std_nm = {}, gate_sigmas = {}{max_acc}{gravity} }}",
                     toml_array(&d.inertia_kg_m2),
                     toml_float(d.viscous_nm_s_per_rad),
                     toml_float(d.coulomb_nm),
@@ -558,6 +571,65 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
                     field,
                     value,
                     max,
+                });
+            }
+        }
+        if let Some(g) = &d.distal_gravity {
+            check_finite(joint, "dynamics.distal_gravity.weight_n", &g.weight_n, true)?;
+            check_finite(
+                joint,
+                "dynamics.distal_gravity.weight_sigma_n",
+                &g.weight_sigma_n,
+                true,
+            )?;
+            check_finite(
+                joint,
+                "dynamics.distal_gravity.reference_insertion_m",
+                &[g.reference_insertion_m],
+                false,
+            )?;
+            // An instrument's distal part weighs grams: 10 N is a kilogram, far beyond it.
+            for (k, (&w, &sd)) in g.weight_n.iter().zip(&g.weight_sigma_n).enumerate() {
+                let checks = [
+                    (format!("dynamics.distal_gravity.weight_n[{k}]"), w.abs(), w),
+                    (
+                        format!("dynamics.distal_gravity.weight_sigma_n[{k}]"),
+                        sd,
+                        sd,
+                    ),
+                ];
+                for (field, magnitude, value) in checks {
+                    if value < 0.0 && field.contains("sigma") {
+                        return Err(ParamsError::Negative {
+                            joint,
+                            field,
+                            value,
+                        });
+                    }
+                    if magnitude > MAX_DISTAL_WEIGHT_N {
+                        return Err(ParamsError::AboveBound {
+                            joint,
+                            field,
+                            value,
+                            max: MAX_DISTAL_WEIGHT_N,
+                        });
+                    }
+                }
+            }
+            let r = g.reference_insertion_m;
+            if r < 0.0 {
+                return Err(ParamsError::Negative {
+                    joint,
+                    field: "dynamics.distal_gravity.reference_insertion_m".to_owned(),
+                    value: r,
+                });
+            }
+            if r > 1.0 {
+                return Err(ParamsError::AboveBound {
+                    joint,
+                    field: "dynamics.distal_gravity.reference_insertion_m".to_owned(),
+                    value: r,
+                    max: 1.0,
                 });
             }
         }

@@ -38,6 +38,7 @@ const DYN: DynamicsParams = DynamicsParams {
     gate_sigmas: 4.0,
     // The motion below reaches 7 rad/s²: the fit is taken to have seen 10.
     max_acceleration_rad_per_s2: Some(10.0),
+    distal_gravity: None,
 };
 
 fn with_dynamics(kind: HysteresisKind) -> ComplianceConfig {

@@ -73,6 +73,7 @@ fn correct_and_forward_do_not_allocate() {
             residual_std_nm: 0.005,
             gate_sigmas: 4.0,
             max_acceleration_rad_per_s2: None,
+            distal_gravity: None,
         });
     }
     let dynamic = ComplianceConfig::from_params(params).unwrap();

@@ -469,6 +469,40 @@ fn shipped_file_round_trips_through_the_writer() {
     assert_eq!(common::params(&via_serde).unwrap(), config.to_params());
 }
 
+/// Issue 20 item 3: the default file carries the distal weight, the writer keeps it, and a
+/// file without it (fitted before it existed) still loads with the weight not modelled.
+#[test]
+fn distal_gravity_round_trips_and_old_files_load_without_it() {
+    let text = fs::read_to_string(repo_root().join("config/compliance/sim-psm.toml")).unwrap();
+    let config = common::config(&text).unwrap();
+    for j in 0..2 {
+        let g = config.joint(j).unwrap().dynamics().unwrap().distal_gravity;
+        assert!(g.is_some(), "joint {j} has no distal weight");
+    }
+    let again = common::config(&params_to_toml(&config.to_params())).unwrap();
+    assert_eq!(again, config);
+    // Without the field: loads, not modelled.
+    let old: String = text
+        .lines()
+        .map(|l| match l.find(", distal_gravity = {") {
+            Some(i) => format!("{} }}", &l[..i]),
+            None => l.to_owned(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let old = common::config(&old).unwrap();
+    assert_eq!(
+        old.joint(0).unwrap().dynamics().unwrap().distal_gravity,
+        None
+    );
+    // Unknown fields inside it and bad values are refused, naming the field.
+    let bad = text.replacen("reference_insertion_m", "reference_depth_m", 1);
+    assert!(common::config(&bad).is_err());
+    let bad = text.replacen("weight_sigma_n = [", "weight_sigma_n = [-", 1);
+    let e = common::config(&bad).unwrap_err().to_string();
+    assert!(e.contains("dynamics.distal_gravity.weight_sigma_n"), "{e}");
+}
+
 /// Any float, including NaN, infinities, subnormals and -0.0.
 fn any_f64() -> impl Strategy<Value = f64> {
     prop_oneof![
@@ -523,6 +557,7 @@ fn any_joint() -> impl Strategy<Value = JointParams> {
                         residual_std_nm: std,
                         gate_sigmas: k,
                         max_acceleration_rad_per_s2: None,
+                        distal_gravity: None,
                     }),
                 }
             },

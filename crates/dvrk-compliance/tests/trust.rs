@@ -38,6 +38,7 @@ const DYN: DynamicsParams = DynamicsParams {
     residual_std_nm: 0.005,
     gate_sigmas: 4.0,
     max_acceleration_rad_per_s2: Some(4.0),
+    distal_gravity: None,
 };
 
 fn config(dynamics: bool) -> ComplianceConfig {

@@ -1507,7 +1507,11 @@ pot_noise_volts = 0.0
         e.set_arm_motion(1, MotionDriver::HOLD);
         e.arm_psm_mut(1).unwrap().set_setpoints(&sp);
         e.advance_to(1_050_000_000);
-        assert_eq!(e.arm_psm(0).unwrap().joint_state().position, before1);
+        // Arm 1 holds (to rounding: its shaft carries the distal weight, issue 20 item 3).
+        let after1 = e.arm_psm(0).unwrap().joint_state().position;
+        for (a, b) in after1.iter().zip(&before1) {
+            assert!((a - b).abs() < 1e-9, "{after1:?} {before1:?}");
+        }
         assert!((e.arm_psm(1).unwrap().joint_state().position[0] - sp[0]).abs() < 0.02);
     }
 

@@ -3,7 +3,8 @@
 //! A scenario fixes the seed and step of the physics, the starting pose, the environment at the
 //! tip, a motion (the setpoints the stand-in console commands over time) and the measurement
 //! noise; optionally the shaft's true compliance and backlash (`[shaft]`), the transmission's
-//! friction (`[transmission]`) and the distal part's inertia (`[distal]`). Files are parsed into
+//! friction (`[transmission]`), the distal part's inertia (`[distal]`) and its weight
+//! (`[distal_gravity]`). Files are parsed into
 //! [`ScenarioParams`] (`deny_unknown_fields`) and validated into a [`Scenario`]; every error names
 //! the field and the value.
 //!
@@ -35,7 +36,8 @@ use serde::Deserialize;
 use crate::SimError;
 use crate::measure::NoiseParams;
 use crate::physics::{
-    DistalParams, Environment, FrictionParams, NUM_JOINTS, PhysicsParams, ShaftParams, SimPsm,
+    DistalGravity, DistalParams, Environment, FrictionParams, NUM_JOINTS, PhysicsParams,
+    ShaftParams, SimPsm,
 };
 
 /// Environment section, as written in the file.
@@ -188,6 +190,39 @@ fn default_distal_damping() -> f64 {
     DistalParams::CLASSIC_8MM.damping_nm_s_per_rad
 }
 
+/// Optional distal gravity section (default: [`DistalGravity::CLASSIC_8MM`], field by field):
+/// the weight the shaft carries beyond the compliant element (issue 20 item 3).
+///
+/// ```toml
+/// [distal_gravity]
+/// mass_kg = 0.02                                  # 0 for no weight
+/// lever_offset_m = 0.0                            # the mass sits at L + lever_offset_m
+/// direction_rcm = [0.3993, 0.3993, -0.8253]       # gravity in the RCM frame (normalised)
+/// ```
+///
+/// A weight needs a distal inertia (`[distal]`): the massless shaft of the paper carries none.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DistalGravitySection {
+    #[serde(default = "default_gravity_mass")]
+    pub mass_kg: f64,
+    #[serde(default)]
+    pub lever_offset_m: f64,
+    #[serde(
+        default = "default_gravity_direction",
+        deserialize_with = "dvrk_compliance::exact::array"
+    )]
+    pub direction_rcm: [f64; 3],
+}
+
+fn default_gravity_mass() -> f64 {
+    DistalGravity::CLASSIC_8MM.mass_kg
+}
+
+fn default_gravity_direction() -> [f64; 3] {
+    DistalGravity::CLASSIC_8MM.direction_rcm
+}
+
 /// A scenario file as parsed.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -207,6 +242,8 @@ pub struct ScenarioParams {
     pub transmission: Option<TransmissionSection>,
     #[serde(default)]
     pub distal: Option<DistalSection>,
+    #[serde(default)]
+    pub distal_gravity: Option<DistalGravitySection>,
     /// How the emulated boards present themselves on Ethernet (default `bridge`).
     #[serde(default)]
     pub ethernet: EthernetMode,
@@ -514,6 +551,47 @@ impl Scenario {
                 mass_kg: m,
                 damping_nm_s_per_rad: c,
             };
+        }
+        if let Some(g) = p.distal_gravity {
+            let m = check_non_negative("distal_gravity.mass_kg", g.mass_kg)?;
+            if m > 1.0 {
+                return Err(invalid("distal_gravity.mass_kg", m, "must be at most 1 kg"));
+            }
+            let off = check_finite("distal_gravity.lever_offset_m", g.lever_offset_m)?;
+            if off.abs() > 0.1 {
+                return Err(invalid(
+                    "distal_gravity.lever_offset_m",
+                    off,
+                    "must be within ±0.1 m (the mass sits on the instrument's distal part)",
+                ));
+            }
+            for (i, v) in g.direction_rcm.iter().enumerate() {
+                check_finite(&format!("distal_gravity.direction_rcm[{i}]"), *v)?;
+            }
+            let [x, y, z] = g.direction_rcm;
+            let norm = (x * x + y * y + z * z).sqrt();
+            if norm < 1e-6 {
+                return Err(invalid(
+                    "distal_gravity.direction_rcm",
+                    format!("[{x}, {y}, {z}]"),
+                    "must not be zero (a direction, normalised on loading)",
+                ));
+            }
+            if m > 0.0 && !physics.distal.is_dynamic() {
+                return Err(invalid(
+                    "distal_gravity.mass_kg",
+                    m,
+                    "must be 0 with a massless shaft ([distal] all 0): the quasi-static shaft \
+                     carries no weight",
+                ));
+            }
+            physics.gravity = DistalGravity {
+                mass_kg: m,
+                lever_offset_m: off,
+                direction_rcm: [x / norm, y / norm, z / norm],
+            };
+        } else if !physics.distal.is_dynamic() {
+            physics.gravity = DistalGravity::NONE;
         }
         for (j, v) in p.initial_position.iter().enumerate() {
             let field = format!("initial_position[{j}]");
@@ -981,6 +1059,49 @@ pot_noise_volts = 0.0
         let sc = from_toml_str(&format!("{BASE}{shaft}")).unwrap();
         assert_eq!(sc.physics.shaft.stiffness_nm_per_rad(0, 0.1), 20.0);
         assert_eq!(sc.physics.shaft.backlash_rad, [0.001, 0.002]);
+    }
+
+    #[test]
+    fn distal_gravity_defaults_field_by_field_is_normalised_and_checked() {
+        // Absent: the Classic 8 mm instrument's weight; absent with a massless shaft: none.
+        assert_eq!(
+            from_toml_str(BASE).unwrap().physics.gravity,
+            DistalGravity::CLASSIC_8MM
+        );
+        let massless =
+            "\n[distal]\ninertia_kg_m2 = 0.0\nmass_kg = 0.0\ndamping_nm_s_per_rad = 0.0\n";
+        assert_eq!(
+            from_toml_str(&format!("{BASE}{massless}"))
+                .unwrap()
+                .physics
+                .gravity,
+            DistalGravity::NONE
+        );
+        let sc = from_toml_str(&format!(
+            "{BASE}\n[distal_gravity]\nmass_kg = 0.03\ndirection_rcm = [0.0, 0.0, -2.0]\n"
+        ))
+        .unwrap();
+        assert_eq!(sc.physics.gravity.mass_kg, 0.03);
+        assert_eq!(sc.physics.gravity.direction_rcm, [0.0, 0.0, -1.0]);
+        assert_eq!(sc.physics.gravity.lever_offset_m, 0.0);
+        let e = err_of(&format!(
+            "{BASE}\n[distal_gravity]\ndirection_rcm = [0.0, 0.0, 0.0]\n"
+        ));
+        assert!(e.contains("distal_gravity.direction_rcm"), "{e}");
+        let e = err_of(&format!("{BASE}\n[distal_gravity]\nmass_kg = -0.5\n"));
+        assert!(
+            e.contains("distal_gravity.mass_kg") && e.contains("-0.5"),
+            "{e}"
+        );
+        let e = err_of(&format!(
+            "{BASE}{massless}\n[distal_gravity]\nmass_kg = 0.02\n"
+        ));
+        assert!(
+            e.contains("distal_gravity.mass_kg") && e.contains("massless"),
+            "{e}"
+        );
+        let e = err_of(&format!("{BASE}\n[distal_gravity]\nmass = 0.1\n"));
+        assert!(e.contains("mass"), "{e}");
     }
 
     #[test]

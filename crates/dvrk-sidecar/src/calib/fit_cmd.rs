@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use dvrk_compliance::fit::{self, DataRow, FitOptions, JointFit, TorqueOffsetFit};
 use dvrk_compliance::{
     ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, HysteresisKind,
-    HysteresisParams, JointParams, ModelKind, TorqueOffsetParams, fit_dynamics_segmented,
+    HysteresisParams, JointParams, ModelKind, TorqueOffsetParams, fit_dynamics_with_gravity,
     params_to_toml,
 };
 use serde::Serialize;
@@ -178,8 +178,18 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
             };
             let table = model.torque_offset();
             let joint = jp.index as u8;
-            let fit = fit_segments(joint, &segments, |q| table.lookup(q), args.gate_sigmas)
-                .with_context(|| format!("{}: fitting the dynamics", path.display()))?;
+            // The torque-offset sweep ran in free space, so its table holds the distal weight's
+            // reaction at the sweep's depths: their mean is the weight's reference insertion.
+            // Without a sweep of this joint the weight is not modelled.
+            let reference = mean_insertion(&sweep_rows, joint);
+            let fit = fit_segments(
+                joint,
+                &segments,
+                |q| table.lookup(q),
+                args.gate_sigmas,
+                reference,
+            )
+            .with_context(|| format!("{}: fitting the dynamics", path.display()))?;
             jp.dynamics = Some(fit.params);
             dynamics.push(fit);
         }
@@ -203,6 +213,7 @@ fn fit_segments(
     segments: &[&[DynamicsSample]],
     tau_0: impl Fn(f64) -> f64,
     gate_sigmas: f64,
+    gravity_reference_m: Option<f64>,
 ) -> anyhow::Result<DynamicsFit> {
     let mut all = Vec::new();
     let mut starts = Vec::new();
@@ -210,13 +221,23 @@ fn fit_segments(
         starts.push(all.len());
         all.extend_from_slice(seg);
     }
-    Ok(fit_dynamics_segmented(
+    Ok(fit_dynamics_with_gravity(
         joint,
         &all,
         &starts,
         tau_0,
         gate_sigmas,
+        gravity_reference_m,
     )?)
+}
+
+/// The mean insertion (m) of the torque-offset sweep's rows of `joint`, if it has any.
+fn mean_insertion(sweep_rows: &[DataRow], joint: u8) -> Option<f64> {
+    let (sum, n) = sweep_rows
+        .iter()
+        .filter(|r| r.joint == joint && r.insertion_m.is_finite())
+        .fold((0.0, 0usize), |(s, n), r| (s + r.insertion_m, n + 1));
+    (n > 0).then(|| sum / n as f64)
 }
 
 #[derive(Serialize)]
@@ -527,6 +548,22 @@ pub fn run_fit(args: &FitArgs) -> anyhow::Result<()> {
             "# joint {} dynamics: torque residual rms {:.4} N·m before, {:.4} N·m after the model\n",
             d.joint, d.rms_before_nm, d.rms_after_nm
         ));
+        if let Some(g) = d.params.distal_gravity {
+            let w = g.weight_n;
+            let sd = g.weight_sigma_n;
+            text.push_str(&format!(
+                "# joint {} distal weight (RCM frame): [{:.4} ± {:.4}, {:.4} ± {:.4}, {:.4} ± {:.4}] N \
+                 (1 sigma), relative to the torque offset at L = {:.3} m\n",
+                d.joint,
+                w[0],
+                sd[0],
+                w[1],
+                sd[1],
+                w[2],
+                sd[2],
+                g.reference_insertion_m
+            ));
+        }
     }
     if args.add {
         let Some(inst) = instrument.as_deref() else {
