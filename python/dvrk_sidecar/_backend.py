@@ -1,8 +1,14 @@
-"""Which client `Arm` uses by default. The compiled module `dvrk_sidecar._native` (built by
-`pip install ./python` on a machine with Rust) is opt-in for now: `Arm(..., backend="native")`,
-or `DVRK_SIDECAR_BACKEND=native` in the environment. Two of the package's own IPC tests (a
-publisher written in Python, and the refusal of a service of another type) do not pass on it
-yet, so the default stays the pure-Python client, which passes them all."""
+"""Which client `Arm` uses by default (`BACKEND`).
+
+"native": the compiled module `dvrk_sidecar._native` (crates/dvrk-py), built by
+`pip install ./python` on a machine with Rust; the default whenever it imports.
+"pure": iceoryx2's Python binding and ctypes; the fallback when the native module is missing
+(`NATIVE_IMPORT_ERROR` says why).
+
+`DVRK_SIDECAR_BACKEND=pure` (or `native`) in the environment chooses one for the whole process;
+`Arm(..., backend="pure")` for one Arm. Asking for "native" where it is missing raises
+ImportError when the Arm is made, with the reason.
+"""
 
 import os
 
@@ -13,11 +19,17 @@ try:
 except ImportError as e:  # not built (a source checkout on sys.path), or built for another Python
     NATIVE_IMPORT_ERROR = str(e)
 
-BACKEND = (
-    "native"
-    if os.environ.get("DVRK_SIDECAR_BACKEND") == "native" and NATIVE_IMPORT_ERROR is None
-    else "pure"
+CHOICES = ("native", "pure")
+
+_chosen = os.environ.get("DVRK_SIDECAR_BACKEND", "")
+CHOICE_ERROR = (
+    None
+    if _chosen in ("", *CHOICES)
+    else f"DVRK_SIDECAR_BACKEND={_chosen!r}: expected 'native' or 'pure' (or unset)"
 )
+"""Set when the environment names no backend; `Arm()` without `backend=` then raises it."""
+
+BACKEND = _chosen if _chosen in CHOICES else ("native" if NATIVE_IMPORT_ERROR is None else "pure")
 
 
 def native():

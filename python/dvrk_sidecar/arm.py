@@ -296,6 +296,8 @@ class Arm(_ArmView):
         from . import _backend
 
         if backend is None:
+            if _backend.CHOICE_ERROR:
+                raise ipc.ConfigError(_backend.CHOICE_ERROR)
             backend = _backend.BACKEND
         if backend == "native":
             self._backend = _backend.native().NativeBackend(self.name, wait, domain, root, int(period_s * 1e9))

@@ -89,7 +89,37 @@ def domain_config(domain=None, root=None):
                 f"root {root!r}: must be an absolute path of at most {MAX_ROOT_PATH_LEN} bytes"
             )
         cfg.global_cfg.root_path = iox2.Path.new(root if root.endswith("/") else root + "/")
+    _leave_dead_nodes_to_the_sidecar(cfg)
     return cfg
+
+
+def _leave_dead_nodes_to_the_sidecar(cfg) -> None:
+    """Turns off iceoryx2's automatic removal of dead nodes (on node creation and destruction,
+    and on opening a service), as dvrk_sidecar._native does for its nodes.
+
+    iceoryx2 tells a dead node by its monitor lock (fcntl F_GETLK) unless the node carries the
+    process id of the asking copy of iceoryx2. This process may hold two copies: the iceoryx2
+    package and the native module's. Each one's nodes carry another id, and F_GETLK never
+    reports a lock of the asking process, so each copy saw the other's nodes as dead and removed
+    their services while they were in use. The sidecar removes the nodes of dead processes every
+    few seconds; `Reader.publishers` still reaps a dead publisher of another process."""
+    cfg.global_cfg.node.cleanup_dead_nodes_on_creation = False
+    cfg.global_cfg.node.cleanup_dead_nodes_on_destruction = False
+    cfg.global_cfg.service.cleanup_dead_nodes_on_open = False
+
+
+def reap_dead_nodes(config) -> int:
+    """Removes the resources of the dead nodes of other processes in the domain of `config`;
+    returns how many. A node of this process is never dead, whatever its monitor lock says
+    (see `_leave_dead_nodes_to_the_sidecar`)."""
+    me = os.getpid()
+    reaped = 0
+    for state in iox2.Node.list(iox2.ServiceType.Ipc, config):
+        if isinstance(state, iox2.NodeState.Dead):
+            view = state[0]
+            if view.id.pid(iox2.ServiceType.Ipc) != me and view.try_remove_stale_resources():
+                reaped += 1
+    return reaped
 
 
 def create_node(name, domain=None, root=None):
@@ -154,11 +184,12 @@ def _open_topic(node, prefix, topic):
     )
 
 
-def open_cycle_event(node, prefix: str):
-    """Opens or creates the event `<prefix>/cycle` with the project's QoS."""
+def open_cycle_event(node, prefix: str, event: str = msg.CYCLE_EVENT):
+    """Opens or creates the event `<prefix>/cycle` (or `event`, e.g. `msg.CYCLE_FIRST_EVENT`)
+    with the project's QoS."""
     try:
         return (
-            node.service_builder(iox2.ServiceName.new(f"{prefix}/{msg.CYCLE_EVENT}"))
+            node.service_builder(iox2.ServiceName.new(f"{prefix}/{event}"))
             .event()
             .max_notifiers(QOS_EVENT_MAX_NOTIFIERS)
             .max_listeners(QOS_EVENT_MAX_LISTENERS)
@@ -167,7 +198,7 @@ def open_cycle_event(node, prefix: str):
         )
     except Exception as e:
         reason = str(e)
-        raise OpenError(f"opening the event {prefix}/{msg.CYCLE_EVENT}: {reason}{_hint(reason)}") from e
+        raise OpenError(f"opening the event {prefix}/{event}: {reason}{_hint(reason)}") from e
 
 
 class Reader:
@@ -178,6 +209,7 @@ class Reader:
     every sample of the last 170 ms."""
 
     def __init__(self, node, prefix: str, topic: str, buffer: int = 4):
+        self.node = node
         self.service_name = f"{prefix}/{topic}"
         self.topic = topic
         self.payload = msg.TOPICS[topic]
@@ -219,7 +251,7 @@ class Reader:
 
     def publishers(self) -> int:
         """Connected publishers, after reaping those whose process died."""
-        self.service.try_cleanup_dead_nodes()
+        reap_dead_nodes(self.node.config)
         return self.service.dynamic_config.number_of_publishers
 
     def no_sample(self, waited_s: float) -> NoSample:

@@ -202,6 +202,23 @@ sends the compensated ones first, see `dvrk_ipc::PUBLISH_ORDER`), and their payl
 CYCLE_EVENT = "cycle"
 """Event service `<prefix>/cycle`, notified once per cycle after all nine messages."""
 
+CYCLE_FIRST_EVENT = "cycle/first"
+"""Event service `<prefix>/cycle/first`, notified once per cycle right after its first message
+(`PUBLISH_ORDER[0]`); the native client's subscription of that topic sleeps on it."""
+
+PUBLISH_ORDER = (
+    "compensated/local/measured_cp",
+    "compensated/measured_cp",
+    "compensated/measured_js",
+    "compensated/jaw/measured_js",
+    "local/measured_cp",
+    "measured_cp",
+    "measured_js",
+    "jaw/measured_js",
+    "compensated/status",
+)
+"""The order in which a cycle's messages are sent (`dvrk_ipc::PUBLISH_ORDER`)."""
+
 _SCALAR_NAMES = {u64: "u64", u32: "u32", f64: "f64"}
 
 

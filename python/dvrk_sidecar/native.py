@@ -65,9 +65,9 @@ NATIVE_CONVERT = {
 }
 
 
-def _open_error(e, what):
+def _open_error(e, what=None):
     reason = str(e)
-    return ipc.OpenError(f"{what}: {reason}{ipc._hint(reason)}")
+    return ipc.OpenError(f"{what + ': ' if what else ''}{reason}{ipc._hint(reason)}")
 
 
 class NativeBackend:
@@ -83,6 +83,15 @@ class NativeBackend:
         except _native.NativeError as e:
             where = f"domain {domain!r}" if domain else "the default domain"
             raise _open_error(e, f"creating an iceoryx2 node in {where}") from e
+        try:
+            # All of the arm's services now, as the pure client does: one of another type or
+            # QoS is refused here, by name ("opening PSM1/measured_js as dvrk::JointStateV2:
+            # ...IncompatibleTypes"), not when a getter first reads it.
+            self._services = _native.ArmServices(self._node, arm_name)
+        except ValueError as e:
+            raise ipc.ConfigError(str(e)) from None
+        except _native.NativeError as e:
+            raise _open_error(e) from e
         self._arm = arm_name
         self.strategy = wait
         self._period_ns = period_ns
@@ -179,4 +188,5 @@ class NativeBackend:
             s.close()
         self._subs = {}
         self._quiet = {}
+        self._services = None
         self._closed = True

@@ -1,12 +1,13 @@
 """dvrk_sidecar's iceoryx2 side in an isolated domain of its own (real shared memory, removed
-afterwards): a service of another type is refused with a readable error, a silent arm raises
-NoSample, echo exits 2 on silence, and a publisher's samples reach the Arm."""
+afterwards), with each client (`backend="native"` when the native module is built, and
+`"pure"`): a service of another type is refused with a readable error, a silent arm raises
+NoSample, echo exits 2 on silence, a Python publisher's samples reach the Arm, and the two
+copies of iceoryx2 in one process leave each other's nodes alone."""
 
 import ctypes
 import os
 import subprocess
 import sys
-import threading
 import time
 import unittest
 
@@ -16,6 +17,10 @@ import dvrk_sidecar
 from dvrk_sidecar import Arm, NoSample, OpenError, ipc, msg
 
 ROOT = "/tmp/iox2t/"
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+BACKENDS = ("native", "pure") if dvrk_sidecar.NATIVE_IMPORT_ERROR is None else ("pure",)
+"""The clients these tests run against: both, unless the native module is not built."""
 
 
 def _remove_domain(domain):
@@ -34,6 +39,13 @@ class IsolatedDomain(unittest.TestCase):
         self.domain = f"py{os.getpid()}_{self._testMethodName[-6:]}_"
         self.addCleanup(_remove_domain, self.domain)
 
+    def test_ci_tests_both_clients(self):
+        # .ci/python-deps builds the native module: under CI these tests must not quietly run
+        # on the pure client alone.
+        if os.environ.get("CI"):
+            self.assertEqual(BACKENDS, ("native", "pure"), dvrk_sidecar.NATIVE_IMPORT_ERROR)
+        self.assertIn("pure", BACKENDS)
+
     def test_a_service_of_another_type_is_refused_by_name(self):
         node = ipc.create_node("other", self.domain, ROOT)
         # The port factory keeps the service alive.
@@ -43,21 +55,29 @@ class IsolatedDomain(unittest.TestCase):
             .open_or_create()
         )
         self.addCleanup(lambda: service)
-        with self.assertRaises(OpenError) as cm:
-            Arm("PSM1", domain=self.domain, root=ROOT)
-        text = str(cm.exception)
-        self.assertIn("PSM1/measured_js", text)
-        self.assertIn("dvrk::JointStateV2", text)
-        self.assertIn("IncompatibleTypes", text)
+        for backend in BACKENDS:
+            with self.subTest(backend=backend):
+                with self.assertRaises(OpenError) as cm:
+                    Arm("PSM1", domain=self.domain, root=ROOT, backend=backend)
+                text = str(cm.exception)
+                self.assertIn("opening PSM1/measured_js as dvrk::JointStateV2: ", text)
+                self.assertIn("IncompatibleTypes", text)
+                self.assertIn("another message type or version", text)  # the hint
 
     def test_a_silent_arm_raises_no_sample_for_each_strategy(self):
-        for wait in dvrk_sidecar.WAIT_STRATEGIES:
-            with Arm("PSM1", wait=wait, domain=self.domain, root=ROOT) as arm:
-                with self.assertRaisesRegex(NoSample, "no publisher is connected"):
-                    arm.compensated.local.measured_cp(wait=0.05)
-                self.assertIsNone(arm.wait_for_cycle(timeout=0.05))
-            with self.assertRaisesRegex(dvrk_sidecar.DvrkSidecarError, "closed"):
-                arm.measured_js()
+        for backend in BACKENDS:
+            for wait in dvrk_sidecar.WAIT_STRATEGIES:
+                with self.subTest(backend=backend, wait=wait):
+                    with Arm("PSM1", wait=wait, domain=self.domain, root=ROOT, backend=backend) as arm:
+                        self.assertEqual(arm.backend, backend)
+                        with self.assertRaisesRegex(NoSample, "no publisher is connected"):
+                            arm.compensated.local.measured_cp(wait=0.05)
+                        self.assertIsNone(arm.wait_for_cycle(timeout=0.05))
+                        # dVRK 2.4 convention: no exception, zeros and a zero timestamp.
+                        p, v, e, t = arm.measured_js(wait=0.05, stamped=True)
+                        self.assertEqual((t, p.shape, float(abs(p).sum())), (0.0, (6,), 0.0))
+                    with self.assertRaisesRegex(dvrk_sidecar.DvrkSidecarError, "closed"):
+                        arm.measured_js()
 
     def test_echo_exits_2_on_silence(self):
         started = time.monotonic()
@@ -70,76 +90,101 @@ class IsolatedDomain(unittest.TestCase):
         self.assertIn("no sample on PSM1/jaw/measured_js", out.stderr)
         self.assertLess(time.monotonic() - started, 30)
 
-    def test_samples_of_a_publisher_reach_the_arm(self):
-        stop = threading.Event()
-        ready = threading.Event()
+    def _publisher(self):
+        """py_publisher.py in a process of its own, once its ports exist."""
+        proc = subprocess.Popen(
+            [sys.executable, os.path.join(HERE, "py_publisher.py"), "PSM1", self.domain, ROOT],
+            stdout=subprocess.PIPE, text=True,
+        )
 
-        def publish():
-            # iceoryx2 ports stay in the thread that made them.
-            node = ipc.create_node("pub", self.domain, ROOT)
-            pubs = {t: ipc.open_topic(node, "PSM1", t).publisher_builder().create() for t in msg.TOPICS}
-            notifier = ipc.open_cycle_event(node, "PSM1").notifier_builder().create()
-            ready.set()
-            seq = 0
-            while not stop.is_set() and seq < 20_000:
-                seq += 1
-                for topic, t in msg.TOPICS.items():
-                    m = t()
-                    m.header.seq = seq
-                    m.header.sample_t_ns = m.header.publish_t_ns = time.monotonic_ns()
-                    m.header.valid = 1
-                    if t is msg.PoseV2:
-                        m.rotation[0] = m.rotation[4] = m.rotation[8] = 1.0
-                        m.position_m[0] = seq if topic == "compensated/local/measured_cp" else -1.0
-                    pubs[topic].send_copy(m)
-                notifier.notify()
-                time.sleep(0.002)
+        def stop():
+            proc.terminate()
+            self.assertEqual(proc.wait(timeout=60), 0)  # SIGTERM: ports removed, exit 0
+            proc.stdout.close()
 
-        thread = threading.Thread(target=publish)
-        thread.start()
-        self.addCleanup(thread.join)
-        self.addCleanup(stop.set)
-        self.assertTrue(ready.wait(30))
-        for wait in dvrk_sidecar.WAIT_STRATEGIES:
-            with Arm("PSM1", domain=self.domain, root=ROOT, wait=wait, timeout=5.0) as arm:
-                last = 0
-                for _ in range(30):
-                    header = arm.wait_for_cycle()
-                    self.assertIsNotNone(header, wait)
-                    self.assertGreater(header.seq, last, wait)
-                    last = header.seq
-                    tip, h = arm.compensated.local.measured_cp(extra=True)
-                    # The newest pose: this cycle's, or a later one published meanwhile.
-                    self.assertGreaterEqual(h.seq, header.seq, wait)
-                    self.assertEqual(tip[0, 3], float(h.seq), wait)
-                    self.assertEqual(tip.shape, (4, 4))
-                # The other getters: numpy arrays of the joints, the status as a dict.
-                self.assertEqual(arm.measured_jp().shape, (6,))
-                self.assertEqual(arm.compensated.measured_jf().shape, (6,))
-                self.assertEqual(arm.jaw.measured_jv().shape, (1,))
-                jaw, header = arm.compensated.jaw.measured_jp(extra=True)
-                self.assertEqual((jaw.shape, header.valid), ((1,), True))
-                status = arm.compensated.status()
-                self.assertNotIn("_reserved", status)
-                self.assertEqual(status["tau_ext_nm"].shape, (2,))
-                base = arm.measured_cp()
-                self.assertEqual(base[0, 3], -1.0)  # not the compensated local pose
-                # One cycle's nine messages, all of the same seq.
-                for _ in range(10):
-                    cycle = arm.read_cycle()
-                    self.assertIsNotNone(cycle, wait)
-                    seqs = {
-                        cycle.measured_js(extra=True)[-1].seq,
-                        cycle.jaw.measured_js(extra=True)[-1].seq,
-                        cycle.local.measured_cp(extra=True)[-1].seq,
-                        cycle.compensated.measured_js(extra=True)[-1].seq,
-                        cycle.compensated.jaw.measured_jp(extra=True)[-1].seq,
-                        cycle.compensated.measured_cp(extra=True)[-1].seq,
-                        cycle.compensated.status(extra=True)[-1].seq,
-                    }
-                    self.assertEqual(seqs, {cycle.seq}, wait)
-                    self.assertEqual(cycle.compensated.local.measured_cp()[0, 3], float(cycle.seq))
+        self.addCleanup(stop)
+        self.assertEqual(proc.stdout.readline().strip(), "ready")
+        return proc
 
+    def test_samples_of_a_python_publisher_reach_the_arm(self):
+        self._publisher()
+        for backend in BACKENDS:
+            for wait in dvrk_sidecar.WAIT_STRATEGIES:
+                with self.subTest(backend=backend, wait=wait):
+                    self._read_cycles(backend, wait)
+
+    def _read_cycles(self, backend, wait):
+        with Arm("PSM1", domain=self.domain, root=ROOT, wait=wait, timeout=5.0, backend=backend) as arm:
+            last = 0
+            for _ in range(30):
+                header = arm.wait_for_cycle()
+                self.assertIsNotNone(header)
+                self.assertGreater(header.seq, last)
+                last = header.seq
+                tip, h = arm.compensated.local.measured_cp(extra=True)
+                # The newest pose: this cycle's, or a later one published meanwhile.
+                self.assertGreaterEqual(h.seq, header.seq)
+                self.assertEqual(tip[0, 3], float(h.seq))
+                self.assertEqual(tip.shape, (4, 4))
+            # The other getters: numpy arrays of the joints, the status as a dict.
+            self.assertEqual(arm.measured_jp().shape, (6,))
+            self.assertEqual(arm.compensated.measured_jf().shape, (6,))
+            self.assertEqual(arm.jaw.measured_jv().shape, (1,))
+            jaw, header = arm.compensated.jaw.measured_jp(extra=True)
+            self.assertEqual((jaw.shape, header.valid), ((1,), True))
+            # dVRK 2.4 convention: data and the sample's timestamp (s, ROS time), not zero.
+            p, v, e, t = arm.measured_js(stamped=True)
+            self.assertEqual(p.shape, (6,))
+            self.assertLess(abs(t - time.time()), 60.0)
+            status = arm.compensated.status()
+            self.assertNotIn("_reserved", status)
+            self.assertEqual(status["tau_ext_nm"].shape, (2,))
+            base = arm.measured_cp()
+            self.assertEqual(base[0, 3], -1.0)  # not the compensated local pose
+            # One cycle's nine messages, all of the same seq.
+            for _ in range(10):
+                cycle = arm.read_cycle()
+                self.assertIsNotNone(cycle)
+                seqs = {
+                    cycle.measured_js(extra=True)[-1].seq,
+                    cycle.jaw.measured_js(extra=True)[-1].seq,
+                    cycle.local.measured_cp(extra=True)[-1].seq,
+                    cycle.compensated.measured_js(extra=True)[-1].seq,
+                    cycle.compensated.jaw.measured_jp(extra=True)[-1].seq,
+                    cycle.compensated.measured_cp(extra=True)[-1].seq,
+                    cycle.compensated.status(extra=True)[-1].seq,
+                }
+                self.assertEqual(seqs, {cycle.seq})
+                self.assertEqual(cycle.compensated.local.measured_cp()[0, 3], float(cycle.seq))
+
+    @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
+    def test_the_two_iceoryx2_copies_in_one_process_leave_each_others_nodes_alone(self):
+        # The iceoryx2 package's nodes and the native module's each look dead to the other copy
+        # (another process id, a monitor lock held by this very process): neither may remove
+        # the other's services when it creates a node, opens a service or drops a node.
+        from dvrk_sidecar import _native, native
+
+        node = ipc.create_node("pub", self.domain, ROOT)
+        service = ipc.open_topic(node, "PSM1", "compensated/status")
+        publisher = service.publisher_builder().create()
+        self.addCleanup(publisher.delete)
+        Arm("PSM1", domain=self.domain, root=ROOT, backend="native").close()
+        self.assertEqual(service.dynamic_config.number_of_publishers, 1)
+        native_node = _native.Node("probe", self.domain, ROOT)
+        sub = _native.Subscription(
+            native_node, "PSM1", "compensated/status", native.DTYPES["compensated/status"], wait="spin"
+        )
+        self.addCleanup(sub.close)
+        # The iceoryx2 package's node creation and opening, after the native module's.
+        Arm("PSM1", domain=self.domain, root=ROOT, backend="pure").close()
+        self.assertEqual(service.dynamic_config.number_of_subscribers, 1)
+        self.assertEqual(sub.publishers(), 1)
+        m = msg.CompensationStatusV4()
+        m.header.seq = 7
+        publisher.send_copy(m)  # connects the subscriber and delivers to it
+        a = sub.take()
+        self.assertIsNotNone(a)
+        self.assertEqual(int(a["header"]["seq"][0]), 7)
 
 if __name__ == "__main__":
     unittest.main()

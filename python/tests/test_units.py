@@ -5,10 +5,14 @@ service names, argument checks and the predictor. Run: python3 -m unittest disco
 import ctypes
 import json
 import math
+import os
+import subprocess
+import sys
 import unittest
 
 import numpy
 
+import dvrk_sidecar
 from dvrk_sidecar import arm, ipc, msg
 
 
@@ -182,6 +186,42 @@ class Arguments(unittest.TestCase):
     def test_unknown_wait_strategy_is_refused_before_any_iceoryx2_call(self):
         with self.assertRaisesRegex(ipc.ConfigError, "wait 'sleepy'"):
             ipc.Waiter(None, "PSM1", "sleepy")
+
+
+class Backend(unittest.TestCase):
+    """Which client an Arm gets: native whenever the module is built, the environment's choice
+    otherwise. Each case in a fresh interpreter (BACKEND is decided at import)."""
+
+    def _run(self, env_value, code):
+        env = dict(os.environ)
+        env.pop("DVRK_SIDECAR_BACKEND", None)
+        if env_value is not None:
+            env["DVRK_SIDECAR_BACKEND"] = env_value
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        self.assertEqual(out.returncode, 0, out.stderr)
+        return out.stdout.strip()
+
+    def test_native_is_the_default_when_it_is_built(self):
+        want = "native" if dvrk_sidecar.NATIVE_IMPORT_ERROR is None else "pure"
+        self.assertEqual(self._run(None, "import dvrk_sidecar as d; print(d.BACKEND)"), want)
+        self.assertEqual(self._run("", "import dvrk_sidecar as d; print(d.BACKEND)"), want)
+
+    def test_the_environment_chooses(self):
+        for choice in ("pure", "native"):
+            self.assertEqual(self._run(choice, "import dvrk_sidecar as d; print(d.BACKEND)"), choice)
+
+    def test_an_unknown_choice_is_named_when_an_arm_is_made(self):
+        code = (
+            "import dvrk_sidecar as d\n"
+            "try:\n    d.Arm('PSM1')\nexcept d.ConfigError as e:\n    print(e)\n"
+        )
+        self.assertEqual(
+            self._run("fast", code), "DVRK_SIDECAR_BACKEND='fast': expected 'native' or 'pure' (or unset)"
+        )
+
+    def test_an_unknown_backend_argument_is_refused(self):
+        with self.assertRaisesRegex(ipc.ConfigError, "backend 'fast'"):
+            arm.Arm("PSM1", backend="fast")
 
 
 if __name__ == "__main__":

@@ -12,11 +12,12 @@
 
 use std::rc::Rc;
 
+use dvrk_ipc::iceoryx2::config::Config;
 use dvrk_ipc::iceoryx2::node::Node;
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{
-    CompensationStatusV4, JawStateV1, JointStateV2, Message, PoseV2, ServiceNames,
-    SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
+    ArmServices, CompensationStatusV4, IpcError, JawStateV1, JointStateV2, Message, PoseV2,
+    ServiceNames, SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
 };
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -79,29 +80,65 @@ impl NativeNode {
     #[new]
     #[pyo3(signature = (name = "dvrk-sidecar-python", domain = None, root = None))]
     fn new(name: &str, domain: Option<&str>, root: Option<&str>) -> PyResult<Self> {
-        let config = match (domain, root) {
-            (None, None) => None,
+        let mut config = match (domain, root) {
+            (None, None) => Config::default(),
             (domain, root) => {
-                let default_prefix;
-                let prefix = match domain {
-                    Some(d) => d,
-                    None => {
-                        default_prefix = dvrk_ipc::iceoryx2::config::Config::default()
-                            .global
-                            .prefix
-                            .to_string();
-                        &default_prefix
-                    }
-                };
-                Some(
-                    dvrk_ipc::domain_config(prefix, root)
-                        .map_err(|e| PyValueError::new_err(e.to_string()))?,
-                )
+                let default_prefix = Config::default().global.prefix.to_string();
+                dvrk_ipc::domain_config(domain.unwrap_or(&default_prefix), root)
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?
             }
         };
-        let node = dvrk_ipc::create_node::<Service>(name, config.as_ref()).map_err(native_err)?;
+        leave_dead_nodes_to_the_sidecar(&mut config);
+        let node = dvrk_ipc::create_node::<Service>(name, Some(&config)).map_err(native_err)?;
         Ok(Self {
             node: Rc::new(node),
+        })
+    }
+}
+
+/// Turns off iceoryx2's automatic removal of dead nodes (on node creation and destruction, and
+/// on opening a service) for this module's nodes.
+///
+/// iceoryx2 tells a dead node by its monitor lock (`fcntl(F_GETLK)`) unless the node carries
+/// this copy of iceoryx2's process id. A Python process may hold a second copy of iceoryx2
+/// beside this module's: the `iceoryx2` package (the pure-Python client, or the lab's own
+/// publishers). Its nodes carry another id, and `F_GETLK` never reports a lock of the asking
+/// process, so this module saw them as dead and removed their services while they were in use
+/// (a publisher in the same process was never heard). The sidecar removes the nodes of dead
+/// processes every few seconds, and a subscription that hears nothing still reaps a dead
+/// publisher of its own service ([`dvrk_ipc::Subscription`]).
+fn leave_dead_nodes_to_the_sidecar(config: &mut Config) {
+    config.global.node.cleanup_dead_nodes_on_creation = false;
+    config.global.node.cleanup_dead_nodes_on_destruction = false;
+    config.global.service.cleanup_dead_nodes_on_open = false;
+}
+
+/// The eleven services of one arm (`dvrk_ipc::ArmServices`), opened or created with the
+/// project's QoS when an `Arm` is made, so that a service of another type or QoS is refused
+/// then, by name, not when a getter first reads it. Holds no port.
+#[pyclass(unsendable, module = "dvrk_sidecar._native", name = "ArmServices")]
+struct NativeArmServices {
+    _services: ArmServices<Service>,
+    _node: Rc<Node<Service>>,
+}
+
+#[pymethods]
+impl NativeArmServices {
+    #[new]
+    fn new(node: &NativeNode, prefix: &str) -> PyResult<Self> {
+        let names = ServiceNames::new(prefix).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let services = ArmServices::open_or_create(&node.node, &names).map_err(|e| match e {
+            // The same words as the pure client: the service, the type asked for, iceoryx2's
+            // reason (`IncompatibleTypes` for a service of another type).
+            IpcError::OpenService { service, source } => {
+                let asked = ServiceNames::split(&service).map_or("?", |(_, t)| t.type_name());
+                native_err(format!("opening {service} as {asked}: {source}"))
+            }
+            e => native_err(e),
+        })?;
+        Ok(Self {
+            _services: services,
+            _node: node.node.clone(),
         })
     }
 }
@@ -368,6 +405,7 @@ impl NativeSubscription {
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<NativeNode>()?;
+    m.add_class::<NativeArmServices>()?;
     m.add_class::<NativeSubscription>()?;
     m.add("NativeError", m.py().get_type::<NativeError>())?;
     m.add("WAIT_STRATEGIES", ("event", "spin", "predictive"))?;
