@@ -858,8 +858,11 @@ mod tests {
         );
         let e = evaluate(&cfg, &fk, &rows);
         let t = e[0].tip_error.unwrap();
+        // 25%, as in tests/calibration.rs: since the simulator's distal part has weight
+        // (issue 20 item 3), the divot holds it too, and the stateless evaluation (one joint per
+        // row, no dynamics) counts that weight as spring torque.
         assert!(
-            t.after_mean_mm <= 0.2 * t.before_mean_mm,
+            t.after_mean_mm <= 0.25 * t.before_mean_mm,
             "tip error before {} mm, after {} mm",
             t.before_mean_mm,
             t.after_mean_mm
