@@ -637,11 +637,8 @@ fn shared_mode_keeps_ninety_percent_valid_under_ten_percent_loss() {
         share * 100.0,
         r.samples
     );
-    assert!(
-        rate_hz >= 0.2 * clean_hz,
-        "under 10% loss the service published {rate_hz:.0} samples/s, {clean_hz:.0} without: \
-         lost datagrams stretch the cycle"
-    );
+    // The rate under loss (`published_hz` against `without_loss_hz` above) depends on the
+    // machine's load: it is a benchmark figure (issue 22 item 7, RELIABILITY.md), not asserted.
     let (st, err) = rig.stop_serve();
     assert!(st.success(), "{err}");
 }
