@@ -7,8 +7,10 @@
 //!   cycle made worse than raw;
 //! - contact: compensated mean at most 30% of raw sliding over a surface, 50% in the light
 //!   scanning contact, 10% in the divot push 5 mm below the fitted insertion range;
-//! - the 95% bound covers at least 90% of the cycles (the goal's upper limit, 99.5%, is not met
-//!   in free motion: see the closing note of issue 20);
+//! - the 95% bound covers at least 90% of the cycles, and at most 99.5% in contact (in free
+//!   motion the simulator's remaining error is nearly deterministic and the bound, 1.2-1.7 times
+//!   it, covers 99.9-100%: see the closing note of issue 20); its mean is at most 2.5 times the
+//!   mean compensated error + 0.05 mm (a bound that says something);
 //! - `--json` keeps the keys of issue 10 and adds `harm_mm`, `bound_mm` and `coverage`; `--plots`
 //!   draws the bound.
 //!
@@ -60,6 +62,15 @@ fn num(v: &Value, path: &[&str]) -> f64 {
         .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
 }
 
+/// In contact the bound also says something: at most 99.5% of the cycles covered.
+fn not_too_wide(name: &str, v: &Value) {
+    let coverage = num(v, &["coverage"]);
+    assert!(
+        coverage <= 0.995,
+        "{name}: coverage {coverage} > 0.995: {v}"
+    );
+}
+
 /// The goals every scenario shares; returns (raw mean, compensated mean).
 fn common_goals(name: &str, v: &Value) -> (f64, f64) {
     let harm = num(v, &["harm_mm", "max"]);
@@ -69,6 +80,11 @@ fn common_goals(name: &str, v: &Value) -> (f64, f64) {
     assert!(coverage >= 0.90, "{name}: coverage {coverage} < 0.90: {v}");
     let (mean, p95) = (num(v, &["bound_mm", "mean"]), num(v, &["bound_mm", "p95"]));
     assert!(mean > 0.0 && p95 >= 0.0, "{name}: {v}");
+    let comp = num(v, &["tip_error_mm", "compensated", "mean"]);
+    assert!(
+        mean <= 2.5 * comp + 0.05,
+        "{name}: bound mean {mean} mm > 2.5 x compensated mean {comp} + 0.05 mm: {v}"
+    );
     (
         num(v, &["tip_error_mm", "raw", "mean"]),
         num(v, &["tip_error_mm", "compensated", "mean"]),
@@ -126,6 +142,7 @@ fn still_move_still_at_21_rad_per_s2() {
 fn palpation_over_a_tilted_surface() {
     let v = evaluate("config/sim/i20-palpation.toml", "10", None);
     let (raw, comp) = common_goals("palpation", &v);
+    not_too_wide("palpation", &v);
     assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
 }
 
@@ -133,6 +150,7 @@ fn palpation_over_a_tilted_surface() {
 fn ultrasound_scan_in_light_contact() {
     let v = evaluate("config/sim/i20-ultrasound-scan.toml", "12", None);
     let (raw, comp) = common_goals("scan", &v);
+    not_too_wide("scan", &v);
     assert!(comp <= 0.5 * raw, "compensated {comp} > 50% of raw {raw}");
 }
 
@@ -146,7 +164,15 @@ fn divot_push_below_the_fitted_range_and_the_keys_and_the_plot() {
         Some(dir.to_str().unwrap()),
     );
     let (raw, comp) = common_goals("shallow divot", &v);
+    not_too_wide("shallow divot", &v);
     assert!(comp <= 0.1 * raw, "compensated {comp} > 10% of raw {raw}");
+    // The correction never moves a joint away from its true angle by more than 1 µrad in more
+    // than 2% of the cycles (false_activation_fraction since issue 20: a wrong-way correction).
+    let fa = &v["false_activation_fraction"];
+    for j in 0..2 {
+        let f = fa[j].as_f64().unwrap();
+        assert!((0.0..=0.02).contains(&f), "joint {}: {f}: {v}", j + 1);
+    }
     // The keys of issue 10, plus exactly harm_mm {max, p99}, bound_mm {mean, p95}, coverage.
     let keys: Vec<&String> = v.as_object().unwrap().keys().collect();
     assert_eq!(

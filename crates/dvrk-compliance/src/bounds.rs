@@ -43,3 +43,8 @@ pub const MAX_ABS_EFFORT: f64 = 50.0;
 /// its uncertainty (N): an instrument's shaft and wrist beyond the compliant element weigh tens
 /// of grams (0.2 N); 10 N is a kilogram.
 pub const MAX_DISTAL_WEIGHT_N: f64 = 10.0;
+
+/// The largest plausible relative scatter of the calibrated `1/K` around its cubic
+/// (`inverse_compliance_rel_sigma`): the 2017 recordings scatter by a few percent; 50% is no
+/// stiffness model at all.
+pub const MAX_STIFFNESS_REL_SIGMA: f64 = 0.5;

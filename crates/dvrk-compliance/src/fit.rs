@@ -259,8 +259,30 @@ pub struct JointFit {
     pub backlash_rad: f64,
     /// Coefficient of determination of the cubic against the per-depth stiffnesses.
     pub r_squared: f64,
+    /// The relative scatter (1 sigma) of the per-depth `1/K` around the cubic,
+    /// `sqrt(sum(((k_i - cubic(L_i)) / cubic(L_i))^2) / (n - 4))`; `None` with 4 depths (no
+    /// degree of freedom left). Written to the parameter file as `inverse_compliance_rel_sigma`.
+    pub rel_sigma: Option<f64>,
     /// `[min, max]` insertion of the depths (m): where the cubic is valid.
     pub insertion_range_m: [f64; 2],
+}
+
+/// The relative scatter of `k` around the cubic `c` at `l` (see [`JointFit::rel_sigma`]).
+pub fn relative_scatter(c: &[f64; 4], l: &[f64], k: &[f64]) -> Option<f64> {
+    let n = l.len().min(k.len());
+    if n <= 4 {
+        return None;
+    }
+    let ss: f64 = l
+        .iter()
+        .zip(k)
+        .map(|(&l, &k)| {
+            let fit = eval_cubic(c, l);
+            ((k - fit) / fit).powi(2)
+        })
+        .sum();
+    let r = (ss / (n - 4) as f64).sqrt();
+    r.is_finite().then_some(r)
 }
 
 /// Evaluates `c3 L^3 + c2 L^2 + c1 L + c0` (Horner).
@@ -888,6 +910,7 @@ pub fn fit_joint(rows: &[DataRow], joint: u8, opts: &FitOptions) -> Result<Joint
         inverse_compliance_nm_per_rad: c,
         backlash_rad,
         r_squared,
+        rel_sigma: relative_scatter(&c, &l, &k),
         insertion_range_m: range,
     })
 }
@@ -1409,6 +1432,25 @@ mod tests {
             .collect();
         let (_, r2) = fit_inverse_compliance(1, &l, &k).unwrap();
         assert!(r2 < 1.0 && r2 > 0.9, "{r2}");
+    }
+
+    #[test]
+    fn relative_scatter_measures_the_depths_around_the_cubic() {
+        let l = depths();
+        let exact: Vec<f64> = l.iter().map(|&l| eval_cubic(&PAPER_J1, l)).collect();
+        let (c, _) = fit_inverse_compliance(1, &l, &exact).unwrap();
+        assert!(relative_scatter(&c, &l, &exact).unwrap() < 1e-9);
+        // 2% multiplicative scatter, alternating: measured near 2% (fewer dof than points).
+        let noisy: Vec<f64> = exact
+            .iter()
+            .enumerate()
+            .map(|(i, k)| k * if i % 2 == 0 { 1.02 } else { 0.98 })
+            .collect();
+        let (c, _) = fit_inverse_compliance(1, &l, &noisy).unwrap();
+        let r = relative_scatter(&c, &l, &noisy).unwrap();
+        assert!((0.015..0.03).contains(&r), "{r}");
+        // Four depths leave no degree of freedom.
+        assert_eq!(relative_scatter(&c, &l[..4], &noisy[..4]), None);
     }
 
     #[test]

@@ -71,9 +71,12 @@ pub struct Correction {
     /// (the error of `delta_rad`): what the correction may still be off by. 0 for a joint without
     /// parameters (nothing is modelled there, and nothing corrected).
     pub bound_rad: [f64; 2],
-    /// 95% bound (m) on the compensated tip position's error from joints 1 and 2: the joint
-    /// bounds through the lever from the RCM to the tip, `(L + TIP_LEVER_EXTRA_M) *
-    /// hypot(bound_rad)`.
+    /// The two parts of each joint's bound (systematic and random), from which the tip's bound
+    /// is built through the levers of the arm's pose ([`tip_bound_with_levers`]).
+    pub bound_parts: [BoundParts; 2],
+    /// 95% bound (m) on the compensated tip position's error from joints 1 and 2, through the
+    /// lever from the RCM to the tip `L + TIP_LEVER_EXTRA_M` ([`tip_bound_from_parts`]). The
+    /// service recomputes it with the instrument's kinematics (the tip's true levers).
     pub tip_bound_m: f64,
 }
 
@@ -119,15 +122,22 @@ pub mod trust {
 
 /// How far outside its fitted insertion range K(L) is extrapolated (m); beyond, no correction.
 pub const INSERTION_MARGIN_M: f64 = 0.01;
-/// Relative uncertainty (1 sigma) of K(L) inside the fitted range: the cubic of the default
-/// file fits its 14 depths to r² = 0.99999 (a few 0.1%); 1% leaves room for a real arm's
-/// scatter. A lab with the 2017 kind of data should expect more and can read it off `fit`.
+/// Relative uncertainty (1 sigma) of K(L) inside the fitted range for a file that does not say
+/// (`inverse_compliance_rel_sigma`, written by `fit` since issue 20): 1% leaves room for a real
+/// arm's scatter. A lab with the 2017 kind of data should expect more; `fit` measures it.
 pub const STIFFNESS_REL_SIGMA: f64 = 0.01;
-/// Extra relative uncertainty of K(L) at the end of the extrapolation margin (grows linearly).
-pub const STIFFNESS_REL_SIGMA_AT_MARGIN: f64 = 0.15;
-/// The tip lies this far beyond the insertion L from the RCM (m): the wrist and jaws of an 8 mm
-/// instrument, rounded up, so the tip bound errs on the safe side.
-pub const TIP_LEVER_EXTRA_M: f64 = 0.01;
+/// The smallest relative uncertainty of K(L) a file's scatter is taken for: a cubic that fits
+/// the simulator's depths to 1e-4 still has the depths' own encoder and averaging errors.
+pub const STIFFNESS_REL_SIGMA_FLOOR: f64 = 0.002;
+/// How much the stiffness's relative uncertainty grows by the end of the extrapolation margin,
+/// as a multiple of the in-range one (linear in the distance): a cubic's prediction error grows
+/// with its leverage outside the data, about threefold 10 mm beyond a 130 mm range of 14 depths.
+pub const STIFFNESS_SIGMA_GROWTH_AT_MARGIN: f64 = 2.0;
+/// The tip lies at most this far beyond the insertion L from the RCM (m): the shaft ends
+/// 0.0156 m before L (the Classic PSM's insertion offset 0.4318 m against the 0.4162 m shaft),
+/// then the wrist (0.0091 m) and the jaws (0.0102 m) of an 8 mm instrument, straight: L + 3.7 mm,
+/// rounded up to 5 mm (a bent wrist brings the tip closer to the shaft's axis).
+pub const TIP_LEVER_EXTRA_M: f64 = 0.005;
 /// RMS of the filter window's cubic residual above which the motion counts as abrupt (rad): 10x
 /// the quantization of a Classic PSM encoder (7.7 µrad per count, 2.2 µrad rms).
 pub const TRANSIENT_RESIDUAL_RAD: f64 = 2.0e-5;
@@ -175,6 +185,10 @@ pub const DISTAL_INERTIA_REL_SIGMA: f64 = 0.1;
 /// standard error: the weight is lumped at L, and the torque-offset table holds it at the
 /// sweep's pose only (see [`crate::dynamics::DistalGravityParams`]).
 pub const DISTAL_GRAVITY_REL_SIGMA: f64 = 0.1;
+/// Relative uncertainty (1 sigma) of the file's backlash: `fit` takes the mean of the clamp
+/// test's per-depth backlashes, which scatter by about 3% around a mean that came out 3.7% below
+/// the simulator's truth (2.888 against 3.0 mrad).
+pub const BACKLASH_REL_SIGMA: f64 = 0.05;
 /// The 95% two-sided quantile of a normal distribution.
 const Z95: f64 = 1.959_964;
 
@@ -187,6 +201,8 @@ pub struct JointModel {
     /// `[c3, c2, c1, c0]` of `1/K(L)` in N·m/rad.
     pub(crate) inverse_compliance_nm_per_rad: [f64; 4],
     pub(crate) insertion_range_m: [f64; 2],
+    /// `inverse_compliance_rel_sigma` of the file, if it has one.
+    pub(crate) stiffness_rel_sigma_from_file: Option<f64>,
     pub(crate) torque_offset: TorqueOffsetTable,
     pub(crate) hysteresis_kind: HysteresisKind,
     pub(crate) hysteresis_gap_rad: Option<f64>,
@@ -235,6 +251,14 @@ impl JointModel {
     }
 
     /// The insertion range `[min, max]` (m) over which the cubic is valid (positive).
+    /// The stiffness's relative uncertainty (1 sigma) inside the fitted range: the fit's scatter
+    /// of `1/K` around the cubic, at least [`STIFFNESS_REL_SIGMA_FLOOR`]; without one in the file,
+    /// [`STIFFNESS_REL_SIGMA`].
+    pub fn stiffness_rel_sigma(&self) -> f64 {
+        self.stiffness_rel_sigma_from_file
+            .map_or(STIFFNESS_REL_SIGMA, |r| r.max(STIFFNESS_REL_SIGMA_FLOOR))
+    }
+
     pub fn insertion_range_m(&self) -> [f64; 2] {
         self.insertion_range_m
     }
@@ -349,6 +373,7 @@ impl ComplianceConfig {
     /// removes friction and inertia): the gate and Eq. 1. Allocates nothing.
     pub fn correct_external(&self, position: &[f64; 3], tau_ext_nm: &[f64; 2]) -> Correction {
         let raw_insertion_m = position[2];
+        let mut parts = [BoundParts::default(); 2];
         let mut out = Correction {
             position: *position,
             delta_rad: [0.0; 2],
@@ -360,6 +385,7 @@ impl ComplianceConfig {
             flags: 0,
             weight: [0.0; 2],
             bound_rad: [0.0; 2],
+            bound_parts: [BoundParts::default(); 2],
             tip_bound_m: 0.0,
         };
         let mut insertion_reported = false;
@@ -388,7 +414,7 @@ impl ComplianceConfig {
                 out.position[j] = position[j] - delta;
                 // The stateless formula has no noise model: its gate stands for 4 sigma.
                 let m = side_of_play(joint.play_rad(), delta, k, tau_ext);
-                out.bound_rad[j] = joint_bound(
+                parts[j] = joint_bound(
                     joint.play_rad(),
                     m,
                     k,
@@ -399,10 +425,15 @@ impl ComplianceConfig {
             } else {
                 // Not corrected: the whole deflection the model would have removed is the error,
                 // with the stiffness's uncertainty of the clamped end on top.
-                out.bound_rad[j] = 0.95 * joint.play_rad() + full.abs() * (1.0 + ins.rel_k);
+                parts[j] = BoundParts {
+                    bias: 0.95 * joint.play_rad() + full.abs() * (1.0 + ins.rel_k),
+                    sigma: 0.0,
+                };
             }
+            out.bound_rad[j] = parts[j].joint_bound();
         }
-        out.tip_bound_m = tip_bound_m(raw_insertion_m, out.bound_rad);
+        out.bound_parts = parts;
+        out.tip_bound_m = tip_bound_from_parts(raw_insertion_m, position[1], &parts);
         out
     }
 }
@@ -410,7 +441,7 @@ impl ComplianceConfig {
 /// Where the stiffness cubic is evaluated for a measured insertion, how far it is trusted there
 /// and what the flags say: inside the fitted range as measured; within
 /// [`INSERTION_MARGIN_M`] outside it extrapolated (if 1/K stays within its physical bounds) with
-/// a relative stiffness uncertainty growing to [`STIFFNESS_REL_SIGMA_AT_MARGIN`] more at the
+/// a relative stiffness uncertainty growing to [`STIFFNESS_SIGMA_GROWTH_AT_MARGIN`] + 1 times the in-range one at the
 /// margin's end; beyond it (or a non-finite insertion) not corrected (`weight` 0) at the
 /// clamped end.
 #[derive(Clone, Copy, Debug)]
@@ -439,14 +470,14 @@ fn insertion_rule(joint: &JointModel, raw_l: f64) -> InsertionRule {
     };
     if !raw_l.is_finite() {
         return InsertionRule {
-            rel_k: STIFFNESS_REL_SIGMA,
+            rel_k: joint.stiffness_rel_sigma(),
             ..refuse
         };
     }
     if outside == 0.0 {
         return InsertionRule {
             insertion_m: raw_l,
-            rel_k: STIFFNESS_REL_SIGMA,
+            rel_k: joint.stiffness_rel_sigma(),
             weight: 1.0,
             flags: 0,
         };
@@ -458,8 +489,8 @@ fn insertion_rule(joint: &JointModel, raw_l: f64) -> InsertionRule {
     if outside <= INSERTION_MARGIN_M && plausible {
         InsertionRule {
             insertion_m: raw_l,
-            rel_k: STIFFNESS_REL_SIGMA
-                + STIFFNESS_REL_SIGMA_AT_MARGIN * outside / INSERTION_MARGIN_M,
+            rel_k: joint.stiffness_rel_sigma()
+                * (1.0 + STIFFNESS_SIGMA_GROWTH_AT_MARGIN * outside / INSERTION_MARGIN_M),
             weight: 1.0,
             flags: trust::INSERTION_EXTRAPOLATED,
         }
@@ -482,7 +513,7 @@ fn side_of_play(play: f64, delta: f64, k: f64, tau: f64) -> f64 {
 /// (`m` = the applied fraction of `delta`; with probability `(1 - |m|) / 2` the shaft is on the
 /// other side, so below `|m| = 0.9` the bound must reach it) and 1.96 sigma of the elastic part
 /// (torque noise and the stiffness's uncertainty), in quadrature.
-fn joint_bound(play: f64, m: f64, k: f64, sigma_tau: f64, tau: f64, rel_k: f64) -> f64 {
+fn joint_bound(play: f64, m: f64, k: f64, sigma_tau: f64, tau: f64, rel_k: f64) -> BoundParts {
     let m = m.abs();
     let play_part = if m < 0.9 {
         play * (1.0 + m)
@@ -492,16 +523,120 @@ fn joint_bound(play: f64, m: f64, k: f64, sigma_tau: f64, tau: f64, rel_k: f64) 
     let elastic = (k * sigma_tau).hypot(rel_k * k * tau);
     // The play's error is spread over the play (uniform when the side is unknown): its 95%
     // quantile is 0.95 of its width.
-    0.95 * play_part + Z95 * elastic
+    BoundParts {
+        bias: 0.95 * play_part,
+        sigma: elastic,
+    }
 }
 
-/// The 95% radius of a 2-D normal error over the norm of its two 95% half-widths:
-/// `sqrt(chi2_2(0.95)) / (1.96 sqrt 2)` = 2.448 / 2.772.
-const TIP_2D_FACTOR: f64 = 0.883;
+/// A joint's error bound in two parts: a systematic part `bias` (rad; the play's side and the
+/// part of the deflection not corrected, whose direction the model knows) and a random part of
+/// standard deviation `sigma` (rad; torque noise and the stiffness's uncertainty). The joint's
+/// 95% bound is `bias + 1.96 sigma`; the tip's combines the joints' biases as a vector and
+/// their noise as a 2-D normal ([`tip_bound_from_parts`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BoundParts {
+    pub bias: f64,
+    pub sigma: f64,
+}
 
-/// The tip bound (m) from the joint bounds: the lever from the RCM to the tip times their norm.
-pub fn tip_bound_m(insertion_m: f64, bound_rad: [f64; 2]) -> f64 {
-    TIP_2D_FACTOR * (insertion_m.max(0.0) + TIP_LEVER_EXTRA_M) * bound_rad[0].hypot(bound_rad[1])
+impl BoundParts {
+    /// The joint's 95% bound (rad).
+    pub fn joint_bound(&self) -> f64 {
+        self.bias + Z95 * self.sigma
+    }
+
+    /// `w self + (1 - w) other`, both parts (a linear mix is never narrower than the mixture's
+    /// quantile needs while the two are of one sign).
+    fn mix(&self, w: f64, other: &BoundParts) -> BoundParts {
+        BoundParts {
+            bias: w * self.bias + (1.0 - w) * other.bias,
+            sigma: w * self.sigma + (1.0 - w) * other.sigma,
+        }
+    }
+}
+
+/// The 95% radius of a 2-D normal error over its standard deviation: `sqrt(chi2_2(0.95))`.
+const R95_2D: f64 = 2.447_747;
+/// The one-sided 95% quantile of a normal distribution: the radial spread of an error whose
+/// systematic part dominates.
+const Z95_ONE_SIDED: f64 = 1.644_854;
+
+/// The tip bound (m) from the joints' bound parts: the lever from the RCM to the tip times the
+/// 95% quantile of `|bias + noise|` in the joints' plane. The biases add as a vector (the joints
+/// rotate about perpendicular axes); the noise widens it by `R95_2D` sigma while the bias is
+/// small against it, by `Z95_ONE_SIDED` sigma (its radial part only) once the bias dominates.
+///
+/// The pitch axis is perpendicular to the shaft, so a pitch error moves the tip by the lever
+/// `r = L + TIP_LEVER_EXTRA_M`; the yaw axis makes the angle `pi/2 - q2` with the shaft, so a yaw
+/// error moves it by `r |cos q2|` (the modified DH of the PSM: `z2` is perpendicular to `z0`, and
+/// the shaft `z3` to `z2`). A non-finite pitch takes the full lever.
+pub fn tip_bound_from_parts(insertion_m: f64, pitch_rad: f64, parts: &[BoundParts; 2]) -> f64 {
+    let yaw_share = if pitch_rad.is_finite() {
+        pitch_rad.cos().abs()
+    } else {
+        1.0
+    };
+    let lever = insertion_m.max(0.0) + TIP_LEVER_EXTRA_M;
+    tip_bound_with_levers([yaw_share * lever, lever], parts)
+}
+
+/// The tip bound (m) from the joints' bound parts and their levers (m per rad: how far the tip
+/// moves per radian of joint 1 and of joint 2, `|dp/dq_j|`, e.g. from the arm's kinematics).
+/// The two joints move the tip in perpendicular directions (their axes meet at the RCM, the
+/// yaw's perpendicular to the pitch's), so the biases add as a vector and the noise as a 2-D
+/// normal; see [`tip_bound_from_parts`]. A non-finite lever gives a NaN bound.
+pub fn tip_bound_with_levers(levers_m: [f64; 2], parts: &[BoundParts; 2]) -> f64 {
+    let bias = (levers_m[0] * parts[0].bias).hypot(levers_m[1] * parts[1].bias);
+    let sigma = (levers_m[0] * parts[0].sigma).hypot(levers_m[1] * parts[1].sigma);
+    let spread = if sigma > 0.0 {
+        Z95_ONE_SIDED + (R95_2D - Z95_ONE_SIDED) * (-bias / sigma).exp()
+    } else {
+        0.0
+    };
+    bias + spread * sigma
+}
+
+/// The probability that the shaft rests on the other side of its play than the evidence says:
+/// the evidence `|e|` (N·m) against its noise `sigma` (N·m), `P(N(|e|, sigma) < 0)`.
+fn other_side_probability(evidence_abs: f64, sigma: f64) -> f64 {
+    if sigma.is_nan() || evidence_abs.is_nan() {
+        return 0.5;
+    }
+    if sigma <= 0.0 {
+        return if evidence_abs > 0.0 { 0.0 } else { 0.5 };
+    }
+    0.5 * (1.0 - erf(evidence_abs / (sigma * core::f64::consts::SQRT_2)))
+}
+
+/// 95% bound (rad) on one joint's corrected error with a dynamics model. The correction is
+/// `m (play + K |tau|)`: on the side the evidence names, the shaft's deflection is
+/// `play + K |tau|` and the error the part not corrected, `(1 - |m|)` of it; on the other side
+/// (probability `p_other`) the error is `(1 + |m|)` of it. The 95% quantile of that mixture is the
+/// first while `p_other` is below 5%, the second otherwise; the elastic part's noise (torque noise
+/// and the stiffness's uncertainty) adds 1.96 sigma.
+fn dynamic_joint_bound(
+    play: f64,
+    m: f64,
+    p_other: f64,
+    k: f64,
+    sigma_tau: f64,
+    tau: f64,
+    rel_k: f64,
+) -> BoundParts {
+    let m = m.abs().min(1.0);
+    let reach = play + k * tau.abs();
+    let side = if p_other > 0.05 {
+        (1.0 + m) * reach
+    } else {
+        (1.0 - m) * reach
+    };
+    BoundParts {
+        bias: side,
+        sigma: (k * sigma_tau)
+            .hypot(rel_k * k * tau)
+            .hypot(BACKLASH_REL_SIGMA * play),
+    }
 }
 
 /// `erf(x)` (Abramowitz and Stegun 7.1.26, |error| < 1.5e-7): the evidence for the side of the
@@ -537,6 +672,8 @@ struct JointTrust {
     after_gap: bool,
     /// The shaft torque (N·m) of the last sample the estimator trusted fully.
     last_trusted_tau: f64,
+    /// A sample has been trusted fully since the start (or the last reset).
+    has_trusted: bool,
     /// The last [`EFFORT_RATE_SAMPLES`] efforts (ring), for the effort's change over a few ms.
     efforts: [f64; EFFORT_RATE_SAMPLES],
     efforts_head: usize,
@@ -557,6 +694,7 @@ impl Default for JointTrust {
             last_moving_s: f64::NEG_INFINITY,
             after_gap: false,
             last_trusted_tau: 0.0,
+            has_trusted: false,
             efforts: [0.0; EFFORT_RATE_SAMPLES],
             efforts_head: 0,
             efforts_len: 0,
@@ -617,13 +755,21 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// at [`ACCEL_CUTOFF_RATIO`] times it; 0 beyond the insertion margin. Each reason sets a bit
 /// of [`trust`] in [`Correction::flags`].
 ///
-/// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]):
-/// for the trusted part, 0.95 of the play's possible error (the other side is possible while
-/// `|m| < 0.9`) plus 1.96 sigma of the elastic part (torque noise and a 1% stiffness
-/// uncertainty, growing to 16% at the end of the insertion margin); for the withheld part
-/// `1 - w`, the play and `K` times the last trusted torque and the free-space load, as if
-/// nothing were known about the transient. The tip bound takes both joints through the lever
-/// `L + TIP_LEVER_EXTRA_M` as a 2-D 95% radius.
+/// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]),
+/// built per joint in two parts ([`BoundParts`]): a systematic part whose direction the model
+/// knows and a random part. Trusted (`w = 1`): on the side of the play the evidence names, the
+/// error is the share not corrected, `(1 - |m|) (delta + K |tau_shaft|)`; if the evidence leaves
+/// the other side more than 5% likely (from the evidence against its noise), `(1 + |m|)` of it.
+/// The random part: the torque noise as far as the correction uses the measured torque, the
+/// free load's uncertainty, a contact below the evidence's floor (+-floor as 3 sigma), the
+/// stiffness's scatter as `fit` measured it (`inverse_compliance_rel_sigma`, growing threefold
+/// to the end of the insertion margin) and 5% of the backlash. Withheld (`1 - w`): the whole
+/// play plus `K` times what the shaft may carry (the last trusted torque and the free load;
+/// before any trusted sample, the effort beyond its offset). The two are mixed by `w`. Each
+/// joint's bound is `bias + 1.96 sigma`; the tip's adds the joints' systematic parts as a vector
+/// and their random parts as a 2-D normal, through the tip's levers
+/// ([`tip_bound_with_levers`]: the service takes them from the instrument's kinematics,
+/// [`tip_bound_from_parts`] from the insertion).
 ///
 /// # Why not a state observer (Kalman filter)
 ///
@@ -689,6 +835,7 @@ impl Compensator {
             flags: 0,
             weight: [0.0; 2],
             bound_rad: [0.0; 2],
+            bound_parts: [BoundParts::default(); 2],
             tip_bound_m: 0.0,
         };
         // Pass 1: the filters, the dynamics model's torque and the abrupt-change detectors.
@@ -766,6 +913,7 @@ impl Compensator {
 
         // Pass 2: the trust weight, the correction and its bound.
         let mut insertion_reported = false;
+        let mut parts = [BoundParts::default(); 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
             let st = &self.joints[j];
@@ -862,9 +1010,10 @@ impl Compensator {
             } else {
                 (0.0, 0.0)
             };
+            let mut evidence_margin = 0.0;
+            let mut contact_share = 1.0;
             let (full, tau_shaft, m) = match &joint.dynamics {
                 Some(_) => {
-                    let tau_shaft = tau_ext + distal;
                     // The contact's evidence: the measured external torque, averaged, beyond a
                     // quarter of the file's dead band (a torque that small is as likely a
                     // torque-offset or model error as contact; `tau_min` is the fitter's floor
@@ -886,6 +1035,18 @@ impl Compensator {
                     // The side of the play: the sign of contact plus the free-space load, known
                     // as far as the torque noise and the free load's uncertainty allow.
                     let evidence = contact_excess + distal;
+                    evidence_margin = evidence.abs();
+                    // How far the measured torque is taken for contact: 0 without evidence of
+                    // contact (the shaft then carries the predicted free load alone, and the
+                    // torque's noise stays out of the correction), 1 once the averaged torque is
+                    // a whole floor past the floor; linear, so the correction stays continuous.
+                    let floor = PLAY_EVIDENCE_FLOOR * joint.tau_min_nm;
+                    contact_share = if floor > 0.0 {
+                        (contact_excess.abs() / floor).min(1.0)
+                    } else {
+                        1.0
+                    };
+                    let tau_shaft = contact_share * tau_ext + distal;
                     let scale = (PLAY_EVIDENCE_SIGMAS * sigma_tau).hypot(sigma_free);
                     let m = erf(evidence.abs() / (scale * core::f64::consts::SQRT_2))
                         .copysign(evidence);
@@ -908,18 +1069,51 @@ impl Compensator {
             let delta = w * full;
 
             // The bound: trusted part and withheld part, weighted.
-            let trusted = joint_bound(play, m, k, sigma_tau.hypot(sigma_free), tau_shaft, rel_k);
-            let reference = if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
-                tau_shaft
+            let trusted = match &joint.dynamics {
+                Some(_) => {
+                    // Without contact evidence the shaft carries the predicted free load, known
+                    // to `sigma_free`; the measured torque's noise enters only through the
+                    // share `m` of it the correction applies. With contact the shaft carries
+                    // the measured torque, known to the torque noise.
+                    // A contact below the evidence's floor goes unseen: while the share is below
+                    // 1, a torque within +-floor is possible, taken as 3 sigma (a contact
+                    // near the floor is seen in part, and most cycles have none). It widens
+                    // the elastic part, not the evidence for the side.
+                    let floor = PLAY_EVIDENCE_FLOOR * joint.tau_min_nm;
+                    let unseen = (1.0 - contact_share) * floor / 3.0;
+                    let sigma_side = sigma_free.hypot(contact_share * sigma_tau);
+                    let (tau_b, sigma_b) = (tau_shaft, sigma_side.hypot(unseen));
+                    let p_other = other_side_probability(evidence_margin, sigma_side);
+                    dynamic_joint_bound(play, m, p_other, k, sigma_b, tau_b, rel_k)
+                }
+                None => joint_bound(play, m, k, sigma_tau.hypot(sigma_free), tau_shaft, rel_k),
+            };
+            // What the shaft may carry while the correction is withheld: the estimate itself
+            // when only the acceleration or the insertion withholds it; after a transient, what
+            // it carried when last trusted (contact does not start with the motion) plus the
+            // free load; before any trusted sample, the effort beyond its offset, motion and all
+            // (nothing else is known yet).
+            let shaft_load = if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
+                tau_shaft.abs()
+            } else if tr.has_trusted {
+                tr.last_trusted_tau.abs() + distal.abs()
+            } else if tau_meas.is_finite() {
+                tau_meas.abs()
             } else {
-                tr.last_trusted_tau
+                0.0
             };
             let k_hi = k * (1.0 + Z95 * rel_k);
-            let withheld =
-                (0.95 * play).hypot(k_hi * (reference.abs() + distal.abs())) + Z95 * k * sigma_tau;
-            let bound = w * trusted + (1.0 - w) * withheld;
+            // The shaft rests against a side of its play: the whole play and the spring's
+            // deflection are the error of an uncorrected joint.
+            let withheld = BoundParts {
+                bias: play + k_hi * shaft_load,
+                sigma: (k * sigma_tau).hypot(BACKLASH_REL_SIGMA * play),
+            };
+            parts[j] = trusted.mix(w, &withheld);
+            let bound = parts[j].joint_bound();
             if w >= 1.0 {
                 tr.last_trusted_tau = tau_shaft;
+                tr.has_trusted = true;
             }
 
             out.tau_ext_nm[j] = tau_ext;
@@ -932,7 +1126,8 @@ impl Compensator {
             out.flags |= flags;
             tr.last_t_s = t_s;
         }
-        out.tip_bound_m = tip_bound_m(raw_l, out.bound_rad);
+        out.bound_parts = parts;
+        out.tip_bound_m = tip_bound_from_parts(raw_l, position[1], &parts);
         out
     }
 

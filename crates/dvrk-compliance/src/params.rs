@@ -60,6 +60,11 @@ pub struct JointParams {
     /// `[min, max]` (m) of the calibrated insertion depths; L is clamped into it.
     #[serde(deserialize_with = "crate::exact::array")]
     pub insertion_range_m: [f64; 2],
+    /// The relative scatter (1 sigma) of the calibrated `1/K` of the depths around the cubic, as
+    /// `fit` found it: the stiffness's uncertainty in each sample's 95% bound (issue 20). Absent
+    /// (older files, the paper's): [`crate::model::STIFFNESS_REL_SIGMA`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inverse_compliance_rel_sigma: Option<f64>,
     /// The torque offset table `tau_0(q)`.
     pub torque_offset: TorqueOffsetParams,
     /// The kind and signed gap of the clamp hysteresis, as `fit` found it; absent = a play.
@@ -240,6 +245,9 @@ impl ComplianceParams {
                 "insertion_range_m = {}",
                 toml_array(&j.insertion_range_m)
             );
+            if let Some(r) = j.inverse_compliance_rel_sigma {
+                let _ = writeln!(s, "inverse_compliance_rel_sigma = {}", toml_float(r));
+            }
             if let Some(h) = &j.hysteresis {
                 let kind = match h.kind {
                     HysteresisKind::Play => "play",
@@ -354,6 +362,7 @@ impl ComplianceConfig {
                     tau_min_nm: j.tau_min_nm,
                     inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
                     insertion_range_m: j.insertion_range_m,
+                    inverse_compliance_rel_sigma: j.stiffness_rel_sigma_from_file,
                     torque_offset: TorqueOffsetParams {
                         position_rad: j.torque_offset.position_rad().to_vec(),
                         effort_nm: j.torque_offset.effort_nm().to_vec(),
@@ -398,11 +407,30 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         tau_min_nm,
         inverse_compliance_nm_per_rad: coeffs,
         insertion_range_m: [min_m, max_m],
+        inverse_compliance_rel_sigma,
         torque_offset,
         hysteresis,
         dynamics,
         ..
     } = jp;
+    if let Some(r) = inverse_compliance_rel_sigma {
+        check_finite(joint, "inverse_compliance_rel_sigma", &[r], false)?;
+        if r < 0.0 {
+            return Err(ParamsError::Negative {
+                joint,
+                field: "inverse_compliance_rel_sigma".to_owned(),
+                value: r,
+            });
+        }
+        if r > crate::bounds::MAX_STIFFNESS_REL_SIGMA {
+            return Err(ParamsError::AboveBound {
+                joint,
+                field: "inverse_compliance_rel_sigma".to_owned(),
+                value: r,
+                max: crate::bounds::MAX_STIFFNESS_REL_SIGMA,
+            });
+        }
+    }
 
     check_finite(joint, "backlash_rad", &[backlash_rad], false)?;
     check_finite(joint, "tau_min_nm", &[tau_min_nm], false)?;
@@ -643,6 +671,7 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         tau_min_nm,
         inverse_compliance_nm_per_rad: coeffs,
         insertion_range_m: [min_m, max_m],
+        stiffness_rel_sigma_from_file: inverse_compliance_rel_sigma,
         torque_offset: TorqueOffsetTable::from_validated(
             torque_offset.position_rad,
             torque_offset.effort_nm,

@@ -213,6 +213,7 @@ fn joints_without_parameters_pass_through() {
             flags: 0,
             weight: [0.0; 2],
             bound_rad: [0.0; 2],
+            bound_parts: Default::default(),
             tip_bound_m: 0.0,
         }
     );

@@ -156,6 +156,7 @@ fn valid_joint(index: i64) -> JointParams {
         tau_min_nm: 0.1,
         inverse_compliance_nm_per_rad: [639.16, -432.35, 136.32, 3.12],
         insertion_range_m: [0.09, 0.22],
+        inverse_compliance_rel_sigma: None,
         torque_offset: TorqueOffsetParams {
             position_rad: vec![-1.0, 1.0],
             effort_nm: vec![0.0, 0.0],
@@ -448,6 +449,51 @@ fn physical_bounds_name_joint_field_and_value() {
 }
 
 #[test]
+fn the_stiffness_scatter_is_checked_and_round_trips() {
+    for (value, negative) in [(-0.01, true), (0.6, false)] {
+        let mut j = valid_joint(1);
+        j.inverse_compliance_rel_sigma = Some(value);
+        let e = config_error(vec![j]);
+        let want = if negative {
+            ParamsError::Negative {
+                joint: 1,
+                field: "inverse_compliance_rel_sigma".to_owned(),
+                value,
+            }
+        } else {
+            ParamsError::AboveBound {
+                joint: 1,
+                field: "inverse_compliance_rel_sigma".to_owned(),
+                value,
+                max: 0.5,
+            }
+        };
+        assert_eq!(e, want);
+    }
+    let mut j = valid_joint(1);
+    j.inverse_compliance_rel_sigma = Some(f64::NAN);
+    assert!(matches!(
+        config_error(vec![j]),
+        ParamsError::NonFinite { joint: 1, ref field, .. } if field == "inverse_compliance_rel_sigma"
+    ));
+    // Written by the fitter and read back as written; absent stays absent.
+    let mut j = valid_joint(1);
+    j.inverse_compliance_rel_sigma = Some(0.0123);
+    let p = ComplianceParams {
+        model: ModelKind::Paper,
+        joint: vec![j, valid_joint(2)],
+    };
+    let text = dvrk_compliance::params_to_toml(&p);
+    assert!(
+        text.contains("inverse_compliance_rel_sigma = 0.0123"),
+        "{text}"
+    );
+    let back = common::config(&text).unwrap().to_params();
+    assert_eq!(back.joint[0].inverse_compliance_rel_sigma, Some(0.0123));
+    assert_eq!(back.joint[1].inverse_compliance_rel_sigma, None);
+}
+
+#[test]
 fn model_defaults_to_paper_and_joints_may_be_absent() {
     let c = common::config("joint = []").unwrap();
     assert_eq!(c.model(), ModelKind::Paper);
@@ -536,6 +582,7 @@ fn any_joint() -> impl Strategy<Value = JointParams> {
                     backlash_rad,
                     tau_min_nm,
                     inverse_compliance_nm_per_rad: c,
+                    inverse_compliance_rel_sigma: None,
                     insertion_range_m: range,
                     torque_offset: TorqueOffsetParams {
                         position_rad: table.iter().map(|t| t.0).collect(),

@@ -151,8 +151,11 @@ fn finish(
     // |tau_ext| minus the gate (tau_min, plus gate_sigmas * residual std with a dynamics
     // model); 0 for a joint without parameters.
     let tau_margin_nm = correction.tau_margin_nm;
+    let raw_pose = kin.forward(&raw_q6);
+    let mut correction = correction;
+    correction.tip_bound_m = tip_bound(kin, &raw_q6, &raw_pose, &correction);
     CycleResult {
-        raw_pose: kin.forward(&raw_q6),
+        raw_pose,
         correction,
         compensated_position,
         compensated_pose: kin.forward(&comp_q6),
@@ -161,6 +164,35 @@ fn finish(
         flags: f,
         source_state: 0,
         tau_margin_nm,
+    }
+}
+
+/// The joint step (rad) of the levers' finite difference: far above the rounding of a 0.1 m
+/// position (1e-17 m), far below any curvature of the kinematics at the scale of a bound.
+const LEVER_STEP_RAD: f64 = 1e-6;
+
+/// The tip bound through the instrument's own levers: how far the tip moves per radian of
+/// joints 1 and 2 at this pose (`|dp/dq_j|`, by a forward difference of the kinematics: the
+/// wrist's bend brings the tip closer to the RCM than the shaft's length, by 10% in the
+/// simulator's free motion). Falls back to the model's lever `L + TIP_LEVER_EXTRA_M` when the
+/// pose is not finite. Two forward kinematics per cycle, no allocation.
+fn tip_bound(
+    kin: &PsmKinematics,
+    q6: &[f64; 6],
+    raw_pose: &nalgebra::Isometry3<f64>,
+    c: &Correction,
+) -> f64 {
+    let mut levers = [0.0; 2];
+    for (j, lever) in levers.iter_mut().enumerate() {
+        let mut q = *q6;
+        q[j] += LEVER_STEP_RAD;
+        let moved = kin.forward(&q).translation.vector - raw_pose.translation.vector;
+        *lever = moved.norm() / LEVER_STEP_RAD;
+    }
+    if levers.iter().all(|l| l.is_finite()) {
+        dvrk_compliance::model::tip_bound_with_levers(levers, &c.bound_parts)
+    } else {
+        c.tip_bound_m
     }
 }
 
@@ -229,6 +261,7 @@ pub fn held(last: Option<&Held>, current: &ArmSample, reason: u32) -> (ArmSample
                     flags: 0,
                     weight: [0.0; 2],
                     bound_rad: [f64::NAN; 2],
+                    bound_parts: Default::default(),
                     tip_bound_m: f64::NAN,
                 },
                 compensated_position: [f64::NAN; 7],
@@ -514,6 +547,54 @@ mod tests {
         let m = messages(&s, &r, &t, &Isometry3::identity());
         assert_eq!(m.measured.measured_cp, m.measured.local_measured_cp);
         assert_eq!(m.compensated.measured_cp, m.compensated.local_measured_cp);
+    }
+
+    #[test]
+    fn the_tip_bound_takes_the_instruments_levers() {
+        let kin = PsmKinematics::new(
+            dvrk_compliance::ArmKind::Classic,
+            dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
+        );
+        // A bent wrist and a pitched shaft: the tip is nearer the RCM than L, and a yaw error
+        // moves it by cos(pitch) of that.
+        let q6 = [0.2, -0.5, 0.12, 0.3, 0.5, -0.4];
+        let pose = kin.forward(&q6);
+        let mut c = Correction {
+            position: [q6[0], q6[1], q6[2]],
+            delta_rad: [0.0; 2],
+            tau_ext_nm: [0.0; 2],
+            active: [false; 2],
+            insertion_m: q6[2],
+            insertion_clamped: false,
+            tau_margin_nm: [0.0; 2],
+            flags: 0,
+            weight: [1.0; 2],
+            bound_rad: [0.0; 2],
+            bound_parts: Default::default(),
+            tip_bound_m: f64::NAN,
+        };
+        // A systematic error of 3 mrad on one joint at a time: the bound is how far the tip
+        // moves when that joint is turned by 3 mrad (an independent check, by the kinematics).
+        for j in 0..2 {
+            c.bound_parts = Default::default();
+            c.bound_parts[j].bias = 3e-3;
+            let mut q = q6;
+            q[j] += 3e-3;
+            let moved = (kin.forward(&q).translation.vector - pose.translation.vector).norm();
+            let b = tip_bound(&kin, &q6, &pose, &c);
+            assert!(
+                (b - moved).abs() < 1e-3 * moved,
+                "joint {}: {b} vs {moved}",
+                j + 1
+            );
+            // ... and below the model's own lever, L + TIP_LEVER_EXTRA_M.
+            let lever = q6[2] + dvrk_compliance::model::TIP_LEVER_EXTRA_M;
+            assert!(b < lever * 3e-3, "joint {}: {b} vs {}", j + 1, lever * 3e-3);
+        }
+        // A pose that is not finite falls back to the model's bound.
+        c.tip_bound_m = 0.25e-3;
+        let nan = [f64::NAN; 6];
+        assert_eq!(tip_bound(&kin, &nan, &kin.forward(&nan), &c), 0.25e-3);
     }
 
     #[test]

@@ -42,6 +42,7 @@ fn true_model(psm: &SimPsm) -> ComplianceConfig {
                 tau_min_nm: tau_min[j],
                 inverse_compliance_nm_per_rad: shaft.inverse_compliance_cubic[j],
                 insertion_range_m: shaft.insertion_range_m,
+                inverse_compliance_rel_sigma: None,
                 torque_offset: TorqueOffsetParams {
                     position_rad,
                     effort_nm,

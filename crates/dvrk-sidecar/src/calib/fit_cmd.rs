@@ -149,6 +149,7 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
             tau_min_nm: tau_min,
             inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
             insertion_range_m: j.insertion_range_m,
+            inverse_compliance_rel_sigma: j.rel_sigma,
             torque_offset,
             hysteresis: Some(hysteresis_of(j)),
             dynamics: None,
