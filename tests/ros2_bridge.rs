@@ -1,7 +1,9 @@
 //! The ROS 2 bridge and the MCAP recorder against independent clients:
 //! - Cyclone DDS (the `cyclonedds` Python package, the DDS of ROS 2's rmw_cyclonedds) reads
 //!   `rt/PSM1/compensated/local/measured_cp` as `geometry_msgs::msg::dds_::PoseStamped_` and
-//!   `rt/PSM1/compensated/jaw/measured_js` as `sensor_msgs::msg::dds_::JointState_` from
+//!   `rt/PSM1/compensated/jaw/measured_js` as `sensor_msgs::msg::dds_::JointState_` and
+//!   `rt/PSM1/compensated/[local/]measured_cp_with_covariance` as
+//!   `geometry_msgs::msg::dds_::PoseWithCovarianceStamped_` from
 //!   `dvrk-sidecar ros2-bridge`, on loopback only, in a DDS domain of its own, with ROS 2's
 //!   default subscriber QoS (reliable, keep last 10, volatile) unless a test says otherwise;
 //! - one `ros2-bridge --config FILE` and one `record --config FILE` carry both arms of a
