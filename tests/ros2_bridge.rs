@@ -1,7 +1,9 @@
 //! The ROS 2 bridge and the MCAP recorder against independent clients:
 //! - Cyclone DDS (the `cyclonedds` Python package, the DDS of ROS 2's rmw_cyclonedds) reads
 //!   `rt/PSM1/compensated/local/measured_cp` as `geometry_msgs::msg::dds_::PoseStamped_` and
-//!   `rt/PSM1/compensated/jaw/measured_js` as `sensor_msgs::msg::dds_::JointState_` from
+//!   `rt/PSM1/compensated/jaw/measured_js` as `sensor_msgs::msg::dds_::JointState_` and
+//!   `rt/PSM1/compensated/[local/]measured_cp_with_covariance` as
+//!   `geometry_msgs::msg::dds_::PoseWithCovarianceStamped_` from
 //!   `dvrk-sidecar ros2-bridge`, on loopback only, in a DDS domain of its own, with ROS 2's
 //!   default subscriber QoS (reliable, keep last 10, volatile) unless a test says otherwise;
 //! - one `ros2-bridge --config FILE` and one `record --config FILE` carry both arms of a
@@ -442,7 +444,7 @@ fn cyclone_dds_reads_the_compensated_pose_and_jaw_as_echo_shows_them() {
     // Best effort over UDP: a reader that is starved of CPU misses samples
     // (seen here: 0-30 % of them with the tests of this file in parallel at load 7 on 2 cores),
     // so delivery is not asserted here (the reliable test does). What is asserted: the bridge
-    // wrote all five topics of every cycle it took, and lost none in shared memory.
+    // wrote all seven topics of every cycle it took, and lost none in shared memory.
     let missing = missing.len();
     eprintln!("best effort: {missing} of {span} cycles missed by the DDS reader");
     let all = summaries(&log, "ros2-bridge");
@@ -452,12 +454,12 @@ fn cyclone_dds_reads_the_compensated_pose_and_jaw_as_echo_shows_them() {
     // A best-effort writer never waits for acknowledgements.
     assert_eq!(s.dropped, 0, "{s:?}");
     if s.lost == 0 {
-        assert_eq!(s.written, 5 * s.cycles, "{s:?}");
+        assert_eq!(s.written, 7 * s.cycles, "{s:?}");
     } else {
         // The bridge fell behind by more than the shared-memory buffer (a debug build on a
         // loaded machine) and says so; the topics then lose about the same cycles.
         eprintln!("the bridge lost cycles in shared memory: {s:?}");
-        assert!(s.written.abs_diff(5 * s.cycles) <= 5 * s.lost, "{s:?}");
+        assert!(s.written.abs_diff(7 * s.cycles) <= 7 * s.lost, "{s:?}");
     }
 }
 
@@ -480,6 +482,238 @@ fn cyclone_dds_reliable_receives_every_cycle() {
         missing.len() as u64 <= lost,
         "cycles echo saw that the DDS reader did not ({lost} lost in shared memory): {missing:?}\nros2-bridge: {log}"
     );
+}
+
+/// `chi2_3(0.95)`, the 95% quantile of the chi-squared distribution with 3 degrees of freedom
+/// (computed for this test by bisection of its CDF, erf(sqrt(x/2)) - sqrt(2x/pi) e^(-x/2), with
+/// Python's math.erf): the covariance's position variance is (tip_bound_m / sqrt of it)².
+const CHI2_3_95: f64 = 7.814_727_903_251_173;
+
+/// Relative difference, for the covariance's 1e-12 check.
+fn rel_diff(a: f64, b: f64) -> f64 {
+    if a == b {
+        0.0
+    } else {
+        (a - b).abs() / a.abs().max(b.abs())
+    }
+}
+
+/// Checks a `geometry_msgs/PoseWithCovariance` covariance (36 doubles, row-major) against the
+/// status of its cycle (echo's JSON of `compensated/status`): x, y, z variance
+/// (tip_bound_m / sqrt(chi2_3(0.95)))², rotation variance (|bound_rad| / sqrt(chi2_3(0.95)))²,
+/// both within 1e-12 relative, every other element 0. Returns the position variance.
+fn check_covariance(cov: &[f64], status: &Value, what: &str) -> f64 {
+    assert_eq!(cov.len(), 36, "{what}: {cov:?}");
+    let tip = status["tip_bound_m"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{what}: published for a status without a bound: {status}"));
+    let b = f64s(&status["bound_rad"]);
+    let pos = (tip / CHI2_3_95.sqrt()).powi(2);
+    let rot = (b[0].hypot(b[1]) / CHI2_3_95.sqrt()).powi(2);
+    for r in 0..6 {
+        for c in 0..6 {
+            let got = cov[r * 6 + c];
+            if r != c {
+                assert_eq!(got, 0.0, "{what}: element ({r}, {c})");
+            } else {
+                let want = if r < 3 { pos } else { rot };
+                assert!(
+                    rel_diff(got, want) <= 1e-12,
+                    "{what}: variance ({r}, {r}) {got:e}, the status's bound gives {want:e} \
+                     (tip_bound_m {tip:e}, bound_rad {b:?})"
+                );
+            }
+        }
+    }
+    pos
+}
+
+/// Issue 20 item 5: `/PSM1/compensated/measured_cp_with_covariance` and its `local/` variant,
+/// read by Cyclone DDS as `geometry_msgs::msg::dds_::PoseWithCovarianceStamped_` from a bridge at
+/// its default rate: each carries the pose of `compensated/measured_cp` (or `local/`) of the
+/// same stamp, in the same frame, for the same decimated cycles, and the covariance of the 95%
+/// bounds of the status of that same cycle, as echo shows them from shared memory.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn cyclone_dds_reads_the_pose_with_the_covariance_of_its_cycle() {
+    if !require_python(&["cyclonedds"]) {
+        return;
+    }
+    let test = "ros2-cov";
+    let prefix = unique_prefix(test);
+    let cfg = write_config(test, "sim", "shared", &prefix, "divot-push.toml");
+    // The simulator's fitted parameters: the correction engages in the push and the bound moves
+    // from cycle to cycle (a pairing with the wrong cycle's status shows).
+    let text = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("paper-psm.toml", "sim-psm.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let mut serve = serve(&cfg);
+    let domain = unique_domain() + 4;
+    let uri = cyclone_uri(&scratch(test));
+    let domain_s = domain.to_string();
+    // A base frame id of its own, so that the frames of measured_cp and local/ differ.
+    let mut bridge = bridge_proc(
+        &[
+            "--prefix",
+            "PSM1",
+            "--shm-prefix",
+            &prefix,
+            "--base-frame-id",
+            "ECM",
+            "--domain",
+            &domain_s,
+            "--interface",
+            "127.0.0.1",
+        ],
+        None,
+    );
+    // 100 Hz by default: 150 samples are 1.5 s, which 4500 cycles of echo (3 s) cover.
+    let echo_st = echo_in_background(format!("{prefix}/compensated/status"), 4500);
+    let echo_base = echo_in_background(format!("{prefix}/compensated/measured_cp"), 4500);
+    let cov_topics = [
+        "rt/PSM1/compensated/measured_cp_with_covariance",
+        "rt/PSM1/compensated/local/measured_cp_with_covariance",
+    ];
+    let pose_topics = [
+        "rt/PSM1/compensated/measured_cp",
+        "rt/PSM1/compensated/local/measured_cp",
+    ];
+    let q = ReaderQos {
+        depth: 1000,
+        ..ReaderQos::ROS2_DEFAULT
+    };
+    let (mut rc, rx_c) = cyclone_reader(&uri, domain, &cov_topics, "pose-cov", 150, q, 60);
+    let (mut rp, rx_p) = cyclone_reader(&uri, domain, &pose_topics, "pose", 150, q, 60);
+    let covs = collect(
+        &mut rc,
+        &rx_c,
+        "the Cyclone DDS PoseWithCovarianceStamped reader",
+    );
+    let poses = collect(&mut rp, &rx_p, "the Cyclone DDS PoseStamped reader");
+    let echo_st = echo_st.recv().unwrap();
+    let echo_base = echo_base.recv().unwrap();
+    let (st, log) = bridge.terminate();
+    assert!(st.success(), "ros2-bridge exited with {st}: {log}");
+    let (st, slog) = serve.terminate();
+    assert!(st.success(), "serve exited with {st}: {slog}");
+
+    let by_stamp = |v: &[Value]| -> BTreeMap<i64, Value> {
+        v.iter()
+            .map(|e| {
+                (
+                    e["header"]["sample_realtime_ns"].as_i64().unwrap(),
+                    e.clone(),
+                )
+            })
+            .collect()
+    };
+    let (status_at, base_at) = (by_stamp(&echo_st), by_stamp(&echo_base));
+    let status_of_seq: BTreeMap<u64, &Value> = echo_st
+        .iter()
+        .map(|e| (e["header"]["seq"].as_u64().unwrap(), e))
+        .collect();
+    // Samples whose bound differs from both neighbouring cycles' (where echo has them).
+    let mut telling = 0;
+    for ((cov_topic, pose_topic), frame) in
+        cov_topics.iter().zip(pose_topics).zip(["ECM", "PSM1_base"])
+    {
+        let with = of_topic(&covs, cov_topic);
+        let plain = of_topic(&poses, pose_topic);
+        assert_eq!(with.len(), 150, "{cov_topic}");
+        let plain_at: BTreeMap<i64, &Value> =
+            plain.iter().map(|p| (stamp_ns(&p["header"]), *p)).collect();
+        let with_at: BTreeMap<i64, &Value> =
+            with.iter().map(|p| (stamp_ns(&p["header"]), *p)).collect();
+        let (mut vs_status, mut vs_dds, mut vs_echo) = (0, 0, 0);
+        for c in &with {
+            assert_eq!(c["header"]["frame_id"], frame, "{cov_topic}: {c}");
+            let t = stamp_ns(&c["header"]);
+            // The pose of the same stamp on the plain topic, as the other reader received it.
+            if let Some(p) = plain_at.get(&t) {
+                assert_eq!(p["header"], c["header"], "{cov_topic}");
+                assert_eq!(
+                    f64s(&c["position"]),
+                    f64s(&p["position"]),
+                    "{cov_topic} at {t}"
+                );
+                assert_eq!(
+                    f64s(&c["orientation_xyzw"]),
+                    f64s(&p["orientation_xyzw"]),
+                    "{cov_topic} at {t}"
+                );
+                vs_dds += 1;
+            }
+            // measured_cp of the same stamp in shared memory.
+            if frame == "ECM"
+                && let Some(e) = base_at.get(&t)
+            {
+                assert_eq!(f64s(&c["position"]), f64s(&e["position_m"]), "at {t}");
+                assert_eq!(
+                    f64s(&c["orientation_xyzw"]),
+                    f64s(&e["orientation_xyzw"]),
+                    "at {t}"
+                );
+                vs_echo += 1;
+            }
+            // The covariance of the status of the same cycle.
+            if let Some(s) = status_at.get(&t) {
+                check_covariance(&f64s(&c["covariance"]), s, cov_topic);
+                let seq = s["header"]["seq"].as_u64().unwrap();
+                let own = &s["tip_bound_m"];
+                let n =
+                    [seq - 1, seq + 1].map(|q| status_of_seq.get(&q).map(|n| &n["tip_bound_m"]));
+                telling += usize::from(n.iter().all(|b| b.is_some_and(|b| b != own)));
+                vs_status += 1;
+            }
+        }
+        eprintln!(
+            "{cov_topic}: {vs_status} compared with the status, {vs_dds} with {pose_topic}, \
+             {vs_echo} with echo's measured_cp"
+        );
+        assert!(
+            vs_status >= 50,
+            "{cov_topic}: only {vs_status} stamps in echo's status"
+        );
+        assert!(
+            vs_dds >= 50,
+            "{cov_topic}: only {vs_dds} stamps also on {pose_topic}"
+        );
+        if frame == "ECM" {
+            assert!(vs_echo >= 50, "only {vs_echo} stamps in echo's measured_cp");
+        }
+        // Same decimated cycles as the pose: over the span both readers covered, the same stamps.
+        let lo = *with_at
+            .keys()
+            .next()
+            .unwrap()
+            .max(plain_at.keys().next().unwrap());
+        let hi = *with_at
+            .keys()
+            .next_back()
+            .unwrap()
+            .min(plain_at.keys().next_back().unwrap());
+        let a: Vec<&i64> = with_at.range(lo..=hi).map(|(t, _)| t).collect();
+        let b: Vec<&i64> = plain_at.range(lo..=hi).map(|(t, _)| t).collect();
+        assert_eq!(a, b, "{cov_topic} and {pose_topic}: not the same cycles");
+        assert!(a.len() >= 50, "{cov_topic}: only {} common stamps", a.len());
+    }
+    // The bound moves from cycle to cycle: a covariance taken from a neighbouring cycle's
+    // status would have failed above.
+    assert!(
+        telling >= 50,
+        "only {telling} samples whose bound differs from the neighbouring cycles': the test \
+         cannot tell the cycles apart"
+    );
+    let s = summaries(&log, "ros2-bridge")["PSM1"];
+    // Seven topics per cycle: none went without its covariance, none was lost.
+    if s.lost == 0 {
+        assert_eq!(s.written, 7 * s.cycles, "{s:?}: {log}");
+    }
+    assert!(!log.contains("without their covariance"), "{log}");
 }
 
 #[cfg_attr(
@@ -544,7 +778,9 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         [
             "/PSM1/compensated/jaw/measured_js",
             "/PSM1/compensated/local/measured_cp",
+            "/PSM1/compensated/local/measured_cp_with_covariance",
             "/PSM1/compensated/measured_cp",
+            "/PSM1/compensated/measured_cp_with_covariance",
             "/PSM1/compensated/measured_js",
             "/PSM1/compensated/status",
             "/PSM1/jaw/measured_js",
@@ -623,6 +859,10 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
         per_topic["/PSM1/compensated/measured_js"][0]["schema"],
         "sensor_msgs/msg/JointState"
     );
+    assert_eq!(
+        per_topic["/PSM1/compensated/measured_cp_with_covariance"][0]["schema"],
+        "geometry_msgs/msg/PoseWithCovarianceStamped"
+    );
 
     let by_seq = |echo: &[Value]| -> BTreeMap<u64, Value> {
         echo.iter()
@@ -662,6 +902,19 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
             let p = &base["pose"]["position"];
             let pos = ["x", "y", "z"].map(|k| p[k].as_f64().unwrap());
             assert_eq!(pos.to_vec(), f64s(&eb["position_m"]), "seq {seq}");
+        }
+
+        // The poses with covariance: the pose of the same cycle in the same frame, and the
+        // covariance of the bounds of the status of the same cycle.
+        for (with, plain) in [
+            ("/PSM1/compensated/local/measured_cp_with_covariance", msg),
+            ("/PSM1/compensated/measured_cp_with_covariance", base),
+        ] {
+            let c = at(with);
+            assert_eq!(c["header"], plain["header"], "{with} seq {seq}");
+            assert_eq!(c["pose"]["pose"], plain["pose"], "{with} seq {seq}");
+            let cov = f64s(&c["pose"]["covariance"]);
+            check_covariance(&cov, &stt[&seq], with);
         }
 
         let e = &js[&seq];
@@ -799,7 +1052,7 @@ fn record_follows_a_restarted_serve() {
             .or_default()
             .push(m["sequence"].as_u64().unwrap());
     }
-    assert_eq!(per_topic.len(), 9, "{rec_log}");
+    assert_eq!(per_topic.len(), 11, "{rec_log}");
     for (t, seqs) in &per_topic {
         // The second serve counts from 1 again: the recording goes on after the drop.
         let drop = seqs
@@ -968,8 +1221,8 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
     let all = summaries(&log, "ros2-bridge");
     assert_eq!(all.keys().collect::<Vec<_>>(), ["PSM1", "PSM2"], "{log}");
     for (arm, s) in &all {
-        // Decimated to 100 Hz: the five topics of about 1 in 15 cycles.
-        assert!(s.cycles >= 200 && s.written == 5 * s.cycles, "{arm}: {s:?}");
+        // Decimated to 100 Hz: the seven topics of about 1 in 15 cycles.
+        assert!(s.cycles >= 200 && s.written == 7 * s.cycles, "{arm}: {s:?}");
         assert_eq!(s.dropped, 0, "{arm}: {s:?}");
     }
 }
@@ -1107,7 +1360,9 @@ fn record_config_records_both_arms() {
     let suffixes = [
         "compensated/jaw/measured_js",
         "compensated/local/measured_cp",
+        "compensated/local/measured_cp_with_covariance",
         "compensated/measured_cp",
+        "compensated/measured_cp_with_covariance",
         "compensated/measured_js",
         "compensated/status",
         "jaw/measured_js",
@@ -1135,7 +1390,7 @@ fn record_config_records_both_arms() {
                 missing_cycles(&seqs),
                 s.lost
             );
-            if suffix.ends_with("local/measured_cp") {
+            if suffix.contains("local/measured_cp") {
                 assert_eq!(v[0]["msg"]["header"]["frame_id"], format!("{arm}_base"));
             }
         }

@@ -6,8 +6,11 @@ The IDL types are declared here from the ROS 2 message definitions, with the DDS
 ROS 2 rmw layers register (`geometry_msgs::msg::dds_::PoseStamped_`), so a match proves that a
 ROS 2 node would receive them.
 
+Types: pose (geometry_msgs/PoseStamped), pose-cov (geometry_msgs/PoseWithCovarianceStamped: the
+pose, then "covariance", its 36 doubles row-major), joints (sensor_msgs/JointState).
+
 Usage: cyclone_reader.py --domain N --topic rt/PSM1/compensated/local/measured_cp [--topic ...]
-                         --type pose|joints --count K --timeout-s T
+                         --type pose|pose-cov|joints --count K --timeout-s T
                          [--reliability reliable|best-effort] [--durability volatile|transient-local]
                          [--depth D]
 The QoS is by default ROS 2's default subscriber profile: RELIABLE, KEEP_LAST 10, VOLATILE.
@@ -24,7 +27,7 @@ from dataclasses import dataclass
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float64, int32, sequence, uint32
+from cyclonedds.idl.types import array, float64, int32, sequence, uint32
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
@@ -70,6 +73,19 @@ class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
 
 
 @dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose
+    covariance: array[float64, 36]
+
+
+@dataclass
+class PoseWithCovarianceStamped(IdlStruct,
+                                typename="geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"):
+    header: Header
+    pose: PoseWithCovariance
+
+
+@dataclass
 class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
     header: Header
     name: sequence[str]
@@ -85,6 +101,11 @@ def to_json(kind, s):
         p, q = s.pose.position, s.pose.orientation
         return {"header": h, "position": [p.x, p.y, p.z],
                 "orientation_xyzw": [q.x, q.y, q.z, q.w]}
+    if kind == "pose-cov":
+        p, q = s.pose.pose.position, s.pose.pose.orientation
+        return {"header": h, "position": [p.x, p.y, p.z],
+                "orientation_xyzw": [q.x, q.y, q.z, q.w],
+                "covariance": list(s.pose.covariance)}
     return {"header": h, "name": list(s.name), "position": list(s.position),
             "velocity": list(s.velocity), "effort": list(s.effort)}
 
@@ -93,7 +114,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--domain", type=int, required=True)
     ap.add_argument("--topic", action="append", required=True)
-    ap.add_argument("--type", choices=["pose", "joints"], required=True)
+    ap.add_argument("--type", choices=["pose", "pose-cov", "joints"], required=True)
     ap.add_argument("--count", type=int, required=True)
     ap.add_argument("--timeout-s", type=float, default=30.0)
     ap.add_argument("--reliability", choices=["reliable", "best-effort"], default="reliable")
@@ -104,7 +125,8 @@ def main():
     a = ap.parse_args()
 
     dp = DomainParticipant(a.domain)
-    ty = PoseStamped if a.type == "pose" else JointState
+    ty = {"pose": PoseStamped, "pose-cov": PoseWithCovarianceStamped,
+          "joints": JointState}[a.type]
     rel = (Policy.Reliability.Reliable(duration(milliseconds=100)) if a.reliability == "reliable"
            else Policy.Reliability.BestEffort)
     dur = (Policy.Durability.TransientLocal if a.durability == "transient-local"

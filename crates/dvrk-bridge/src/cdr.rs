@@ -162,6 +162,23 @@ pub fn pose_stamped(
     }
 }
 
+/// `geometry_msgs/PoseWithCovarianceStamped`: header, pose as in [`pose_stamped`], then the
+/// `float64[36]` covariance (row-major 6x6: x, y, z, then rotation about X, Y, Z). A fixed-size
+/// array has no length in CDR: the 36 doubles follow the pose, already aligned to 8.
+pub fn pose_with_covariance_stamped(
+    w: &mut CdrWriter,
+    stamp: RosTime,
+    frame_id: &str,
+    position: &[f64; 3],
+    orientation_xyzw: &[f64; 4],
+    covariance: &[f64; 36],
+) {
+    pose_stamped(w, stamp, frame_id, position, orientation_xyzw);
+    for &x in covariance {
+        w.f64(x);
+    }
+}
+
 /// `sensor_msgs/JointState`: header, names, and position, velocity, effort of the same length.
 pub fn joint_state(
     w: &mut CdrWriter,
@@ -228,6 +245,52 @@ mod tests {
         assert_eq!(&b[22..24], &[0, 0]);
         assert_eq!(&b[24..32], &1.0f64.to_le_bytes());
         assert_eq!(&b[72..80], &1.0f64.to_le_bytes());
+    }
+
+    #[test]
+    fn pose_with_covariance_stamped_has_the_layout_of_the_idl() {
+        let mut w = CdrWriter::new();
+        let mut cov = [0.0; 36];
+        for (i, c) in cov.iter_mut().enumerate() {
+            *c = i as f64 + 0.5;
+        }
+        // A frame id that leaves the body unaligned: the pose's first double starts on 8.
+        pose_with_covariance_stamped(
+            &mut w,
+            RosTime { sec: 7, nanosec: 9 },
+            "PSM1",
+            &[1.0, 2.0, 3.0],
+            &[0.0, 0.0, 0.0, 1.0],
+            &cov,
+        );
+        let b = w.body();
+        // sec, nanosec, length 5 + "PSM1\0" = 17 bytes, padded to 24; 7 doubles of pose, then
+        // 36 of covariance with no length in front.
+        assert_eq!(b.len(), 24 + 7 * 8 + 36 * 8);
+        assert_eq!(&b[8..12], &5u32.to_le_bytes());
+        assert_eq!(&b[12..17], b"PSM1\0");
+        assert_eq!(&b[17..24], &[0; 7]);
+        assert_eq!(&b[24..32], &1.0f64.to_le_bytes());
+        assert_eq!(&b[48..56], &0.0f64.to_le_bytes());
+        assert_eq!(&b[72..80], &1.0f64.to_le_bytes());
+        for i in 0..36 {
+            let at = 80 + 8 * i;
+            assert_eq!(
+                &b[at..at + 8],
+                &(i as f64 + 0.5).to_le_bytes(),
+                "element {i}"
+            );
+        }
+        // The same as a PoseStamped followed by the array.
+        let mut p = CdrWriter::new();
+        pose_stamped(
+            &mut p,
+            RosTime { sec: 7, nanosec: 9 },
+            "PSM1",
+            &[1.0, 2.0, 3.0],
+            &[0.0, 0.0, 0.0, 1.0],
+        );
+        assert_eq!(&b[..p.body().len()], p.body());
     }
 
     #[test]

@@ -17,7 +17,7 @@ use rustdds::{
     RepresentationIdentifier, StatusEvented, TopicKind,
 };
 
-use crate::convert::{Encoder, OutTopic};
+use crate::convert::{Encoder, OutTopic, PoseCovariance};
 use crate::error::BridgeError;
 use crate::source::Sink;
 
@@ -263,6 +263,16 @@ impl DdsSink {
 impl Sink for DdsSink {
     fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
         self.encoder.pose(topic, p);
+        self.write(Self::index(topic))
+    }
+
+    fn pose_with_covariance(
+        &mut self,
+        topic: OutTopic,
+        p: &PoseV2,
+        cov: &PoseCovariance,
+    ) -> Result<(), BridgeError> {
+        self.encoder.pose_with_covariance(topic, p, cov);
         self.write(Self::index(topic))
     }
 

@@ -6,7 +6,11 @@
 //!
 //! - [`run_ros2_bridge`] publishes DDS topics that a ROS 2 node sees as
 //!   `/PSM1/compensated/local/measured_cp` and `/PSM1/compensated/measured_cp`
-//!   (`geometry_msgs/PoseStamped`), `/PSM1/compensated/measured_js` (6 joints) and
+//!   (`geometry_msgs/PoseStamped`), the same poses with the covariance of their error beside
+//!   them, `/PSM1/compensated/local/measured_cp_with_covariance` and
+//!   `/PSM1/compensated/measured_cp_with_covariance` (`geometry_msgs/PoseWithCovarianceStamped`,
+//!   from the 95% bounds of the cycle's status, see [`PoseCovariance`]),
+//!   `/PSM1/compensated/measured_js` (6 joints) and
 //!   `/PSM1/compensated/jaw/measured_js` (`sensor_msgs/JointState`), and
 //!   `/PSM1/compensated/status` (`dvrk_sidecar_msgs/CompensationStatus`, see [`msgdefs`]; the ROS 2
 //!   interface package is in `ros2/dvrk_sidecar_msgs` for a colcon workspace), for each arm, with
@@ -21,7 +25,9 @@
 //! sidecar's topic of the same name (`compensated/measured_cp` is in the base frame the sidecar
 //! is configured with, `compensated/local/measured_cp` in the RCM frame), and the stamps are the
 //! headers' `sample_realtime_ns` (ROS time, read by the sidecar with the sample). Poses and
-//! joints of invalid cycles (`valid = 0`) are not published; the status of every cycle is.
+//! joints of invalid cycles (`valid = 0`) are not published; the status of every cycle is. A
+//! pose with covariance is published with its pose, from the status of the same cycle, when
+//! that status carries a finite bound (never NaN: before the first valid sample it carries none).
 
 pub mod cdr;
 pub mod console;
@@ -36,7 +42,7 @@ pub mod source;
 
 use std::path::PathBuf;
 
-pub use convert::{ArmFrames, Decimator, Encoder, OutTopic, ros_time};
+pub use convert::{ArmFrames, CHI2_3_95, Decimator, Encoder, OutTopic, PoseCovariance, ros_time};
 pub use dds::{DdsOptions, DdsParticipant, DdsSink, IncompatibleReaders, QosProfile};
 pub use error::BridgeError;
 pub use record::McapSink;

@@ -55,6 +55,28 @@ pub const POSE_STAMPED: MsgType = MsgType {
     ),
 };
 
+/// `geometry_msgs/PoseWithCovarianceStamped`: the compensated pose with the covariance of its
+/// error (see [`crate::convert::PoseCovariance`]).
+pub const POSE_WITH_COVARIANCE_STAMPED: MsgType = MsgType {
+    ros_name: "geometry_msgs/msg/PoseWithCovarianceStamped",
+    dds_name: "geometry_msgs::msg::dds_::PoseWithCovarianceStamped_",
+    schema: concat!(
+        "std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose\n",
+        sep!("std_msgs/Header"),
+        "builtin_interfaces/Time stamp\nstring frame_id\n",
+        sep!("builtin_interfaces/Time"),
+        "int32 sec\nuint32 nanosec\n",
+        sep!("geometry_msgs/PoseWithCovariance"),
+        "geometry_msgs/Pose pose\nfloat64[36] covariance\n",
+        sep!("geometry_msgs/Pose"),
+        "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+        sep!("geometry_msgs/Point"),
+        "float64 x\nfloat64 y\nfloat64 z\n",
+        sep!("geometry_msgs/Quaternion"),
+        "float64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"
+    ),
+};
+
 /// `sensor_msgs/JointState`.
 pub const JOINT_STATE: MsgType = MsgType {
     ros_name: "sensor_msgs/msg/JointState",
@@ -114,15 +136,42 @@ mod tests {
 
     #[test]
     fn schemas_embed_the_shared_header_block() {
-        for t in [POSE_STAMPED, JOINT_STATE, COMPENSATION_STATUS] {
+        for t in [
+            POSE_STAMPED,
+            POSE_WITH_COVARIANCE_STAMPED,
+            JOINT_STATE,
+            COMPENSATION_STATUS,
+        ] {
             assert!(t.schema.contains(HEADER), "{}", t.ros_name);
             assert!(t.schema.starts_with("std_msgs/Header header\n") || t.schema.starts_with('#'));
         }
     }
 
     #[test]
+    fn the_pose_with_covariance_defines_the_pose_as_pose_stamped_does() {
+        let pose = |schema: &'static str| {
+            let at = schema.find("MSG: geometry_msgs/Pose\n").unwrap();
+            &schema[at..]
+        };
+        assert_eq!(
+            pose(POSE_WITH_COVARIANCE_STAMPED.schema),
+            pose(POSE_STAMPED.schema)
+        );
+        assert!(
+            POSE_WITH_COVARIANCE_STAMPED
+                .schema
+                .contains("MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n")
+        );
+    }
+
+    #[test]
     fn dds_names_follow_the_rmw_convention() {
-        for t in [POSE_STAMPED, JOINT_STATE, COMPENSATION_STATUS] {
+        for t in [
+            POSE_STAMPED,
+            POSE_WITH_COVARIANCE_STAMPED,
+            JOINT_STATE,
+            COMPENSATION_STATUS,
+        ] {
             let mut parts = t.ros_name.split('/');
             let (pkg, msg, ty) = (
                 parts.next().unwrap(),

@@ -257,6 +257,10 @@ impl McapSink {
                 a.encoder.pose(*t, p);
                 (*t, &p.header)
             }
+            Sample::PoseWithCovariance(t, p, cov) => {
+                a.encoder.pose_with_covariance(*t, p, cov);
+                (*t, &p.header)
+            }
             Sample::Joints(t, js) => {
                 a.encoder.joints(js);
                 (*t, &js.header)

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use dvrk_ipc::{CompensationStatusV4, JawStateV1, JointStateV2, PoseV2};
 
-use crate::convert::OutTopic;
+use crate::convert::{OutTopic, PoseCovariance};
 use crate::dds::{DdsOptions, DdsParticipant, IncompatibleReaders};
 use crate::error::BridgeError;
 use crate::record::McapSink;
@@ -101,6 +101,20 @@ fn join_arms<T>(
     }
 }
 
+/// Says, at the end of an arm's run, how many compensated poses went without their
+/// `..._with_covariance` message (a status without a finite bound while its pose was valid, or a
+/// status lost in shared memory); nothing when none did.
+fn log_covariance_skipped(what: &str, a: &ArmSpec, stats: &RunStats) {
+    if stats.covariance_skipped > 0 {
+        tracing::info!(
+            "{what}: {}: {} compensated poses published without their covariance (their \
+             cycle's status carried no finite bound, or was lost in shared memory)",
+            a.arm,
+            stats.covariance_skipped
+        );
+    }
+}
+
 /// Runs the ROS 2 bridge for every arm of `src` until `stop` is raised or an arm fails; reports
 /// each reader whose QoS does not match (once per reader and topic).
 pub fn run_ros2_bridge(
@@ -138,6 +152,7 @@ pub fn run_ros2_bridge(
                 };
                 let mut source = ShmSource::new(&a.shm_prefix, "dvrk-sidecar-ros2-bridge", false)?;
                 let stats = source.run(&mut sink, period, halt, None)?;
+                log_covariance_skipped("ros2-bridge", a, &stats);
                 Ok(ArmReport {
                     arm: a.arm.clone(),
                     shm_prefix: a.shm_prefix.clone(),
@@ -175,6 +190,14 @@ impl ToWriter {
 impl Sink for ToWriter {
     fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
         self.send(Sample::Pose(topic, *p))
+    }
+    fn pose_with_covariance(
+        &mut self,
+        topic: OutTopic,
+        p: &PoseV2,
+        cov: &PoseCovariance,
+    ) -> Result<(), BridgeError> {
+        self.send(Sample::PoseWithCovariance(topic, *p, *cov))
     }
     fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
         self.send(Sample::Joints(topic, *js))
@@ -235,6 +258,7 @@ pub fn run_record(
             move |a: &ArmSpec| {
                 let mut source = ShmSource::new(&a.shm_prefix, "dvrk-sidecar-record", raw)?;
                 let stats = source.run(&mut to_writer, period, halt, None)?;
+                log_covariance_skipped("record", a, &stats);
                 Ok((a, stats))
             }
         });

@@ -13,7 +13,7 @@ use dvrk_ipc::{
     Subscription, Topic, Update,
 };
 
-use crate::convert::{Decimator, OutTopic};
+use crate::convert::{Decimator, OutTopic, PoseCovariance};
 use crate::error::BridgeError;
 
 /// Where the samples go.
@@ -21,6 +21,16 @@ pub trait Sink {
     /// A pose of a valid cycle: `topic` is [`OutTopic::LocalMeasuredCp`] (RCM frame),
     /// [`OutTopic::MeasuredCp`] (base frame) or their raw counterparts.
     fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError>;
+    /// A compensated pose with the covariance of its error, from the status of the same cycle:
+    /// `topic` is [`OutTopic::LocalMeasuredCpWithCovariance`] or
+    /// [`OutTopic::MeasuredCpWithCovariance`]. Passed right after the pose itself, for the
+    /// same cycles (valid ones, kept by the same decimation) whose status carries a finite bound.
+    fn pose_with_covariance(
+        &mut self,
+        topic: OutTopic,
+        p: &PoseV2,
+        cov: &PoseCovariance,
+    ) -> Result<(), BridgeError>;
     /// Joints of a valid cycle: `topic` is [`OutTopic::MeasuredJs`] (compensated) or
     /// [`OutTopic::RawMeasuredJs`].
     fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError>;
@@ -35,6 +45,7 @@ pub trait Sink {
 #[derive(Debug, Clone, Copy)]
 pub enum Sample {
     Pose(OutTopic, PoseV2),
+    PoseWithCovariance(OutTopic, PoseV2, PoseCovariance),
     Joints(OutTopic, JointStateV2),
     Jaw(OutTopic, JawStateV1),
     Status(CompensationStatusV4),
@@ -45,6 +56,7 @@ impl Sample {
     pub fn deliver<K: Sink + ?Sized>(&self, sink: &mut K) -> Result<(), BridgeError> {
         match self {
             Sample::Pose(t, p) => sink.pose(*t, p),
+            Sample::PoseWithCovariance(t, p, c) => sink.pose_with_covariance(*t, p, c),
             Sample::Joints(t, js) => sink.joints(*t, js),
             Sample::Jaw(t, jaw) => sink.jaw(*t, jaw),
             Sample::Status(s) => sink.status(s),
@@ -65,6 +77,9 @@ pub struct RunStats {
     pub invalid_skipped: u64,
     /// Cycles left out by `--rate`.
     pub decimated: u64,
+    /// Compensated poses passed on without their `..._with_covariance` message: the status of
+    /// their cycle carried no finite bound, or was lost in shared memory.
+    pub covariance_skipped: u64,
     /// Cycles lost in shared memory before this process took them (its buffer overflowed
     /// because it fell behind by more than the subscriber buffer): the most of any of the three
     /// topics.
@@ -219,12 +234,35 @@ impl StateSubs {
     }
 
     /// Passes the released samples of the four topics to `sink`, poses first, through their
-    /// decimators `dec` (same order).
-    fn pass<K: Sink>(&mut self, out: &mut Outlet<'_>, dec: &mut [Decimator; 4], sink: &mut K) {
+    /// decimators `dec` (same order). A compensated pose is followed by its covariance variant,
+    /// from the status of the same cycle among `statuses` (the statuses waiting for release,
+    /// in seq order).
+    fn pass<K: Sink>(
+        &mut self,
+        out: &mut Outlet<'_>,
+        dec: &mut [Decimator; 4],
+        statuses: &[CompensationStatusV4],
+        sink: &mut K,
+    ) {
         let [t0, t1, t2, t3] = self.out;
         let [d0, d1, d2, d3] = dec;
-        out.pass(&mut self.local.items, d0, |p| sink.pose(t0, p));
-        out.pass(&mut self.base.items, d1, |p| sink.pose(t1, p));
+        let mut skipped = 0;
+        let mut pose = |t: OutTopic, p: &PoseV2| {
+            sink.pose(t, p)?;
+            let Some(tc) = t.with_covariance() else {
+                return Ok(());
+            };
+            match covariance_of(p, statuses) {
+                Some(cov) => sink.pose_with_covariance(tc, p, &cov),
+                None => {
+                    skipped += 1;
+                    Ok(())
+                }
+            }
+        };
+        out.pass(&mut self.local.items, d0, |p| pose(t0, p));
+        out.pass(&mut self.base.items, d1, |p| pose(t1, p));
+        out.stats.covariance_skipped += skipped;
         out.pass(&mut self.joints.items, d2, |js| sink.joints(t2, js));
         out.pass(&mut self.jaw.items, d3, |jaw| sink.jaw(t3, jaw));
     }
@@ -437,9 +475,10 @@ impl ShmSource {
                 stats: &mut stats,
                 err: &mut err,
             };
-            self.compensated.pass(&mut out, &mut dec_compensated, sink);
+            self.compensated
+                .pass(&mut out, &mut dec_compensated, &self.statuses, sink);
             if let Some(r) = &mut self.raw {
-                r.pass(&mut out, &mut dec_raw, sink);
+                r.pass(&mut out, &mut dec_raw, &self.statuses, sink);
             }
             release(&mut self.statuses, upto, |st| {
                 if err.is_some() {
@@ -466,6 +505,19 @@ impl ShmSource {
         }
         Ok(stats)
     }
+}
+
+/// The covariance of the pose `p` from the status of its cycle (same seq and sample time) among
+/// `statuses` (in seq order), if that status is there and carries a finite bound.
+fn covariance_of(p: &PoseV2, statuses: &[CompensationStatusV4]) -> Option<PoseCovariance> {
+    let i = statuses
+        .binary_search_by_key(&p.header.seq, |s| s.header.seq)
+        .ok()?;
+    let st = &statuses[i];
+    if st.header.sample_t_ns != p.header.sample_t_ns {
+        return None;
+    }
+    PoseCovariance::from_status(st)
 }
 
 /// Where the samples of one wake go once their cycle is complete: the cycle limit,
@@ -582,6 +634,21 @@ mod tests {
         fn pose(&mut self, topic: OutTopic, p: &PoseV2) -> Result<(), BridgeError> {
             self.add(topic, p.header.seq)
         }
+        fn pose_with_covariance(
+            &mut self,
+            topic: OutTopic,
+            p: &PoseV2,
+            cov: &PoseCovariance,
+        ) -> Result<(), BridgeError> {
+            // The test's statuses carry tip_bound_m = seq mm.
+            let want = PoseCovariance::from_status(&status_of(p.header.seq)).unwrap();
+            assert_eq!(
+                cov, &want,
+                "{topic:?} {}: not its cycle's bound",
+                p.header.seq
+            );
+            self.add(topic, p.header.seq)
+        }
         fn joints(&mut self, topic: OutTopic, js: &JointStateV2) -> Result<(), BridgeError> {
             self.add(topic, js.header.seq)
         }
@@ -612,6 +679,23 @@ mod tests {
         h.valid = 1;
         h.sample_t_ns = seq * 666_667;
         p.send_copy(m).unwrap();
+    }
+
+    /// The status the test sends for cycle `seq`: a bound of `seq` mm (`bound_rad` `seq` mrad
+    /// each), NaN for cycle 2 (a cycle without a usable bound).
+    fn status_of(seq: u64) -> CompensationStatusV4 {
+        let mut m = CompensationStatusV4::default();
+        m.header.seq = seq;
+        m.header.valid = 1;
+        m.header.sample_t_ns = seq * 666_667;
+        let b = if seq == 2 {
+            f64::NAN
+        } else {
+            seq as f64 * 1e-3
+        };
+        m.tip_bound_m = b;
+        m.bound_rad = [b; 2];
+        m
     }
 
     /// A publisher that can stop in the middle of a cycle, as `serve` can be seen doing by a
@@ -663,7 +747,7 @@ mod tests {
                 } else if let Some(p) = self.jaws.get(t) {
                     send(p, seq);
                 } else {
-                    send(&self.status, seq);
+                    self.status.send_copy(status_of(seq)).unwrap();
                 }
             }
             if notify {
@@ -692,25 +776,37 @@ mod tests {
             source.run(seen, None, &stop, Some(until)).unwrap()
         };
         let stats = run(&mut source, &mut seen);
+        // Every topic, and the two compensated poses with their covariance.
         assert_eq!(
             seen.0.len(),
-            n,
+            n + 2,
             "every topic reached the sink: {:?}",
             seen.0
         );
         for (topic, seqs) in &seen.0 {
-            assert_eq!(seqs, &[1, 2, 3], "{topic}: whole cycles only");
+            if topic.ends_with("WithCovariance") {
+                // Cycle 2's status has no finite bound: its poses go without covariance.
+                assert_eq!(seqs, &[1, 3], "{topic}: with their own cycle's bound only");
+            } else {
+                assert_eq!(seqs, &[1, 2, 3], "{topic}: whole cycles only");
+            }
         }
         assert_eq!(stats.cycles, 3);
         assert_eq!(stats.shm_seq_gaps, 0);
+        assert_eq!(stats.covariance_skipped, 2);
 
         // The rest of cycle 4 arrives: the next run passes it on, its pose included, on every
         // topic.
         publisher.send(4, 1, n, true);
         let stats = run(&mut source, &mut seen);
         for (topic, seqs) in &seen.0 {
-            assert_eq!(seqs, &[1, 2, 3, 4], "{topic}");
+            if topic.ends_with("WithCovariance") {
+                assert_eq!(seqs, &[1, 3, 4], "{topic}");
+            } else {
+                assert_eq!(seqs, &[1, 2, 3, 4], "{topic}");
+            }
         }
         assert_eq!(stats.cycles, 1);
+        assert_eq!(stats.covariance_skipped, 0);
     }
 }
