@@ -1378,8 +1378,10 @@ fn record_config_records_both_arms() {
     let all = summaries(&log, "record");
     for arm in ["PSM1", "PSM2"] {
         let s = all[arm];
-        // Every cycle by default: about 3000 in 2 s at 1.5 kHz.
-        assert!(s.cycles >= 300, "{arm}: {s:?}");
+        // Every cycle by default (not 100 Hz): the sequence numbers below have no gap but the
+        // cycles lost in shared memory. How many cycles 2 s hold depends on the machine's load
+        // (208 seen at load 5 on 2 cores), so only enough of them to judge is asked here.
+        assert!(s.cycles >= 50, "{arm}: {s:?}");
         for suffix in suffixes {
             let v = &per_topic[&format!("/{arm}/{suffix}")];
             let seqs: Vec<u64> = v.iter().map(|m| m["sequence"].as_u64().unwrap()).collect();
