@@ -198,9 +198,15 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
             before > 1.0,
             "the push deflects the shaft by millimetres: {before} mm"
         );
-        // 25% (was 20%): since issue 20 item 3 the divot also holds the distal weight, which
-        // this stateless evaluation (tau_ext = effort - tau_0, no dynamics model, one joint's
-        // position per row) counts as spring torque: joint 2 measured 20.6%.
+        eprintln!(
+            "divot joint {}: tip error {before:.3} mm -> {after:.3} mm ({:.1}%)",
+            j["index"],
+            100.0 * after / before
+        );
+        // 25% (was 20%) since issue 20 item 3 gave the simulated instrument a distal weight:
+        // joint 2 measured 20.6%. Modelling the weight in the stateless correction (the
+        // compensator's `tau_ext - G` with the file's distal_gravity) did not bring it down
+        // (21.4% with the dynamics fit's file), so the limit stays where the data puts it.
         assert!(
             after <= 0.25 * before,
             "joint {}: tip error {before} mm -> {after} mm",
