@@ -150,6 +150,7 @@ fn encoder_and_pot_disagreeing_beyond_tolerance_and_latency_publish_invalid_samp
     for s in &agree {
         assert_eq!(s["header"]["valid"], Value::Bool(true), "{s}");
         assert!(!flags(s).iter().any(|f| f == "IMPLAUSIBLE"), "{s}");
+        assert!(!flags(s).iter().any(|f| f == "POT_MISMATCH"), "{s}");
         assert_eq!(u(s, "implausible_total"), 0, "{s}");
     }
     let (st, log) = serve_agree.terminate();
@@ -183,6 +184,8 @@ fn encoder_and_pot_disagreeing_beyond_tolerance_and_latency_publish_invalid_samp
         assert_eq!(s["header"]["valid"], Value::Bool(false), "{s}");
         let f = flags(s);
         assert!(f.iter().any(|f| f == "IMPLAUSIBLE"), "{s}");
+        // ... and the reason is the pots: POT_MISMATCH, as the console's own check would say.
+        assert!(f.iter().any(|f| f == "POT_MISMATCH"), "{s}");
         assert!(f.iter().any(|f| f == "HELD"), "{s}");
         assert!(!f.iter().any(|f| f == "BOARD_TIMEOUT"), "{s}");
         assert_eq!(u(s, "read_failures_total"), 0, "{s}");

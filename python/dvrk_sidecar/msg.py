@@ -52,6 +52,7 @@ FLAG_NAMES = (
     "INSERTION_OUT_OF_RANGE",
     "STILL_ONLY",
     "REDUCED",
+    "POT_MISMATCH",
 )
 """Names of the bits of `Header.flags` (dvrk_ipc::flags), bit 0 first."""
 

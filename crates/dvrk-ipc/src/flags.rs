@@ -106,15 +106,20 @@ pub const STILL_ONLY: u32 = 1 << 27;
 /// Issue 20: the correction applied is less than the model's (evidence weight below 1).
 pub const REDUCED: u32 = 1 << 28;
 
+/// Issue 22: the sample was refused (with [`IMPLAUSIBLE`]) because a potentiometer and its
+/// encoder disagreed beyond the dVRK's tolerance for longer than its latency: an encoder may
+/// have slipped, the check the dVRK console itself relies on.
+pub const POT_MISMATCH: u32 = 1 << 29;
+
 /// Every defined bit.
-pub const ALL: u32 = (1 << 29) - 1;
+pub const ALL: u32 = (1 << 30) - 1;
 
 /// Bits that report a hardware or communication fault.
 pub const FAULT_MASK: u32 =
     BOARD_TIMEOUT | BOARD_ERROR | WATCHDOG_TIMEOUT | POWER_OFF | ENCODER_ERROR | AMP_FAULT;
 
 /// `(bit, name)` of every defined flag, in bit order (for printing; no allocation).
-pub const TABLE: [(u32, &str); 29] = [
+pub const TABLE: [(u32, &str); 30] = [
     (BOARD_TIMEOUT, "BOARD_TIMEOUT"),
     (BOARD_ERROR, "BOARD_ERROR"),
     (WATCHDOG_TIMEOUT, "WATCHDOG_TIMEOUT"),
@@ -144,6 +149,7 @@ pub const TABLE: [(u32, &str); 29] = [
     (INSERTION_OUT_OF_RANGE, "INSERTION_OUT_OF_RANGE"),
     (STILL_ONLY, "STILL_ONLY"),
     (REDUCED, "REDUCED"),
+    (POT_MISMATCH, "POT_MISMATCH"),
 ];
 
 /// Names of the bits set in `flags`, in bit order; reserved bits are skipped.

@@ -20,6 +20,9 @@ pub enum ReadOutcome {
     NoSource,
     /// The read succeeded but the sample failed a plausibility check.
     Implausible,
+    /// The read succeeded but a potentiometer and its encoder disagreed beyond the dVRK's
+    /// tolerance for longer than its latency (published `IMPLAUSIBLE | POT_MISMATCH`).
+    PotMismatch,
 }
 
 /// Everything computed in one cycle, before it is written into messages.
@@ -68,6 +71,7 @@ pub fn health_flags(s: &ArmSample, outcome: ReadOutcome) -> u32 {
         ReadOutcome::Error => f |= flags::BOARD_ERROR,
         ReadOutcome::NoSource => f |= flags::NO_SOURCE,
         ReadOutcome::Implausible => f |= flags::IMPLAUSIBLE,
+        ReadOutcome::PotMismatch => f |= flags::IMPLAUSIBLE | flags::POT_MISMATCH,
     }
     // Hardware bits mean something only for boards whose status was read: an unread board's
     // power bits are unknown, not off (its BOARD_TIMEOUT/BOARD_ERROR says why).

@@ -902,18 +902,23 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 .source
                 .pot_minus_encoder()
                 .map(|d| core::array::from_fn(|i| actuator_position[i] + d[i]));
-            if check
+            if let Some(e) = check
                 .check(s, &actuator_position, &amps, pots.as_ref())
-                .is_err()
+                .err()
             {
-                read = ReadOutcome::Implausible;
+                read = match e {
+                    dvrk_io::plausibility::Implausible::PotMismatch { .. } => {
+                        ReadOutcome::PotMismatch
+                    }
+                    _ => ReadOutcome::Implausible,
+                };
                 c.implausible += 1;
                 c.window_implausible += 1;
             }
         }
         if read == ReadOutcome::Ok {
             c.consecutive_read_failures = 0;
-        } else if read != ReadOutcome::Implausible {
+        } else if !matches!(read, ReadOutcome::Implausible | ReadOutcome::PotMismatch) {
             c.consecutive_read_failures += 1;
             c.read_failures += 1;
             c.window_read_failures += 1;
