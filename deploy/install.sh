@@ -433,20 +433,23 @@ else
         echo "added $account to the group dvrk (effective at its next login)"
     fi
     chgrp -R dvrk "$etc"
-    # Leftovers of another user lock the service out (iceoryx2 files are owner-only).
-    for f in /tmp/iceoryx2 /dev/shm/iox2_*; do
-        [ -e "$f" ] || continue
+    # The service keeps its iceoryx2 state in /tmp/dvrk-sidecar-<uid>/ (the account's own, 0700)
+    # and /dev/shm/dvrk_<uid>_*; it refuses to start when that directory belongs to another user
+    # (who could hide it from its consumers) or is a link. Say so now rather than at start.
+    uid="$(id -u "$account")"
+    for f in "/tmp/dvrk-sidecar-$uid" /dev/shm/dvrk_"${uid}"_*; do
+        [ -e "$f" ] || [ -L "$f" ] || continue
         owner="$(stat -c %U "$f")"
-        if [ "$owner" != "$account" ]; then
-            echo "WARNING: $f belongs to $owner, not to $account: the service cannot use it. When no"
-            echo "         program using iceoryx2 runs: sudo rm -rf /tmp/iceoryx2 /dev/shm/iox2_*"
+        if [ "$owner" != "$account" ] || [ -L "$f" ]; then
+            echo "WARNING: $f belongs to $owner, not to $account: the service refuses it. When no"
+            echo "         program using iceoryx2 runs: sudo rm -rf /tmp/dvrk-sidecar-$uid /dev/shm/dvrk_${uid}_*"
             break
         fi
     done
 fi
 
-# The check as the service's account, never as root: check-config creates iceoryx2's files
-# (/tmp/iceoryx2), and files made by root would lock the service out of them.
+# The check as the service's account, never as root: check-config creates the account's
+# iceoryx2 directory (/tmp/dvrk-sidecar-<uid>/), which must be the account's own.
 config_ok=1
 echo "checking $etc/sidecar.toml:"
 check=("$bin_path" check-config --config "$etc/sidecar.toml")

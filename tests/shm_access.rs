@@ -1,14 +1,20 @@
 //! A consumer running as another user than the publisher: iceoryx2 0.10 refuses it (owner-only
 //! modes), and dvrk-ipc must say so in words, naming the file and its owner, instead of
-//! iceoryx2's bare `NodeCreationFailure::InternalError`.
+//! iceoryx2's bare `NodeCreationFailure::InternalError`. The project's default domain: a
+//! consumer finds the service there, and `serve` refuses a directory another account owns.
 //!
 //! Real users, real shared memory: the test re-runs its own binary under `setpriv` as `nobody`
 //! (the publisher's side: it creates the domain and the cycle event service) and as an unnamed
 //! uid (the consumer). Needs root to switch users; ignored otherwise.
 
+mod common;
+
 use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::Duration;
+
+use common::{Proc, sidecar_bin, unique_prefix, write_config};
 
 use dvrk_ipc::iceoryx2::service::ipc::Service;
 use dvrk_ipc::{IpcError, ServiceNames, create_node, domain_config, open_cycle_event};
@@ -194,33 +200,157 @@ fn walk(dir: &std::path::Path) -> Vec<PathBuf> {
     out
 }
 
-/// `serve` refuses to publish into a shared-memory directory that another account created
-/// first (it could hide the service from its consumers), naming the owner and what to do, and
-/// starts once the directory is its own.
+/// `dvrk-sidecar CMD ARGS` with `DVRK_SIDECAR_IPC_ROOT` set to `root` (or removed for `None`,
+/// the default domain), stdout and stderr captured.
+fn sidecar(args: &[&str], root: Option<&Path>) -> Command {
+    let mut c = Command::new(sidecar_bin());
+    c.args(args)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    match root {
+        Some(r) => c.env(dvrk_ipc::IPC_ROOT_ENV, r),
+        None => c.env_remove(dvrk_ipc::IPC_ROOT_ENV),
+    };
+    c
+}
+
+/// `echo SERVICE --json --count N` in the domain of `root`: (exit status, stdout, stderr), or
+/// a failed test when it does not end within 60 s (a liveness bound, not a speed claim).
+fn echo(service: &str, count: u32, root: Option<&Path>) -> (ExitStatus, String, String) {
+    let mut p = Proc::spawn(
+        "echo",
+        &mut sidecar(
+            &["echo", service, "--json", "--count", &count.to_string()],
+            root,
+        ),
+    );
+    let mut out = p.child.as_mut().unwrap().stdout.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = std::io::Read::read_to_string(&mut out, &mut s);
+        s
+    });
+    let st = p
+        .wait_timeout(Duration::from_secs(60))
+        .unwrap_or_else(|| panic!("echo {service} did not end within 60 s"));
+    let err = p.stderr_text();
+    (st, reader.join().unwrap(), err)
+}
+
+/// The service on the built-in simulator, in the project's default domain (no
+/// `DVRK_SIDECAR_IPC_ROOT`), and a consumer started the same way, as another program of the
+/// account would be: the consumer finds it, and the domain's directory is the account's own
+/// (`/tmp/dvrk-sidecar-<euid>/`, not writable by others) with its segments under the project's
+/// prefix in /dev/shm.
+#[test]
+fn a_consumer_finds_the_service_in_the_default_domain() {
+    let prefix = unique_prefix("shm_default");
+    let cfg = write_config("shm_default", "sim", "shared", &prefix, "divot-push.toml");
+    let mut serve = Proc::spawn(
+        "serve",
+        &mut sidecar(&["serve", "--config", cfg.to_str().unwrap()], None),
+    );
+    let (st, out, err) = echo(&format!("{prefix}/measured_js"), 5, None);
+    let (serve_st, log) = serve.terminate();
+    assert!(st.success(), "echo failed: {err}\nserve: {log}");
+    let seqs: Vec<u64> = out
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["header"]["seq"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(seqs.len(), 5, "{out}");
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
+    assert!(serve_st.success(), "{log}");
+
+    // SAFETY: geteuid has no preconditions.
+    let uid = unsafe { libc::geteuid() };
+    let root = PathBuf::from(format!("/tmp/dvrk-sidecar-{uid}"));
+    let m = std::fs::symlink_metadata(&root).expect("the default root directory");
+    assert!(m.is_dir());
+    assert_eq!(std::os::unix::fs::MetadataExt::uid(&m), uid);
+    let mode = std::os::unix::fs::MetadataExt::mode(&m) & 0o7777;
+    assert_eq!(mode & 0o022, 0, "{} has mode {mode:04o}", root.display());
+    let ours = format!("dvrk_{uid}_");
+    let segments = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with(&ours))
+        .count();
+    assert!(segments > 0, "no /dev/shm/{ours}* segment");
+}
+
+/// `serve` refuses to start when its shared-memory directory (here moved with
+/// `DVRK_SIDECAR_IPC_ROOT`) belongs to another account, which could hide the service from its
+/// consumers: before creating anything there, naming the path, the owner, the mode and what
+/// to do; a consumer pointed there gets the same words. Once the directory is its own, the
+/// service starts there and a consumer with the same variable finds it.
 #[cfg_attr(
     not(has_root),
-    ignore = "needs root to give the directory to another user (chown)"
+    ignore = "skipped: needs root to give the directory to another account (chown to uid 65534)"
 )]
 #[test]
-fn the_service_refuses_a_domain_directory_another_account_created() {
-    let domain = format!("hs{}_", std::process::id());
-    cleanup(&domain);
-    let root = PathBuf::from(root_path(&domain));
-    std::fs::create_dir_all(&root).unwrap();
+fn serve_refuses_a_shared_memory_directory_another_account_owns() {
+    let root = PathBuf::from(format!("/tmp/iox2hs{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir(&root).unwrap();
+    std::fs::set_permissions(&root, std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
     std::os::unix::fs::chown(&root, Some(PUBLISHER_UID), Some(PUBLISHER_UID)).unwrap();
-    let cfg = domain_config(&domain, Some(&root_path(&domain))).unwrap();
-    let e = dvrk_ipc::access::refuse_domain_of_another(&cfg)
-        .expect_err("a directory of uid 65534 accepted for a service of uid 0")
-        .to_string();
+
+    let prefix = unique_prefix("shm_theirs");
+    let cfg = write_config("shm_theirs", "sim", "shared", &prefix, "divot-push.toml");
+    let serve_args = ["serve", "--config", cfg.to_str().unwrap()];
+    let mut refused = Proc::spawn("serve", &mut sidecar(&serve_args, Some(&root)));
+    let refused_st = refused.wait_timeout(Duration::from_secs(60));
+    let refused_log = refused.stderr_text();
+    let left: Vec<PathBuf> = walk(&root);
+    let (echo_st, _, echo_err) = echo(&format!("{prefix}/measured_js"), 1, Some(&root));
+
+    // Its own now: the service starts there, and a consumer told the same root finds it.
     std::os::unix::fs::chown(&root, Some(0), Some(0)).unwrap();
-    let ok = dvrk_ipc::access::refuse_domain_of_another(&cfg);
-    cleanup(&domain);
-    for needle in [
-        "belongs to user nobody",
-        "not to this service's account (root)",
-        "sudo rm -rf",
-    ] {
-        assert!(e.contains(needle), "{needle:?} missing from: {e}");
+    let mut serve = Proc::spawn("serve", &mut sidecar(&serve_args, Some(&root)));
+    let (st, out, err) = echo(&format!("{prefix}/measured_js"), 3, Some(&root));
+    let (serve_st, log) = serve.terminate();
+    let registered = walk(&root).len();
+    let _ = std::fs::remove_dir_all(&root);
+
+    let refused_st = refused_st.expect("serve did not stop within 60 s in a foreign directory");
+    assert!(
+        !refused_st.success(),
+        "serve started in a directory of uid {PUBLISHER_UID}"
+    );
+    let owner = "nobody";
+    for msg in [&refused_log, &echo_err] {
+        for needle in [
+            &format!(
+                "refusing the dVRK sidecar's shared-memory directory {}",
+                root.display()
+            ),
+            &format!(
+                "belongs to another account (owner {owner}, mode 0700; this process runs as root)"
+            ),
+            &format!("sudo -u {owner}"),
+            "sudo rm -rf",
+            dvrk_ipc::IPC_ROOT_ENV,
+        ] {
+            assert!(msg.contains(needle), "{needle:?} missing from: {msg}");
+        }
     }
-    assert!(ok.is_ok(), "its own directory refused: {ok:?}");
+    assert!(
+        !echo_st.success(),
+        "echo accepted the directory of uid {PUBLISHER_UID}"
+    );
+    assert!(left.is_empty(), "serve created files in it: {left:?}");
+    eprintln!("serve was refused with: {refused_log}");
+
+    assert!(
+        st.success(),
+        "echo in its own directory failed: {err}\nserve: {log}"
+    );
+    assert_eq!(out.lines().count(), 3, "{out}");
+    assert!(serve_st.success(), "{log}");
+    assert!(registered > 0, "nothing of iceoryx2 in {}", root.display());
 }

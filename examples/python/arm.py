@@ -43,8 +43,8 @@ def main(argv=None) -> int:
     parser.add_argument("--frame", default="local", choices=("local", "base"), help="RCM (local) or base frame")
     parser.add_argument("--wait", default="event", choices=dvrk_sidecar.WAIT_STRATEGIES, help="how to wait")
     parser.add_argument("--timeout-s", type=float, default=10.0, help="exit 2 after this long without a cycle")
-    parser.add_argument("--domain", help="iceoryx2 domain prefix (default: iceoryx2's iox2_)")
-    parser.add_argument("--root", help="iceoryx2 root path of the domain (default /tmp/iceoryx2/)")
+    parser.add_argument("--domain", help="iceoryx2 domain prefix (default: dvrk_<uid>_, where dvrk-sidecar serve publishes)")
+    parser.add_argument("--root", help="iceoryx2 root path of the domain (default $DVRK_SIDECAR_IPC_ROOT or /tmp/dvrk-sidecar-<uid>/)")
     args = parser.parse_args(argv)
     if args.count < 1:
         parser.error("--count must be at least 1")

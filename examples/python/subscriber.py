@@ -88,8 +88,8 @@ def main(argv=None) -> int:
         "--timeout-s", type=float, default=10.0, help="give up (exit 2) after this long without a sample"
     )
     parser.add_argument("--wait", default="event", choices=ipc.WAIT_STRATEGIES, help="how to wait (default event)")
-    parser.add_argument("--domain", help="iceoryx2 domain prefix (default: iceoryx2's iox2_)")
-    parser.add_argument("--root", help="iceoryx2 root path of the domain (default /tmp/iceoryx2/)")
+    parser.add_argument("--domain", help="iceoryx2 domain prefix (default: dvrk_<uid>_, where dvrk-sidecar serve publishes)")
+    parser.add_argument("--root", help="iceoryx2 root path of the domain (default $DVRK_SIDECAR_IPC_ROOT or /tmp/dvrk-sidecar-<uid>/)")
     args = parser.parse_args(argv)
     if args.count < 1:
         parser.error("--count must be at least 1")

@@ -262,7 +262,8 @@ class Arm(_ArmView):
         "spin" (poll, one whole core) or "predictive" (sleep until just before the next sample
         is due, then poll).
     domain, root: the iceoryx2 domain (file-name prefix, e.g. "t123_") and its root path (e.g.
-        "/tmp/iox2t/"); None for iceoryx2's defaults, where `dvrk-sidecar serve` publishes.
+        "/tmp/iox2t/"); None for the project's defaults (dvrk_<uid>_ under /tmp/dvrk-sidecar-<uid>/
+        or $DVRK_SIDECAR_IPC_ROOT), where `dvrk-sidecar serve` publishes.
     age, timeout: the getters' default `age` and `wait`, seconds.
     backend: "native" (the compiled module: waits with the GIL released, numpy views of one
         array per message), "pure" (iceoryx2's Python binding), or None: native when it

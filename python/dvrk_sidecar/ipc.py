@@ -6,9 +6,12 @@ DVRK_IPC_QOS_* in C, because whichever process creates a service first fixes its
 
 import collections
 import ctypes
+import errno
 import math
 import os
+import pwd
 import select
+import stat
 import time
 
 import iceoryx2 as iox2
@@ -69,28 +72,147 @@ class NoSample(DvrkSidecarError, TimeoutError):
     """No fresh sample arrived in time; the message says whether a publisher is connected."""
 
 
+IPC_ROOT_ENV = "DVRK_SIDECAR_IPC_ROOT"
+"""The environment variable that moves the default root path, as dvrk_ipc::IPC_ROOT_ENV."""
+
+
+def _check_root(root, what="root"):
+    if not isinstance(root, str) or not root.startswith("/") or len(root.encode()) > MAX_ROOT_PATH_LEN:
+        raise ConfigError(f"{what} {root!r}: must be an absolute path of at most {MAX_ROOT_PATH_LEN} bytes")
+    return root if root.endswith("/") else root + "/"
+
+
+def default_root() -> str:
+    """The root path of the project's default domain, as dvrk_ipc::default_root_path:
+    $DVRK_SIDECAR_IPC_ROOT when set, else /tmp/dvrk-sidecar-<euid>/ (one directory per account,
+    the same for every process of it, whatever its environment)."""
+    env = os.environ.get(IPC_ROOT_ENV)
+    if env is None:
+        return f"/tmp/dvrk-sidecar-{os.geteuid()}/"
+    return _check_root(env, IPC_ROOT_ENV)
+
+
+def default_domain_prefix() -> str:
+    """The file-name prefix of the project's default domain, as
+    dvrk_ipc::default_domain_prefix: dvrk_<euid>_."""
+    return f"dvrk_{os.geteuid()}_"
+
+
+def _resolve(domain, root):
+    """The (prefix, root path) of a domain: the project's defaults for None."""
+    if domain is None:
+        domain = default_domain_prefix()
+    ok = isinstance(domain, str) and all(c.isascii() and (c.isalnum() or c in "_-.") for c in domain)
+    if not domain or len(domain) > MAX_DOMAIN_PREFIX_LEN or not ok:
+        raise ConfigError(
+            f"domain {domain!r}: must be 1 to {MAX_DOMAIN_PREFIX_LEN} ASCII letters, digits, "
+            "'_', '-' or '.'"
+        )
+    return domain, (default_root() if root is None else _check_root(root))
+
+
 def domain_config(domain=None, root=None):
-    """iceoryx2's built-in defaults (no config file lookup, like dvrk_ipc::create_node), in the
-    isolated domain `domain` (the file-name prefix of its shared memory and its own service
-    namespace) under the root path `root` (default /tmp/iceoryx2/). Both None: the default
-    domain, where `dvrk-sidecar serve` publishes."""
+    """iceoryx2's built-in defaults (no config file lookup, like dvrk_ipc::create_node) in the
+    domain `domain` (the file-name prefix of its shared memory and its own service namespace)
+    under the root path `root`. None: the project's defaults (dvrk_<euid>_ under
+    /tmp/dvrk-sidecar-<euid>/ or $DVRK_SIDECAR_IPC_ROOT), where `dvrk-sidecar serve`
+    publishes."""
+    domain, root = _resolve(domain, root)
     cfg = iox2.config.default()
-    if domain is not None:
-        ok = all(c.isascii() and (c.isalnum() or c in "_-.") for c in domain)
-        if not domain or len(domain) > MAX_DOMAIN_PREFIX_LEN or not ok:
-            raise ConfigError(
-                f"domain {domain!r}: must be 1 to {MAX_DOMAIN_PREFIX_LEN} ASCII letters, digits, "
-                "'_', '-' or '.'"
-            )
-        cfg.global_cfg.prefix = iox2.FileName.new(domain)
-    if root is not None:
-        if not root.startswith("/") or len(root) > MAX_ROOT_PATH_LEN:
-            raise ConfigError(
-                f"root {root!r}: must be an absolute path of at most {MAX_ROOT_PATH_LEN} bytes"
-            )
-        cfg.global_cfg.root_path = iox2.Path.new(root if root.endswith("/") else root + "/")
+    cfg.global_cfg.prefix = iox2.FileName.new(domain)
+    cfg.global_cfg.root_path = iox2.Path.new(root)
     _leave_dead_nodes_to_the_sidecar(cfg)
     return cfg
+
+
+def _user_name(uid: int) -> str:
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return f"uid {uid}"
+
+
+def ensure_private_root(root: str) -> None:
+    """Makes the root directory `root` private to this account or refuses it, as
+    dvrk_ipc::access::ensure_private_root (same checks, same words): created 0700 if missing
+    (mkdir, then lstat: a symbolic link is never followed); OpenError when it is a symbolic
+    link, not a directory, another account's or writable by group or others, or when its parent
+    lets another account replace it (writable by a user other than root and this one, without
+    the sticky bit of /tmp)."""
+    me = os.geteuid()
+    path = root.rstrip("/") or "/"
+    parent = os.path.dirname(path)
+
+    def refuse(where, problem, st):
+        owner, me_name = _user_name(st.st_uid), _user_name(me)
+        if problem == "symlink":
+            what = "is a symbolic link"
+            fix = (
+                "iceoryx2 would follow it wherever it points, and whoever made it chooses where. "
+                f"Remove it when no program using iceoryx2 runs (sudo rm {where}), or set "
+                f"{IPC_ROOT_ENV} to a directory of this account's own"
+            )
+        elif problem == "not-a-directory":
+            what = "is not a directory"
+            fix = (
+                f"Remove it when no program using iceoryx2 runs (sudo rm {where}), or set "
+                f"{IPC_ROOT_ENV} to a directory of this account's own"
+            )
+        elif problem == "other-owner":
+            what = "belongs to another account"
+            fix = (
+                "The service and its consumers keep their iceoryx2 state where only their account "
+                f"can write. If {owner} runs the dVRK sidecar, run this program as {owner} "
+                f"(sudo -u {owner} ...); otherwise {owner} created it first and could hide the "
+                "service from its consumers: remove it when no program using iceoryx2 runs "
+                f"(sudo rm -rf {where}), or set {IPC_ROOT_ENV} to a directory of this account's own"
+            )
+        elif problem == "writable-by-others":
+            what = "is writable by group or others"
+            fix = (
+                "Another user could replace the service's discovery files and event sockets "
+                f"there: chmod 700 {where}"
+            )
+        else:
+            what = (
+                f"is the parent of {path}, and another account than root and {me_name} may write "
+                "it without the sticky bit, so it could replace that directory"
+            )
+            fix = f"Set {IPC_ROOT_ENV} to a path in /tmp, /run or a directory of this account's own"
+        return OpenError(
+            f"refusing the dVRK sidecar's shared-memory directory {where}: it {what} (owner "
+            f"{owner}, mode {stat.S_IMODE(st.st_mode):04o}; this process runs as {me_name}). {fix}"
+        )
+
+    if parent != path:
+        try:
+            st = os.stat(parent)
+        except OSError:
+            st = None
+        if st is not None:
+            others_may_write = st.st_mode & 0o022 and not st.st_mode & stat.S_ISVTX
+            if st.st_uid not in (0, me) or others_may_write:
+                raise refuse(parent, "unsafe-parent", st)
+    try:
+        try:
+            os.mkdir(path, 0o700)
+        except FileExistsError:
+            pass
+        st = os.lstat(path)
+    except OSError as e:
+        raise OpenError(
+            f"creating the dVRK sidecar's shared-memory directory {path} failed: "
+            f"{os.strerror(e.errno or errno.EIO)} (os error {e.errno}). Set {IPC_ROOT_ENV} to a "
+            f"directory this account may create (an absolute path of at most {MAX_ROOT_PATH_LEN} bytes)"
+        ) from None
+    if stat.S_ISLNK(st.st_mode):
+        raise refuse(path, "symlink", st)
+    if not stat.S_ISDIR(st.st_mode):
+        raise refuse(path, "not-a-directory", st)
+    if st.st_uid != me:
+        raise refuse(path, "other-owner", st)
+    if st.st_mode & 0o022:
+        raise refuse(path, "writable-by-others", st)
 
 
 def _leave_dead_nodes_to_the_sidecar(cfg) -> None:
@@ -127,6 +249,13 @@ def create_node(name, domain=None, root=None):
     unless IOX2_LOG_LEVEL says otherwise (its failures come back here as exceptions)."""
     iox2.set_log_level_from_env_or(iox2.LogLevel.Fatal)
     config = domain_config(domain, root)
+    _, root_path = _resolve(domain, root)
+    if root_path == default_root():
+        try:
+            ensure_private_root(root_path)
+        except OpenError as e:
+            where = f"domain {domain!r}" if domain else "the default domain"
+            raise OpenError(f"creating an iceoryx2 node in {where}: {e}") from None
     try:
         return (
             iox2.NodeBuilder.new()

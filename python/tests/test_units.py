@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import unittest
+import unittest.mock
 
 import numpy
 
@@ -129,6 +130,69 @@ class Names(unittest.TestCase):
             ipc.domain_config("ok_", "tmp")
         with self.assertRaisesRegex(ipc.ConfigError, "arm name '/PSM1'"):
             ipc.check_prefix("/PSM1")
+
+
+class Domain(unittest.TestCase):
+    """The project's default domain, computed as dvrk_ipc computes it, and its root directory
+    checked as dvrk_ipc::access::ensure_private_root checks it (a scratch directory, no shared
+    memory)."""
+
+    def setUp(self):
+        self.scratch = f"/tmp/dvrk-py-priv-{os.getpid()}-{self._testMethodName[-8:]}"
+        self.addCleanup(subprocess.run, ["rm", "-rf", self.scratch], check=False)
+
+    def test_default_domain_is_the_accounts_own(self):
+        uid = os.geteuid()
+        with unittest.mock.patch.dict(os.environ):
+            os.environ.pop(ipc.IPC_ROOT_ENV, None)
+            self.assertEqual(ipc.default_root(), f"/tmp/dvrk-sidecar-{uid}/")
+            self.assertEqual(ipc.default_domain_prefix(), f"dvrk_{uid}_")
+            cfg = ipc.domain_config()
+            self.assertEqual(cfg.global_cfg.prefix.to_string(), f"dvrk_{uid}_")
+            self.assertEqual(cfg.global_cfg.root_path.to_string(), f"/tmp/dvrk-sidecar-{uid}/")
+        with unittest.mock.patch.dict(os.environ, {ipc.IPC_ROOT_ENV: "/run/dvrk-sidecar"}):
+            self.assertEqual(ipc.default_root(), "/run/dvrk-sidecar/")
+        for bad in ("", "run/x", "/tmp/a-very-long-root-path-that-breaks-unix-socket-names/"):
+            with unittest.mock.patch.dict(os.environ, {ipc.IPC_ROOT_ENV: bad}):
+                with self.assertRaisesRegex(ipc.ConfigError, ipc.IPC_ROOT_ENV):
+                    ipc.default_root()
+
+    def test_a_missing_root_is_created_owner_only(self):
+        ipc.ensure_private_root(self.scratch + "/")
+        st = os.lstat(self.scratch)
+        self.assertEqual(st.st_mode & 0o7777, 0o700)
+        self.assertEqual(st.st_uid, os.geteuid())
+        ipc.ensure_private_root(self.scratch)  # again: accepted as it is
+
+    def test_a_root_writable_by_others_is_refused(self):
+        os.mkdir(self.scratch)
+        os.chmod(self.scratch, 0o777)
+        with self.assertRaisesRegex(ipc.OpenError, "writable by group or others.*mode 0777.*chmod 700"):
+            ipc.ensure_private_root(self.scratch)
+
+    def test_a_symbolic_link_is_refused_not_followed(self):
+        os.mkdir(self.scratch)
+        link = self.scratch + "/link"
+        os.symlink(self.scratch + "/target", link)
+        with self.assertRaisesRegex(ipc.OpenError, "is a symbolic link"):
+            ipc.ensure_private_root(link + "/")
+        self.assertFalse(os.path.exists(self.scratch + "/target"))
+
+    def test_a_root_another_account_owns_is_refused(self):
+        if os.geteuid() != 0:
+            self.skipTest("needs root to give a directory to uid 65534 (chown)")
+        os.mkdir(self.scratch, 0o700)
+        os.chown(self.scratch, 65534, 65534)
+        owner = ipc._user_name(65534)
+        with self.assertRaises(ipc.OpenError) as e:
+            ipc.ensure_private_root(self.scratch)
+        for needle in (
+            f"refusing the dVRK sidecar's shared-memory directory {self.scratch}",
+            f"belongs to another account (owner {owner}, mode 0700; this process runs as root)",
+            f"sudo -u {owner}",
+            ipc.IPC_ROOT_ENV,
+        ):
+            self.assertIn(needle, str(e.exception))
 
 
 class Poses(unittest.TestCase):

@@ -26,6 +26,12 @@
  * Open or create every service with the DVRK_IPC_QOS_* values below: whichever process creates
  * a service first fixes its QoS, and an opener that asks for more fails.
  *
+ * Domain: the sidecar publishes in its account's own iceoryx2 domain, not iceoryx2's default
+ * one. Set, in the iceoryx2 configuration of the consumer (it runs as the service's account):
+ *   [global] root-path = "/tmp/dvrk-sidecar-<uid>/"  (or $DVRK_SIDECAR_IPC_ROOT when set)
+ *            prefix    = "dvrk_<uid>_"
+ * with <uid> the account's numeric uid (dvrk_ipc::default_domain in Rust).
+ *
  * Units are SI (m, rad, N.m, N); *_t_ns are host CLOCK_MONOTONIC nanoseconds;
  * sample_realtime_ns is host CLOCK_REALTIME (ROS time) nanoseconds since the Unix epoch.
  */

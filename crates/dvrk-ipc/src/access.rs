@@ -1,8 +1,12 @@
-//! Why a process cannot reach the sidecar's shared memory, in words.
+//! Who may use the sidecar's shared memory, and why a process cannot, in words.
+//!
+//! The project's default domain keeps its iceoryx2 state in a directory of the account's own
+//! (`/tmp/dvrk-sidecar-<euid>/`, see [`crate::default_root_path`]): [`ensure_private_root`]
+//! creates it 0700 and refuses it when another account could write it.
 //!
 //! iceoryx2 0.10 gives every file it creates owner-only modes, applied with `fchmod` after
 //! creation (so neither the umask nor a setgid directory changes them): the root path
-//! (`/tmp/iceoryx2/`, 0750) and its `nodes/` and `services/` directories, the service
+//! (0750 when iceoryx2 creates it) and its `nodes/` and `services/` directories, the service
 //! descriptions (0400), the segments in `/dev/shm` (0600) and the event sockets. A consumer
 //! running as another user than the sidecar therefore fails inside iceoryx2, which reports
 //! `NodeCreationFailure::InternalError` or a service error without the cause. When such a setup
@@ -13,12 +17,13 @@
 
 use std::ffi::CString;
 use std::os::unix::ffi::OsStrExt;
-use std::os::unix::fs::MetadataExt;
+use std::os::unix::fs::{DirBuilderExt, MetadataExt};
 use std::path::{Path, PathBuf};
 
 use iceoryx2::config::Config;
 
-use crate::error::IpcError;
+use crate::error::{IpcError, RootProblem};
+use crate::services::euid;
 
 /// A file or directory of the iceoryx2 domain that this process may not use.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -107,8 +112,7 @@ fn user_name(uid: u32) -> String {
 /// [`IpcError::RootWouldLockOut`]). Root passes every `access(2)` check, so without this the
 /// lock-out it causes would go unexplained until the service restarts.
 pub fn refuse_root_in_anothers_domain(config: &Config) -> Result<(), IpcError> {
-    // SAFETY: geteuid has no preconditions.
-    if unsafe { libc::geteuid() } != 0 {
+    if euid() != 0 {
         return Ok(());
     }
     let root = PathBuf::from(config.global.root_path().to_string());
@@ -121,32 +125,132 @@ pub fn refuse_root_in_anothers_domain(config: &Config) -> Result<(), IpcError> {
     }
 }
 
-/// For the publishing service: refuses a domain whose root path exists and belongs to another
-/// account than this process's ([`IpcError::DomainOwnedByAnother`]). A consumer may use the
-/// service's domain (it must run as the same account anyway); the service itself must not
-/// publish into a directory someone else created before it.
-pub fn refuse_domain_of_another(config: &Config) -> Result<(), IpcError> {
-    // SAFETY: geteuid has no preconditions.
-    let me = unsafe { libc::geteuid() };
-    let root = PathBuf::from(config.global.root_path().to_string());
-    match std::fs::symlink_metadata(&root) {
-        Ok(m) if m.uid() != me => Err(IpcError::DomainOwnedByAnother {
-            owner: user_name(m.uid()),
-            me: user_name(me),
-            path: root,
-        }),
-        _ => Ok(()),
-    }
+/// Makes the root directory of `config`'s domain private to this account, or refuses it.
+///
+/// Creates it with mode 0700 if missing (its parent must exist), then looks at what is there
+/// without following a symbolic link (`mkdir` then `lstat`: whoever made it, what is examined
+/// is what iceoryx2 will use) and refuses ([`IpcError::RootNotPrivate`], naming the path, its
+/// owner, its mode and what to do) when it is a symbolic link, not a directory, another
+/// account's, or writable by group or others; also when its parent lets another account
+/// replace it (writable by a user other than root and this one, without the sticky bit that
+/// `/tmp` has). iceoryx2 creates its own files beneath it.
+///
+/// [`crate::create_node`] calls it for the project's default root path, so `serve` refuses to
+/// start in such a directory and every consumer gets the same error.
+pub fn ensure_private_root(config: &Config) -> Result<(), IpcError> {
+    ensure_private_dir(Path::new(&config.global.root_path().to_string()))
 }
 
-/// What to do when a file of `owner` is in the way.
-pub fn hint(owner: &str) -> String {
+/// [`ensure_private_root`] for the directory `dir`.
+pub fn ensure_private_dir(dir: &Path) -> Result<(), IpcError> {
+    // Without its trailing '/': `lstat("link/")` would follow a symbolic link.
+    let bytes = dir.as_os_str().as_bytes();
+    let end = bytes.iter().rposition(|&b| b != b'/').map_or(1, |i| i + 1);
+    let dir = Path::new(std::ffi::OsStr::from_bytes(&bytes[..end.min(bytes.len())]));
+    let me = euid();
+    let refuse = |path: &Path, problem: RootProblem, meta: &std::fs::Metadata| {
+        let owner = user_name(meta.uid());
+        let me_name = user_name(me);
+        let shown = path.display();
+        let env = crate::IPC_ROOT_ENV;
+        let (what, fix) = match problem {
+            RootProblem::Symlink => (
+                "is a symbolic link".to_owned(),
+                format!(
+                    "iceoryx2 would follow it wherever it points, and whoever made it chooses \
+                     where. Remove it when no program using iceoryx2 runs (sudo rm {shown}), or \
+                     set {env} to a directory of this account's own"
+                ),
+            ),
+            RootProblem::NotADirectory => (
+                "is not a directory".to_owned(),
+                format!(
+                    "Remove it when no program using iceoryx2 runs (sudo rm {shown}), or set \
+                     {env} to a directory of this account's own"
+                ),
+            ),
+            RootProblem::OtherOwner => (
+                "belongs to another account".to_owned(),
+                format!(
+                    "The service and its consumers keep their iceoryx2 state where only their \
+                     account can write. If {owner} runs the dVRK sidecar, run this program as \
+                     {owner} (sudo -u {owner} ...); otherwise {owner} created it first and \
+                     could hide the service from its consumers: remove it when no program \
+                     using iceoryx2 runs (sudo rm -rf {shown}), or set {env} to a directory of \
+                     this account's own"
+                ),
+            ),
+            RootProblem::WritableByOthers => (
+                "is writable by group or others".to_owned(),
+                format!(
+                    "Another user could replace the service's discovery files and event \
+                     sockets there: chmod 700 {shown}"
+                ),
+            ),
+            RootProblem::UnsafeParent => (
+                format!(
+                    "is the parent of {}, and another account than root and {me_name} may \
+                     write it without the sticky bit, so it could replace that directory",
+                    dir.display()
+                ),
+                format!("Set {env} to a path in /tmp, /run or a directory of this account's own"),
+            ),
+        };
+        let mode = meta.mode() & 0o7777;
+        IpcError::RootNotPrivate {
+            message: format!(
+                "refusing the dVRK sidecar's shared-memory directory {shown}: it {what} (owner \
+                 {owner}, mode {mode:04o}; this process runs as {me_name}). {fix}"
+            ),
+            path: path.to_path_buf(),
+            problem,
+            owner,
+            mode,
+        }
+    };
+    let io_err = |source| IpcError::RootDirectory {
+        path: dir.to_path_buf(),
+        source,
+    };
+    if let Some(parent) = dir.parent()
+        && let Ok(meta) = std::fs::metadata(parent)
+    {
+        let others_may_write = meta.mode() & 0o022 != 0 && meta.mode() & 0o1000 == 0;
+        if (meta.uid() != 0 && meta.uid() != me) || others_may_write {
+            return Err(refuse(parent, RootProblem::UnsafeParent, &meta));
+        }
+    }
+    match std::fs::DirBuilder::new().mode(0o700).create(dir) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+        Err(e) => return Err(io_err(e)),
+    }
+    let meta = std::fs::symlink_metadata(dir).map_err(io_err)?;
+    let problem = if meta.file_type().is_symlink() {
+        RootProblem::Symlink
+    } else if !meta.is_dir() {
+        RootProblem::NotADirectory
+    } else if meta.uid() != me {
+        RootProblem::OtherOwner
+    } else if meta.mode() & 0o022 != 0 {
+        RootProblem::WritableByOthers
+    } else {
+        return Ok(());
+    };
+    Err(refuse(dir, problem, &meta))
+}
+
+/// What to do when a file of `owner` is in the way in the domain of `config`.
+pub fn hint(owner: &str, config: &Config) -> String {
     if owner == "root" {
         // Nothing of the project runs as root on purpose: a program run with sudo left it.
-        "A program using iceoryx2 was run as root (e.g. with sudo) and left it: when no \
-         dvrk-sidecar and no consumer runs, remove it (sudo rm -rf /tmp/iceoryx2 /dev/shm/iox2_*), \
-         and run iceoryx2 programs as the service's user; see deploy/README.md, \"Consumers\""
-            .to_owned()
+        format!(
+            "A program using iceoryx2 was run as root (e.g. with sudo) and left it: when no \
+             dvrk-sidecar and no consumer runs, remove it (sudo rm -rf {} /dev/shm/{}*), and run \
+             iceoryx2 programs as the service's user; see deploy/README.md, \"Consumers\"",
+            config.global.root_path(),
+            config.global.prefix
+        )
     } else {
         format!(
             "Run this program as {owner} (e.g. sudo -u {owner} ...): the service and its \
@@ -163,7 +267,7 @@ pub(crate) fn explain(err: IpcError, config: &Config, during: String) -> IpcErro
     match find_inaccessible(config) {
         Some(Inaccessible { path, owner, mode }) => IpcError::PermissionDenied {
             during,
-            hint: hint(&owner),
+            hint: hint(&owner, config),
             path,
             owner,
             mode,
@@ -187,12 +291,162 @@ mod tests {
 
     #[test]
     fn the_hint_for_root_owned_leftovers_is_to_remove_them() {
-        assert!(hint("root").contains("sudo rm -rf /tmp/iceoryx2"));
-        let h = hint("dvrk-sidecar");
+        let cfg = crate::domain_config("hint_", Some("/tmp/dvrk-ipc-hint/")).unwrap();
+        let h = hint("root", &cfg);
+        assert!(
+            h.contains("sudo rm -rf /tmp/dvrk-ipc-hint/ /dev/shm/hint_*"),
+            "{h}"
+        );
+        let h = hint("dvrk-sidecar", &cfg);
         assert!(
             h.contains("sudo -u dvrk-sidecar") && h.contains("--user NAME"),
             "{h}"
         );
+    }
+
+    /// A fresh scratch path `/tmp/dvrk-ipc-priv-<pid>-<case>` (removed first).
+    fn scratch(case: &str) -> PathBuf {
+        let p = PathBuf::from(format!("/tmp/dvrk-ipc-priv-{}-{case}", std::process::id()));
+        let _ = std::fs::remove_file(&p);
+        let _ = std::fs::remove_dir_all(&p);
+        p
+    }
+
+    fn problem(r: Result<(), IpcError>) -> (RootProblem, String) {
+        match r {
+            Err(e @ IpcError::RootNotPrivate { problem, .. }) => (problem, e.to_string()),
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_missing_root_is_created_owner_only() {
+        let dir = scratch("created");
+        ensure_private_dir(&dir).unwrap();
+        let m = std::fs::symlink_metadata(&dir).unwrap();
+        assert!(m.is_dir());
+        assert_eq!(m.mode() & 0o7777, 0o700);
+        assert_eq!(m.uid(), euid());
+        // Again, and with the mode iceoryx2 gives a root it creates (0750): accepted as it is.
+        std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o750))
+            .unwrap();
+        ensure_private_dir(&dir).unwrap();
+        assert_eq!(std::fs::metadata(&dir).unwrap().mode() & 0o7777, 0o750);
+        std::fs::remove_dir(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_root_writable_by_others_is_refused_with_the_fix() {
+        let dir = scratch("open");
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o777))
+            .unwrap();
+        let (p, msg) = problem(ensure_private_dir(&dir));
+        std::fs::remove_dir(&dir).unwrap();
+        assert_eq!(p, RootProblem::WritableByOthers);
+        for needle in [dir.to_str().unwrap(), "mode 0777", "chmod 700"] {
+            assert!(msg.contains(needle), "{needle:?} missing from: {msg}");
+        }
+    }
+
+    #[test]
+    fn a_symbolic_link_is_refused_not_followed() {
+        let target = scratch("link-target");
+        let link = scratch("link");
+        std::fs::create_dir(&target).unwrap();
+        std::fs::set_permissions(&target, std::os::unix::fs::PermissionsExt::from_mode(0o700))
+            .unwrap();
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let (p, msg) = problem(ensure_private_dir(&link));
+        // Written as a root path is (a trailing '/', which lstat would follow): still the link.
+        let (slash, _) = problem(ensure_private_dir(&PathBuf::from(format!(
+            "{}/",
+            link.display()
+        ))));
+        assert_eq!(slash, RootProblem::Symlink);
+        // A dangling link is refused too (mkdir does not create its target).
+        std::fs::remove_dir(&target).unwrap();
+        let (dangling, _) = problem(ensure_private_dir(&link));
+        let target_created = target.exists();
+        std::fs::remove_file(&link).unwrap();
+        assert_eq!(p, RootProblem::Symlink);
+        assert_eq!(dangling, RootProblem::Symlink);
+        assert!(!target_created, "the link's target was created");
+        assert!(
+            msg.contains("is a symbolic link") && msg.contains(crate::IPC_ROOT_ENV),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn a_file_in_place_of_the_root_is_refused() {
+        let path = scratch("file");
+        std::fs::write(&path, b"").unwrap();
+        let (p, _) = problem(ensure_private_dir(&path));
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(p, RootProblem::NotADirectory);
+    }
+
+    #[test]
+    fn a_parent_others_may_write_without_sticky_bit_is_refused() {
+        let parent = scratch("parent");
+        std::fs::create_dir(&parent).unwrap();
+        std::fs::set_permissions(&parent, std::os::unix::fs::PermissionsExt::from_mode(0o777))
+            .unwrap();
+        let (p, msg) = problem(ensure_private_dir(&parent.join("root")));
+        let created = parent.join("root").exists();
+        // With the sticky bit (as /tmp), nobody else may rename what this account creates.
+        std::fs::set_permissions(
+            &parent,
+            std::os::unix::fs::PermissionsExt::from_mode(0o1777),
+        )
+        .unwrap();
+        let sticky = ensure_private_dir(&parent.join("root"));
+        std::fs::remove_dir_all(&parent).unwrap();
+        assert_eq!(p, RootProblem::UnsafeParent);
+        assert!(!created, "created a root in an unsafe parent");
+        assert!(msg.contains(parent.to_str().unwrap()), "{msg}");
+        assert!(sticky.is_ok(), "{sticky:?}");
+    }
+
+    #[test]
+    fn a_root_another_account_owns_is_refused() {
+        if euid() != 0 {
+            eprintln!("skipped: needs root to give a directory to uid 65534 (chown)");
+            return;
+        }
+        let dir = scratch("theirs");
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o700))
+            .unwrap();
+        std::os::unix::fs::chown(&dir, Some(65534), Some(65534)).unwrap();
+        let (p, msg) = problem(ensure_private_dir(&dir));
+        std::fs::remove_dir(&dir).unwrap();
+        assert_eq!(p, RootProblem::OtherOwner);
+        let owner = user_name(65534);
+        for needle in [
+            dir.to_str().unwrap(),
+            &format!(
+                "belongs to another account (owner {owner}, mode 0700; this process runs as root)"
+            ),
+            &format!("sudo -u {owner}"),
+            "sudo rm -rf",
+            crate::IPC_ROOT_ENV,
+        ] {
+            assert!(msg.contains(needle), "{needle:?} missing from: {msg}");
+        }
+    }
+
+    #[test]
+    fn a_root_whose_parent_is_missing_says_so() {
+        let dir = scratch("noparent").join("root");
+        match ensure_private_dir(&dir) {
+            Err(e @ IpcError::RootDirectory { .. }) => {
+                let msg = e.to_string();
+                assert!(msg.contains(crate::IPC_ROOT_ENV), "{msg}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

@@ -137,21 +137,34 @@ pub enum IpcError {
         owner: String,
     },
 
-    /// The service would publish in a domain whose root path another account owns: whoever
-    /// created it first controls what is found there (it can hide the service from its
-    /// consumers). Refused before the service starts.
-    #[error(
-        "the shared-memory directory {} belongs to user {owner}, not to this service's account \
-         ({me}): whoever creates it first controls it and can hide the service from its \
-         consumers. Run the service as {owner}, or remove the directory while no iceoryx2 \
-         program runs (sudo rm -rf {})",
-        path.display(),
-        path.display()
-    )]
-    DomainOwnedByAnother {
+    /// The root directory of the project's default domain is not this account's alone (see
+    /// [`crate::access::ensure_private_root`]): whoever else can write it controls what
+    /// consumers find there (it can hide the service from them). Refused before iceoryx2 uses it.
+    #[error("{message}")]
+    RootNotPrivate {
         path: std::path::PathBuf,
+        problem: RootProblem,
+        /// The owner's user name (or `uid N`).
         owner: String,
-        me: String,
+        /// Permission bits (e.g. 0o777).
+        mode: u32,
+        /// The whole sentence: the path, what is wrong, its owner and mode, this process's
+        /// account, and what to do.
+        message: String,
+    },
+
+    /// The root directory of the project's default domain could not be created or examined
+    /// (its parent is missing or not writable by this account).
+    #[error(
+        "creating the dVRK sidecar's shared-memory directory {} failed: {source}. Set {} to a \
+         directory this account may create (an absolute path of at most 48 bytes)",
+        path.display(),
+        crate::IPC_ROOT_ENV
+    )]
+    RootDirectory {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
     },
 
     /// The timer of a predictive subscription could not be set up.
@@ -161,6 +174,23 @@ pub enum IpcError {
         #[source]
         source: std::io::Error,
     },
+}
+
+/// Why the root directory of the default domain is refused ([`IpcError::RootNotPrivate`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum RootProblem {
+    /// A symbolic link (iceoryx2 would follow it wherever it points).
+    Symlink,
+    /// Something else than a directory.
+    NotADirectory,
+    /// A directory of another account.
+    OtherOwner,
+    /// A directory that group or others may write.
+    WritableByOthers,
+    /// Its parent lets another account rename or replace it (writable by another user, no
+    /// sticky bit).
+    UnsafeParent,
 }
 
 /// Per-cycle publishing errors (`Copy`, no allocation).

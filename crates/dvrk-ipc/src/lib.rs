@@ -25,6 +25,10 @@
 //!   | `<prefix>/cycle` | event, notified once per cycle after the nine messages |
 //!   | `<prefix>/cycle/first` | event, notified once per cycle right after its first message, `compensated/local/measured_cp` ([`PUBLISH_ORDER`]) |
 //!
+//! - the domain every process of the project meets in ([`default_domain`], what
+//!   [`create_node`] with `None` uses): root path `/tmp/dvrk-sidecar-<euid>/` (or
+//!   `$DVRK_SIDECAR_IPC_ROOT`, [`IPC_ROOT_ENV`]), created 0700 and refused when another account
+//!   could write it ([`access::ensure_private_root`]), and the prefix `dvrk_<euid>_`;
 //! - the QoS ([`qos`]) applied by the functions that open or create services
 //!   ([`open_topic`], [`open_event`], [`open_cycle_event`], [`ArmServices::open_or_create`]);
 //! - [`ArmPublisher`] (used by the sidecar; also counts subscribers of every topic and reaps dead
@@ -66,7 +70,7 @@ mod subscription;
 mod sys;
 
 pub use clock::monotonic_ns;
-pub use error::{IpcError, PublishError, SubscriptionError};
+pub use error::{IpcError, PublishError, RootProblem, SubscriptionError};
 pub use msg::{
     ArmState, COMPENSATION_STATUS_V4_SIZE, CompensationStatusV4, CycleMessages, HEADER_SIZE,
     Header, JAW_NAME, JAW_STATE_V1_SIZE, JOINT_NAMES, JOINT_STATE_V2_SIZE, JawStateV1,
@@ -78,8 +82,9 @@ pub use names::{
 };
 pub use publisher::{ArmPublisher, CycleStarted, PUBLISH_ORDER, ReapReport, SubscriberCounts};
 pub use services::{
-    ArmServices, ICEORYX2_LOG_LEVEL, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN, StateServices,
-    create_node, domain_config, open_cycle_event, open_event, open_topic, qos,
+    ArmServices, ICEORYX2_LOG_LEVEL, IPC_ROOT_ENV, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN,
+    StateServices, create_node, default_domain, default_domain_prefix, default_root_path,
+    domain_config, is_default_root, open_cycle_event, open_event, open_topic, qos,
 };
 pub use subscription::{
     DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, MIN_DEFAULT_DEADLINE, NOMINAL_PERIOD,

@@ -47,9 +47,94 @@ pub const MAX_ROOT_PATH_LEN: usize = 48;
 /// Longest accepted domain prefix (see [`MAX_ROOT_PATH_LEN`]).
 pub const MAX_DOMAIN_PREFIX_LEN: usize = 24;
 
-/// An iceoryx2 configuration for an isolated domain: iceoryx2's built-in defaults with another
-/// file-name `prefix` (shm segments `/dev/shm/<prefix>*`, a separate service namespace) and,
-/// optionally, another `root_path` (discovery files and event sockets, default `/tmp/iceoryx2/`).
+/// The environment variable that moves the project's default root path (e.g. to a runtime
+/// directory of the unit, `/run/dvrk-sidecar`): an absolute path of at most
+/// [`MAX_ROOT_PATH_LEN`] bytes, read by every process of the project (Rust and Python), so the
+/// service and its consumers must all see the same value.
+pub const IPC_ROOT_ENV: &str = "DVRK_SIDECAR_IPC_ROOT";
+
+/// The effective uid of this process.
+pub(crate) fn euid() -> u32 {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// The root path of the project's default domain: `$DVRK_SIDECAR_IPC_ROOT` when set, else
+/// `/tmp/dvrk-sidecar-<euid>/`, always with a trailing `/`.
+///
+/// Why not iceoryx2's `/tmp/iceoryx2/`: whoever creates that directory first owns it, and a
+/// local user who creates it before the service can hide the service from its consumers. The
+/// uid makes the directory one account's own and the same for every process of that account,
+/// whatever its environment (a login shell, a systemd unit, sudo -u): a consumer started before
+/// or after the service finds it. [`access::ensure_private_root`](crate::access::ensure_private_root)
+/// creates it 0700 and refuses it when another account could have it.
+pub fn default_root_path() -> Result<String, IpcError> {
+    root_path_for(std::env::var_os(IPC_ROOT_ENV), euid())
+}
+
+/// [`default_root_path`] for the value of [`IPC_ROOT_ENV`] and the uid given.
+fn root_path_for(env: Option<std::ffi::OsString>, uid: u32) -> Result<String, IpcError> {
+    match env {
+        None => Ok(format!("/tmp/dvrk-sidecar-{uid}/")),
+        Some(v) => {
+            let Some(root) = v.to_str() else {
+                return Err(IpcError::InvalidDomain {
+                    field: "root_path",
+                    value: v.to_string_lossy().into_owned(),
+                    reason: "DVRK_SIDECAR_IPC_ROOT is not UTF-8",
+                });
+            };
+            check_root_path(root)?;
+            Ok(with_slash(root))
+        }
+    }
+}
+
+/// The file-name prefix of the project's default domain: `dvrk_<euid>_`. The project's own (its
+/// segments in `/dev/shm` and its service namespace are not iceoryx2's default `iox2_` ones),
+/// and one per account: two accounts running a sidecar on one machine do not collide in
+/// `/dev/shm`, where iceoryx2 derives a service's segment names from the prefix and the service
+/// name alone.
+pub fn default_domain_prefix() -> String {
+    format!("dvrk_{}_", euid())
+}
+
+/// The project's default domain, where `dvrk-sidecar serve` publishes and every consumer looks
+/// by default: [`default_domain_prefix`] under [`default_root_path`]. [`create_node`] with
+/// `None` uses it.
+pub fn default_domain() -> Result<Config, IpcError> {
+    domain_config(&default_domain_prefix(), None)
+}
+
+/// `true` when `config`'s root path is the project's default one (then [`create_node`] checks
+/// that it is private to this account before iceoryx2 uses it).
+pub fn is_default_root(config: &Config) -> bool {
+    default_root_path().is_ok_and(|r| r.as_bytes() == config.global.root_path().as_bytes())
+}
+
+fn check_root_path(root: &str) -> Result<(), IpcError> {
+    if !root.starts_with('/') || root.len() > MAX_ROOT_PATH_LEN {
+        return Err(IpcError::InvalidDomain {
+            field: "root_path",
+            value: root.to_owned(),
+            reason: "must be an absolute path of at most 48 bytes",
+        });
+    }
+    Ok(())
+}
+
+fn with_slash(root: &str) -> String {
+    if root.ends_with('/') {
+        root.to_owned()
+    } else {
+        format!("{root}/")
+    }
+}
+
+/// An iceoryx2 configuration for a domain: iceoryx2's built-in defaults with the file-name
+/// `prefix` (shm segments `/dev/shm/<prefix>*`, a separate service namespace) under the root
+/// path `root_path` (discovery files and event sockets), by default the project's
+/// ([`default_root_path`]).
 ///
 /// Processes only see each other when they use the same domain. Tests give every case its own
 /// prefix, e.g. `t<pid>_<n>_` under `/tmp/iox2t/`.
@@ -76,22 +161,16 @@ pub fn domain_config(prefix: &str, root_path: Option<&str>) -> Result<Config, Ip
     let mut cfg = Config::default();
     cfg.global.prefix = FileName::new(prefix.as_bytes())
         .map_err(|_| invalid("prefix", prefix, "is not a valid file name"))?;
-    if let Some(root) = root_path {
-        if !root.starts_with('/') || root.len() > MAX_ROOT_PATH_LEN {
-            return Err(invalid(
-                "root_path",
-                root,
-                "must be an absolute path of at most 48 bytes",
-            ));
+    let root = match root_path {
+        Some(root) => {
+            check_root_path(root)?;
+            with_slash(root)
         }
-        let mut root = root.to_owned();
-        if !root.ends_with('/') {
-            root.push('/');
-        }
-        let path = Path::new(root.as_bytes())
-            .map_err(|_| invalid("root_path", &root, "is not a valid path"))?;
-        cfg.global.set_root_path(&path);
-    }
+        None => default_root_path()?,
+    };
+    let path = Path::new(root.as_bytes())
+        .map_err(|_| invalid("root_path", &root, "is not a valid path"))?;
+    cfg.global.set_root_path(&path);
     Ok(cfg)
 }
 
@@ -106,8 +185,14 @@ pub const ICEORYX2_LOG_LEVEL: iceoryx2::prelude::LogLevel = iceoryx2::prelude::L
 /// Also sets iceoryx2's process-wide log level to `IOX2_LOG_LEVEL` if set, else
 /// [`ICEORYX2_LOG_LEVEL`].
 ///
-/// `config: None` uses iceoryx2's built-in defaults, not a config file looked up relative to the
-/// working directory, so every process of the project agrees regardless of where it runs.
+/// `config: None` uses the project's default domain ([`default_domain`]): iceoryx2's built-in
+/// defaults with the project's root path and prefix, never a config file looked up relative to
+/// the working directory, so every process of the project agrees regardless of where it runs.
+///
+/// In a domain whose root path is the project's default one, the root directory is created
+/// 0700 if missing, and refused ([`IpcError::RootNotPrivate`]) when it is a symbolic link, not
+/// a directory, another account's, or writable by others
+/// ([`access::ensure_private_root`](crate::access::ensure_private_root)).
 pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<Node<S>, IpcError> {
     let node_name = NodeName::new(name).map_err(|_| IpcError::InvalidNodeName {
         name: name.to_owned(),
@@ -117,10 +202,13 @@ pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<No
     let config = match config {
         Some(c) => c,
         None => {
-            default_config = Config::default();
+            default_config = default_domain()?;
             &default_config
         }
     };
+    if is_default_root(config) {
+        crate::access::ensure_private_root(config)?;
+    }
     crate::access::refuse_root_in_anothers_domain(config)?;
     NodeBuilder::new()
         .name(&node_name)
@@ -283,9 +371,57 @@ mod tests {
         assert_eq!(cfg.global.root_path().as_bytes(), b"/tmp/iox2t/");
         let cfg = domain_config("abc", None).unwrap();
         assert_eq!(
-            cfg.global.root_path().as_bytes(),
-            Config::default().global.root_path().as_bytes()
+            cfg.global.root_path().to_string(),
+            default_root_path().unwrap()
         );
+    }
+
+    #[test]
+    fn the_default_domain_is_the_accounts_own_not_iceoryx2s() {
+        let uid = euid();
+        let cfg = default_domain().unwrap();
+        assert_eq!(cfg.global.prefix.to_string(), format!("dvrk_{uid}_"));
+        assert!(cfg.global.prefix.len() <= MAX_DOMAIN_PREFIX_LEN);
+        assert!(is_default_root(&cfg));
+        if std::env::var_os(IPC_ROOT_ENV).is_none() {
+            let root = format!("/tmp/dvrk-sidecar-{uid}/");
+            assert_eq!(cfg.global.root_path().to_string(), root);
+            // The longest uid still fits the root path limit.
+            assert!("/tmp/dvrk-sidecar-4294967295/".len() <= MAX_ROOT_PATH_LEN);
+        }
+        assert_ne!(
+            cfg.global.root_path().to_string(),
+            Config::default().global.root_path().to_string()
+        );
+        assert!(!is_default_root(
+            &domain_config("t_", Some("/tmp/iox2t/")).unwrap()
+        ));
+    }
+
+    #[test]
+    fn the_root_variable_moves_the_default_root_and_is_checked() {
+        assert_eq!(
+            root_path_for(None, 1000).unwrap(),
+            "/tmp/dvrk-sidecar-1000/"
+        );
+        assert_eq!(
+            root_path_for(Some("/run/dvrk-sidecar".into()), 1000).unwrap(),
+            "/run/dvrk-sidecar/"
+        );
+        assert_eq!(
+            root_path_for(Some("/run/dvrk-sidecar/".into()), 0).unwrap(),
+            "/run/dvrk-sidecar/"
+        );
+        for bad in [
+            "",
+            "run/dvrk-sidecar",
+            "/tmp/a-very-long-root-path-that-breaks-unix-socket-names/",
+        ] {
+            match root_path_for(Some(bad.into()), 0) {
+                Err(IpcError::InvalidDomain { field, .. }) => assert_eq!(field, "root_path"),
+                other => panic!("{bad:?}: {other:?}"),
+            }
+        }
     }
 
     #[test]

@@ -75,19 +75,17 @@ struct NativeNode {
 #[pymethods]
 impl NativeNode {
     /// `domain`: the file-name prefix of an isolated domain (e.g. `"t123_"`), `root`: its root
-    /// path (e.g. `"/tmp/iox2t/"`); both `None` for iceoryx2's defaults, where
-    /// `dvrk-sidecar serve` publishes. Same checks as `dvrk_ipc::domain_config`.
+    /// path (e.g. `"/tmp/iox2t/"`); `None` for the project's defaults
+    /// (`dvrk_ipc::default_domain`: `dvrk_<euid>_` under `/tmp/dvrk-sidecar-<euid>/` or
+    /// `$DVRK_SIDECAR_IPC_ROOT`), where `dvrk-sidecar serve` publishes. Same checks as
+    /// `dvrk_ipc::domain_config`; in the default root, the same refusal of a directory that is
+    /// not this account's alone (`dvrk_ipc::create_node`).
     #[new]
     #[pyo3(signature = (name = "dvrk-sidecar-python", domain = None, root = None))]
     fn new(name: &str, domain: Option<&str>, root: Option<&str>) -> PyResult<Self> {
-        let mut config = match (domain, root) {
-            (None, None) => Config::default(),
-            (domain, root) => {
-                let default_prefix = Config::default().global.prefix.to_string();
-                dvrk_ipc::domain_config(domain.unwrap_or(&default_prefix), root)
-                    .map_err(|e| PyValueError::new_err(e.to_string()))?
-            }
-        };
+        let prefix = domain.map_or_else(dvrk_ipc::default_domain_prefix, str::to_owned);
+        let mut config = dvrk_ipc::domain_config(&prefix, root)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
         leave_dead_nodes_to_the_sidecar(&mut config);
         let node = dvrk_ipc::create_node::<Service>(name, Some(&config)).map_err(native_err)?;
         Ok(Self {

@@ -47,6 +47,15 @@ pub fn check_config(path: &Path) -> Result<()> {
         first.access
     )?;
     crate::outln!(out, "  rate        {}", first.rate)?;
+    // Where the service keeps its iceoryx2 state: consumers must see the same (same account,
+    // same DVRK_SIDECAR_IPC_ROOT).
+    let domain = dvrk_ipc::default_domain()?;
+    crate::outln!(
+        out,
+        "  shm         {} (prefix {})",
+        domain.global.root_path(),
+        domain.global.prefix
+    )?;
     if svc.multi {
         let names: Vec<&str> = svc.arms.iter().map(|a| a.prefix.as_str()).collect();
         crate::outln!(out, "  arms        {} ({})", names.len(), names.join(", "))?;
@@ -129,19 +138,31 @@ fn preflight_arm(cfg: &SidecarConfig) -> Result<()> {
     }
     let names = ServiceNames::new(&cfg.prefix)
         .map_err(|e| anyhow::anyhow!("prefix \"{}\": {e}", cfg.prefix))?;
-    // The service publishes only into a shared-memory directory of its own account.
-    dvrk_ipc::access::refuse_domain_of_another(&iceoryx2::config::Config::default())?;
-    let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>("dvrk-sidecar-check", None)
-        .context(shm_hint())?;
-    dvrk_ipc::ArmServices::open_or_create(&node, &names)
-        .with_context(|| format!("opening the services under {}; {}", cfg.prefix, shm_hint()))?;
+    // The service publishes only into a shared-memory directory of its own account: created
+    // 0700, refused when it is a link, another account's or writable by others.
+    let domain = dvrk_ipc::default_domain()?;
+    dvrk_ipc::access::ensure_private_root(&domain)?;
+    let root = domain.global.root_path().to_string();
+    let node = dvrk_ipc::create_node::<iceoryx2::service::ipc::Service>(
+        "dvrk-sidecar-check",
+        Some(&domain),
+    )
+    .context(shm_hint(&root))?;
+    dvrk_ipc::ArmServices::open_or_create(&node, &names).with_context(|| {
+        format!(
+            "opening the services under {}; {}",
+            cfg.prefix,
+            shm_hint(&root)
+        )
+    })?;
     Ok(())
 }
 
-/// What to look at when iceoryx2 cannot create its files.
-fn shm_hint() -> String {
+/// What to look at when iceoryx2 cannot create its files in the domain whose root path is
+/// `root`.
+fn shm_hint(root: &str) -> String {
     let mut bad = Vec::new();
-    for dir in ["/dev/shm", "/tmp/iceoryx2"] {
+    for dir in ["/dev/shm", root] {
         let p = std::path::Path::new(dir);
         if p.exists() && std::fs::metadata(p).is_ok_and(|m| m.permissions().readonly()) {
             bad.push(dir);
@@ -149,7 +170,7 @@ fn shm_hint() -> String {
     }
     format!(
         "creating iceoryx2 shared memory failed: this user needs write access to /dev/shm and \
-         /tmp/iceoryx2 (and to files a service of another user created there){}",
+         {root}{}",
         if bad.is_empty() {
             String::new()
         } else {
