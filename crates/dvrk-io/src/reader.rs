@@ -23,6 +23,9 @@ use crate::convert::{
 use crate::port::{Port, PortError, reg};
 use crate::wire::{BlockLayout, BoardKind, FeedbackBlock, HubLayout, HubView, WireError};
 
+/// Quadlets of one shared-mode cycle: each board's status, each actuator's encoder position
+/// and ADC.
+const SHARED_QUADLETS: usize = MAX_BOARDS + 2 * NUM_JOINTS;
 /// Largest feedback block (DQLA, 60 quadlets, reference §2.1).
 const BLOCK_CAP: usize = 60 * 4;
 /// Hub memory for [`MAX_BOARDS`] boards: Σ(Nq + 1) + 1 quadlets (reference §3.4).
@@ -178,43 +181,49 @@ impl<P: Port> ArmReader<P> {
     }
 
     fn read_shared(&mut self, t_ns: u64, out: &mut ArmSample) -> Result<(), ReadError> {
-        let mut raw = SharedRaw::default();
-        let mut first_err: Option<ReadError> = None;
-        let n_boards = self.cfg.board_ids().len();
-        for slot in 0..n_boards {
-            let Some(&board) = self.cfg.board_ids().get(slot) else {
-                continue;
-            };
-            self.counters.quadlet_reads += 1;
-            match self.port.read_quadlet(board, reg::STATUS) {
-                Ok(v) => raw.status[slot] = Some(v),
-                Err(e) => {
-                    first_err.get_or_insert(e.into());
-                }
+        // One batch: every board's status, then each actuator's encoder position and ADC. The
+        // port may keep several of them outstanding at once (Port::read_quadlets), so a lost
+        // datagram is asked again while the others are answered.
+        let mut reqs = [(0u8, 0u16); SHARED_QUADLETS];
+        let mut vals = [None; SHARED_QUADLETS];
+        let boards = self.cfg.board_ids();
+        let n_boards = boards.len().min(MAX_BOARDS);
+        for (r, &board) in reqs.iter_mut().zip(boards.iter()) {
+            *r = (board, reg::STATUS);
+        }
+        let mut n = n_boards;
+        for a in self.cfg.actuators().iter() {
+            if let Some([enc, adc]) = reqs.get_mut(n..n + 2) {
+                *enc = (a.board_id, channel_reg(a.axis, ENCODER_POSITION_OFFSET));
+                *adc = (a.board_id, channel_reg(a.axis, ADC_OFFSET));
+                n += 2;
             }
         }
+        self.counters.quadlet_reads += n as u64;
+        let first_err: Option<ReadError> = self
+            .port
+            .read_quadlets(&reqs[..n], &mut vals[..n])
+            .err()
+            .map(ReadError::from);
+        let mut raw = SharedRaw::default();
+        raw.status[..n_boards].copy_from_slice(&vals[..n_boards]);
         for (i, a) in self.cfg.actuators().iter().enumerate() {
             let slot = a.board_slot as usize;
             if raw.status.get(slot).copied().flatten().is_none() {
+                // Its board's status was not read: the actuator is not decoded.
                 continue;
             }
-            self.counters.quadlet_reads += 2;
-            let r = self
-                .port
-                .read_quadlet(a.board_id, channel_reg(a.axis, ENCODER_POSITION_OFFSET))
-                .and_then(|enc| {
-                    self.port
-                        .read_quadlet(a.board_id, channel_reg(a.axis, ADC_OFFSET))
-                        .map(|adc| (enc, adc))
-                });
-            match r {
-                Ok((enc, adc)) => {
+            let k = n_boards + 2 * i;
+            match (
+                vals.get(k).copied().flatten(),
+                vals.get(k + 1).copied().flatten(),
+            ) {
+                (Some(enc), Some(adc)) => {
                     raw.encoder_position[i] = Some(enc);
                     raw.adc[i] = Some(adc);
                 }
-                Err(e) => {
-                    first_err.get_or_insert(e.into());
-                    // Stop asking a board that stopped answering; its status says "not read".
+                _ => {
+                    // Not read in time: the board's status says "not read" for this cycle.
                     if let Some(s) = raw.status.get_mut(slot) {
                         *s = None;
                     }

@@ -67,6 +67,14 @@ pub struct SidecarParams {
     /// 0.67 ms, waits 5 ms by default so that a lost datagram costs few cycles.
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: f64,
+    /// Shared mode over UDP: how many quadlet requests the sidecar keeps outstanding at the
+    /// boards at once (1 to 16, default 4). More hides more round trips and lost datagrams
+    /// within a cycle, but the FPGA serves one packet at a time, so each request queued there
+    /// delays the console's own packets behind it (reference section 8.4; RELIABILITY.md).
+    /// 1: one request at a time, as before (a lost datagram asked again after 150 µs, the last
+    /// attempt waiting `reply_timeout_ms`).
+    #[serde(default = "default_requests_in_flight")]
+    pub shared_requests_in_flight: u8,
     /// The arm's board ids, in the order of the io file's boards (default: the io file's). The
     /// dVRK numbers Classic PSM1 boards 6-7, PSM2 8-9, PSM3 10-11, so one io file can serve
     /// any of them.
@@ -91,6 +99,8 @@ struct MultiArmParams {
     rate: Rate,
     #[serde(default = "default_reply_timeout_ms")]
     reply_timeout_ms: f64,
+    #[serde(default = "default_requests_in_flight")]
+    shared_requests_in_flight: u8,
     sim: Option<SimParams>,
     #[serde(default)]
     realtime: RealtimeParams,
@@ -127,6 +137,9 @@ fn default_rate() -> Rate {
 }
 fn default_reply_timeout_ms() -> f64 {
     5.0
+}
+fn default_requests_in_flight() -> u8 {
+    dvrk_io::port::DEFAULT_QUADLET_WINDOW
 }
 fn default_prefix() -> String {
     dvrk_ipc::DEFAULT_PREFIX.to_owned()
@@ -399,6 +412,8 @@ pub struct SidecarConfig {
     /// What `check-config` and `serve` warn about (see [`compliance_warnings`]).
     pub warnings: Vec<String>,
     pub reply_timeout: std::time::Duration,
+    /// `shared_requests_in_flight`: the quadlet window of shared mode over UDP.
+    pub shared_requests_in_flight: u8,
     pub scenario_path: Option<PathBuf>,
     pub scenario: Option<dvrk_sim::Scenario>,
     pub realtime: RealtimeParams,
@@ -555,6 +570,7 @@ fn arm_params(path: &Path, text: &str) -> Result<(Vec<SidecarParams>, bool)> {
             prefix: a.name,
             base_frame: a.base_frame,
             reply_timeout_ms: m.reply_timeout_ms,
+            shared_requests_in_flight: m.shared_requests_in_flight,
             boards: a.boards,
             sim: match a.scenario {
                 Some(scenario) => Some(SimParams { scenario }),
@@ -717,6 +733,13 @@ impl SidecarConfig {
                 p.reply_timeout_ms
             );
         }
+        let max_in_flight = dvrk_io::port::MAX_QUADLET_WINDOW;
+        if !(1..=max_in_flight).contains(&p.shared_requests_in_flight) {
+            bail!(
+                "{here}: field `shared_requests_in_flight` = {}: must be 1..={max_in_flight}",
+                p.shared_requests_in_flight
+            );
+        }
         dvrk_ipc::ServiceNames::new(&p.prefix)
             .map_err(|e| anyhow::anyhow!("{here}: field `prefix` = \"{}\": {e}", p.prefix))?;
 
@@ -867,6 +890,7 @@ impl SidecarConfig {
             base_frame_origin,
             warnings,
             reply_timeout: std::time::Duration::from_secs_f64(p.reply_timeout_ms * 1e-3),
+            shared_requests_in_flight: p.shared_requests_in_flight,
             scenario_path,
             scenario,
             realtime: p.realtime,

@@ -347,6 +347,13 @@ impl<P: Port> Port for SharedPort<P> {
             .borrow_mut()
             .broadcast_query_hub_read(board_mask, out)
     }
+    fn read_quadlets(
+        &mut self,
+        reqs: &[(u8, u16)],
+        out: &mut [Option<u32>],
+    ) -> Result<(), dvrk_io::port::PortError> {
+        self.0.borrow_mut().read_quadlets(reqs, out)
+    }
 }
 
 /// Consecutive failed reads of an arm after which its boards are asked less often.
@@ -444,6 +451,7 @@ pub fn run(path: &Path) -> Result<()> {
             link.set_timeout(first.reply_timeout)
                 .context("setting the reply timeout")?;
             let mut port = UdpPort::new(link);
+            port.set_quadlet_window(first.shared_requests_in_flight);
             if !discover_arms(&mut port, &svc, &addr.to_string(), &stop)? {
                 return Ok(());
             }

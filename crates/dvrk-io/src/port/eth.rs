@@ -1,6 +1,8 @@
 //! The Ethernet protocol engine over any [`Link`] (reference §3.1).
 
-use super::{Link, Port, PortError};
+use std::time::{Duration, Instant};
+
+use super::{Link, Port, PortError, QuadletRetry, UNKNOWN_BOARD, read_quadlets_in_turn};
 use crate::wire::eth::{CONTROL_LEN, EXTRA_LEN};
 use crate::wire::firewire::{BROADCAST_NODE, LABEL_MASK};
 use crate::wire::hub::{HUB_ADDRESS, QUERY_ADDRESS};
@@ -16,6 +18,24 @@ const RX_CAP: usize = 4096;
 /// costs one receive): the whole 6-bit label space, so a burst of late replies after a stall is
 /// read through within one request.
 const MAX_STALE: u8 = 64;
+
+/// Default of [`EthPort::set_quadlet_window`]: quadlet requests a batch keeps outstanding at
+/// once. The FPGA serves one packet at a time (reference §8.4), so each request queued there
+/// delays the console's own packets by one quadlet transaction: kept small.
+pub const DEFAULT_QUADLET_WINDOW: u8 = 4;
+/// Largest window [`EthPort::set_quadlet_window`] takes.
+pub const MAX_QUADLET_WINDOW: u8 = 16;
+/// Floor of the retry wait a batch estimates from the measured round trip (a loopback board
+/// answers in a few µs; the scheduler's timer slack is 50 µs).
+pub const MIN_RETRY_WAIT: Duration = Duration::from_micros(50);
+/// Entries of one pipelined batch; a longer list is read in batches of this many.
+const MAX_BATCH: usize = 32;
+/// Labels one batch may use: half the 6-bit label space, so that two consecutive batches never
+/// share a label and a late reply of the previous batch is never taken for a register of this
+/// one (a quadlet reply carries no address: label and source node are all that tie it to its
+/// request).
+const MAX_BATCH_LABELS: u8 = 32;
+const NO_ENTRY: u8 = u8::MAX;
 
 /// Per-port counters, read by the binary's 1 Hz summary.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -45,6 +65,24 @@ pub struct EthCounters {
     /// Times the FPGA's bus generation differed from ours (we adopt it).
     pub generation_changes: u64,
     pub writes: u64,
+    /// Pipelined batches of quadlet reads ([`Port::read_quadlets`]).
+    pub quadlet_batches: u64,
+    /// Batches that ended at their deadline with registers unread.
+    pub batch_deadlines: u64,
+}
+
+/// State of one entry of a pipelined batch.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Entry {
+    /// Not asked yet.
+    Unsent,
+    /// Asked; its newest request is outstanding until its due time.
+    InFlight,
+    /// Asked as often as allowed, presumed lost; a late reply is still taken.
+    GivenUp,
+    /// Not asked: its board stopped answering in this batch, or the board id is invalid.
+    Skipped,
+    Done,
 }
 
 #[derive(Clone, Copy)]
@@ -80,6 +118,18 @@ pub struct EthPort<L: Link> {
     last_label: u8,
     /// The source has sent a nonzero CRC: from now on a zero CRC is an error too.
     crcs_seen: bool,
+    /// Requests a batch of quadlet reads keeps outstanding ([`EthPort::set_quadlet_window`]).
+    window: u8,
+    /// Longest a batch waits in all ([`EthPort::set_quadlet_batch_budget`]); None: the link's
+    /// reply timeout.
+    batch_budget: Option<Duration>,
+    /// Boards (bit = board id) that answered nothing in their last batch: asked once per batch
+    /// until they answer, so a stalled board does not pile up requests.
+    silent_boards: u16,
+    /// Smoothed round trip of a quadlet read and its mean deviation, in ns (RFC 6298 style);
+    /// None before the first reply of a batch.
+    srtt_ns: Option<u64>,
+    rttvar_ns: u64,
     counters: EthCounters,
     tx: Box<[u8; TX_CAP]>,
     rx: Box<[u8; RX_CAP]>,
@@ -108,6 +158,11 @@ impl<L: Link> EthPort<L> {
             quiet_reads: 0,
             last_label: 0,
             crcs_seen: false,
+            window: DEFAULT_QUADLET_WINDOW,
+            batch_budget: None,
+            silent_boards: 0,
+            srtt_ns: None,
+            rttvar_ns: 0,
             counters: EthCounters::default(),
             tx: Box::new([0; TX_CAP]),
             rx: Box::new([0; RX_CAP]),
@@ -158,6 +213,62 @@ impl<L: Link> EthPort<L> {
     /// Label the next request will carry.
     pub fn next_label(&self) -> u8 {
         self.next_label
+    }
+    /// How many quadlet requests a batch ([`Port::read_quadlets`]) keeps outstanding at once
+    /// on a lossy link (1..=[`MAX_QUADLET_WINDOW`], default [`DEFAULT_QUADLET_WINDOW`]). More
+    /// hides more round trips and losses within a cycle, but every request queued at the FPGA,
+    /// which serves one packet at a time, delays the console's packets behind it (reference
+    /// §8.4). 1: the reads one after the other, as [`Port::read_quadlet`] does them (a lost
+    /// datagram asked again after [`super::QUADLET_RETRY_WAIT`], the last attempt waiting the
+    /// whole reply timeout).
+    pub fn set_quadlet_window(&mut self, window: u8) {
+        self.window = window.clamp(1, MAX_QUADLET_WINDOW);
+    }
+    pub fn quadlet_window(&self) -> u8 {
+        self.window
+    }
+    /// Longest one batch waits in all (default and at most: the link's reply timeout, so a
+    /// cycle whose boards do not answer is given up after one reply timeout, whatever number
+    /// of registers it asks). Registers still unanswered then are left unread. A lost datagram
+    /// never waits for it: its register is asked again after the retry wait.
+    pub fn set_quadlet_batch_budget(&mut self, budget: Option<Duration>) {
+        self.batch_budget = budget;
+    }
+    /// The retry wait a batch uses now: the measured round trip plus four deviations
+    /// ([`Self::batch_retry_wait`]), or `None` on a link without retry.
+    pub fn quadlet_retry_wait(&self) -> Option<Duration> {
+        self.link.quadlet_retry().map(|r| self.batch_retry_wait(r))
+    }
+
+    /// Smoothed round trip + 4 × its deviation (RFC 6298), between [`MIN_RETRY_WAIT`] and 4
+    /// times the link's wait; the link's wait until a round trip was measured.
+    fn batch_retry_wait(&self, r: QuadletRetry) -> Duration {
+        let hi = r.wait * 4;
+        let lo = MIN_RETRY_WAIT.min(hi);
+        match self.srtt_ns {
+            None => r.wait,
+            Some(srtt) => Duration::from_nanos(srtt.saturating_add(4 * self.rttvar_ns))
+                .max(lo)
+                .min(hi),
+        }
+    }
+
+    /// One measured round trip. Each reply names its request by label, so even the reply to
+    /// an earlier request of a register asked again gives an exact sample (no Karn ambiguity).
+    fn rtt_sample(&mut self, rtt: Duration) {
+        let r = u64::try_from(rtt.as_nanos())
+            .unwrap_or(u64::MAX / 8)
+            .min(1 << 40);
+        match self.srtt_ns {
+            None => {
+                self.srtt_ns = Some(r);
+                self.rttvar_ns = r / 2;
+            }
+            Some(srtt) => {
+                self.rttvar_ns = (3 * self.rttvar_ns + srtt.abs_diff(r)) / 4;
+                self.srtt_ns = Some((7 * srtt + r) / 8);
+            }
+        }
     }
 
     fn node(&self, board: u8) -> Result<u8, PortError> {
@@ -451,6 +562,251 @@ impl<L: Link> EthPort<L> {
         }
     }
 
+    /// One pipelined batch of at most [`MAX_BATCH`] quadlet reads (see
+    /// [`Port::read_quadlets`] on [`EthPort`]).
+    fn read_batch(
+        &mut self,
+        reqs: &[(u8, u16)],
+        out: &mut [Option<u32>],
+        retry: QuadletRetry,
+    ) -> Result<(), PortError> {
+        let n = reqs.len().min(out.len()).min(MAX_BATCH);
+        let (Some(reqs), Some(out)) = (reqs.get(..n), out.get_mut(..n)) else {
+            return Ok(());
+        };
+        self.counters.quadlet_batches += 1;
+        let start = Instant::now();
+        let budget = self
+            .batch_budget
+            .map_or(retry.reply_timeout, |b| b.min(retry.reply_timeout));
+        let deadline = start + budget;
+        // Twice a single read's attempts: none of them waits the reply timeout, the batch's
+        // deadline bounds them all (at 10% loss each way a register then fails once in 10^6).
+        let attempts = retry.attempts.max(1).saturating_mul(2);
+        let window = usize::from(self.window);
+        if self.resync {
+            // Replies of an earlier cycle may be queued: throw them away before this batch's
+            // first request. No drain happens within the batch: it would throw away replies
+            // of requests still outstanding.
+            self.resync = false;
+            self.counters.resyncs += 1;
+            self.counters.drained += self.link.discard_pending(&mut self.rx[..]) as u64;
+        }
+        let mut node = [0u8; MAX_BATCH];
+        let mut state = [Entry::Unsent; MAX_BATCH];
+        let mut sends = [0u8; MAX_BATCH];
+        let mut due = [deadline; MAX_BATCH];
+        // Entry asked with each label in this batch, and when.
+        let mut label_entry = [NO_ENTRY; 64];
+        let mut sent_at = [start; 64];
+        let mut accept = 0u64;
+        let mut first_err: Option<PortError> = None;
+        let mut last_bad: Option<PortError> = None;
+        for (i, (&(board, _), o)) in reqs.iter().zip(out.iter_mut()).enumerate() {
+            *o = None;
+            match self.node(board) {
+                Ok(nd) => node[i] = nd,
+                Err(e) => {
+                    state[i] = Entry::Skipped;
+                    first_err.get_or_insert(e);
+                }
+            }
+        }
+        // Boards (bit = id) asked, answering, and given up in this batch.
+        let (mut asked, mut answered, mut failed) = (0u16, 0u16, 0u16);
+        let (mut labels_used, mut taken) = (0u8, 0u8);
+        let mut unexpected = false;
+        let mut rto = self.batch_retry_wait(retry);
+        loop {
+            let now = Instant::now();
+            // Requests not answered in time: ask again with a new label, or give up.
+            for i in 0..n {
+                if state[i] != Entry::InFlight || now < due[i] {
+                    continue;
+                }
+                let (board, addr) = reqs[i];
+                let bit = board_bit(board);
+                let silent = self.silent_boards & bit & !answered != 0;
+                if silent || sends[i] >= attempts || labels_used >= MAX_BATCH_LABELS {
+                    state[i] = Entry::GivenUp;
+                    failed |= bit;
+                    continue;
+                }
+                match self.send_request(
+                    node[i],
+                    addr,
+                    RequestKind::QuadletRead,
+                    &[],
+                    self.noforward,
+                ) {
+                    Ok(label) => {
+                        let l = usize::from(label & LABEL_MASK);
+                        label_entry[l] = i as u8;
+                        sent_at[l] = now;
+                        accept |= 1 << l;
+                        labels_used += 1;
+                        sends[i] += 1;
+                        due[i] = now + rto;
+                        self.counters.quadlet_retries += 1;
+                    }
+                    Err(e) => {
+                        first_err.get_or_insert(e);
+                        state[i] = Entry::GivenUp;
+                        failed |= bit;
+                    }
+                }
+            }
+            // New requests, in order, while fewer than `window` are outstanding.
+            let mut in_flight = state[..n].iter().filter(|s| **s == Entry::InFlight).count();
+            for i in 0..n {
+                if in_flight >= window || labels_used >= MAX_BATCH_LABELS {
+                    break;
+                }
+                if state[i] != Entry::Unsent {
+                    continue;
+                }
+                let (board, addr) = reqs[i];
+                let bit = board_bit(board);
+                if failed & bit != 0 {
+                    state[i] = Entry::Skipped;
+                    continue;
+                }
+                // A board silent in its last batch gets one request until it answers.
+                let silent = self.silent_boards & bit & !answered != 0;
+                if silent && asked & bit != 0 {
+                    continue;
+                }
+                match self.send_request(
+                    node[i],
+                    addr,
+                    RequestKind::QuadletRead,
+                    &[],
+                    self.noforward,
+                ) {
+                    Ok(label) => {
+                        let l = usize::from(label & LABEL_MASK);
+                        label_entry[l] = i as u8;
+                        sent_at[l] = now;
+                        accept |= 1 << l;
+                        labels_used += 1;
+                        sends[i] = 1;
+                        // The one request to a silent board waits for the whole batch.
+                        due[i] = if silent { deadline } else { now + rto };
+                        state[i] = Entry::InFlight;
+                        asked |= bit;
+                        in_flight += 1;
+                    }
+                    Err(e) => {
+                        first_err.get_or_insert(e);
+                        state[i] = Entry::Skipped;
+                        failed |= bit;
+                    }
+                }
+            }
+            let open = state[..n]
+                .iter()
+                .any(|s| matches!(s, Entry::Unsent | Entry::InFlight));
+            if !open || now >= deadline {
+                break;
+            }
+            let mut next = deadline;
+            for i in 0..n {
+                if state[i] == Entry::InFlight && due[i] < next {
+                    next = due[i];
+                }
+            }
+            let wait = next.saturating_duration_since(now);
+            if wait.is_zero() {
+                continue;
+            }
+            let got = match self.link.recv_within(&mut self.rx[..], wait) {
+                Ok(len) => len,
+                Err(PortError::Timeout { .. }) => continue,
+                Err(e) => {
+                    first_err.get_or_insert(e);
+                    unexpected = true;
+                    break;
+                }
+            };
+            match self.validate(
+                got,
+                UNKNOWN_BOARD,
+                None,
+                0,
+                accept,
+                Expect::Quadlet,
+                &mut [],
+            ) {
+                Ok((v, src)) => {
+                    let l = usize::from(self.last_label & LABEL_MASK);
+                    let i = usize::from(label_entry[l]);
+                    let fresh = matches!(state.get(i), Some(Entry::InFlight | Entry::GivenUp));
+                    if !fresh || node.get(i) != Some(&src) {
+                        // A duplicate, or a reply from a node this label was not sent to.
+                        self.counters.stale_replies += 1;
+                        unexpected = true;
+                        continue;
+                    }
+                    if let Some(o) = out.get_mut(i) {
+                        *o = Some(v);
+                    }
+                    state[i] = Entry::Done;
+                    taken += 1;
+                    answered |= board_bit(reqs[i].0);
+                    self.counters.replies_ok += 1;
+                    self.rtt_sample(Instant::now().saturating_duration_since(sent_at[l]));
+                    rto = self.batch_retry_wait(retry);
+                }
+                Err(PortError::WrongLabel { .. } | PortError::WrongSource { .. }) => {
+                    // Not of this batch: a late reply of an earlier cycle, skipped.
+                    self.counters.stale_replies += 1;
+                    unexpected = true;
+                }
+                Err(e @ (PortError::BusReset { .. } | PortError::InternalError { .. })) => {
+                    // The cycle is not trusted, as with a single read.
+                    self.counters.bad_replies += 1;
+                    unexpected = true;
+                    first_err.get_or_insert(e);
+                }
+                Err(e) => {
+                    // A damaged or dropped reply: like a lost one, its register is asked again.
+                    self.counters.bad_replies += 1;
+                    unexpected = true;
+                    last_bad = Some(e);
+                }
+            }
+        }
+        // Replies still to come (requests outstanding, lost or late) must not meet the next
+        // request unchecked: drain before it.
+        self.resync = unexpected || labels_used > taken;
+        self.silent_boards = (self.silent_boards | asked) & !answered;
+        if asked != 0 {
+            self.link_answers = answered != 0;
+        }
+        let mut unread = false;
+        for (i, &(board, addr)) in reqs.iter().enumerate() {
+            match state[i] {
+                Entry::Done => {}
+                Entry::Skipped => unread = true,
+                Entry::Unsent | Entry::InFlight | Entry::GivenUp => {
+                    unread = true;
+                    self.counters.timeouts += u64::from(state[i] != Entry::Unsent);
+                    first_err.get_or_insert(match last_bad {
+                        Some(e) => e,
+                        None => PortError::Timeout { board, addr },
+                    });
+                }
+            }
+        }
+        if unread && Instant::now() >= deadline {
+            self.counters.batch_deadlines += 1;
+        }
+        match first_err {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
     fn check_block_len(len: usize, max: usize) -> Result<u16, PortError> {
         if len == 0 || !len.is_multiple_of(4) || len > max {
             return Err(PortError::BlockSize { len, max });
@@ -545,6 +901,39 @@ impl<L: Link> Port for EthPort<L> {
         }
     }
 
+    /// On a lossy link ([`Link::quadlet_retry`]) with a window above 1
+    /// ([`EthPort::set_quadlet_window`]): up to `window` requests outstanding at once, each with
+    /// its own label. A reply is taken for the register its label was sent for, and only from
+    /// the node it was sent to; a reply whose label is not one of this batch's (a late reply of
+    /// an earlier cycle) or that answers a register already read is skipped. A register not
+    /// answered within the retry wait (the measured round trip + 4 deviations, see
+    /// [`EthPort::quadlet_retry_wait`]) is asked again with a new label, up to the link's
+    /// number of attempts; a reply to any of its requests is taken. The batch ends when every
+    /// register is read or given up, or at its deadline ([`EthPort::set_quadlet_batch_budget`]):
+    /// no request waits the whole reply timeout. A board that answered nothing in its last
+    /// batch gets one request per batch until it answers (as [`Port::read_quadlet`] asks once
+    /// after a read without reply), so a stall does not pile up requests at it. Otherwise (a
+    /// window of 1, a link without retry) the reads go one after the other.
+    fn read_quadlets(
+        &mut self,
+        reqs: &[(u8, u16)],
+        out: &mut [Option<u32>],
+    ) -> Result<(), PortError> {
+        let Some(retry) = self.link.quadlet_retry().filter(|_| self.window > 1) else {
+            return read_quadlets_in_turn(self, reqs, out);
+        };
+        let mut first_err = None;
+        for (r, o) in reqs.chunks(MAX_BATCH).zip(out.chunks_mut(MAX_BATCH)) {
+            if let Err(e) = self.read_batch(r, o, retry) {
+                first_err.get_or_insert(e);
+            }
+        }
+        match first_err {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
     fn read_block(&mut self, board: u8, addr: u16, out: &mut [u8]) -> Result<(), PortError> {
         let len = Self::check_block_len(out.len(), MAX_READ_BYTES)?;
         let node = self.node(board)?;
@@ -588,6 +977,11 @@ impl<L: Link> Port for EthPort<L> {
         )?;
         self.read_block(hub, HUB_ADDRESS, out)
     }
+}
+
+/// Bit of `board` in a 16-board mask (0 for an id out of range, refused before it is asked).
+fn board_bit(board: u8) -> u16 {
+    1u16.checked_shl(u32::from(board)).unwrap_or(0)
 }
 
 /// Checks one CRC of a reply (header, or data of a block reply; both are 0 = 0 for the kinds

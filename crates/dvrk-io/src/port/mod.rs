@@ -21,7 +21,10 @@ mod udp;
 pub mod conformance;
 
 pub use discovery::{BoardInfo, BoardProbe, Discovery, EthMode, FpgaGeneration, reg, scan_boards};
-pub use eth::{EthCounters, EthPort, MAX_READ_BYTES, MAX_WRITE_BYTES, WriteAccess};
+pub use eth::{
+    DEFAULT_QUADLET_WINDOW, EthCounters, EthPort, MAX_QUADLET_WINDOW, MAX_READ_BYTES,
+    MAX_WRITE_BYTES, MIN_RETRY_WAIT, WriteAccess,
+};
 pub use fault::{FaultConfig, FaultCounters, FaultInjector};
 #[cfg(feature = "firewire")]
 pub use firewire::{FirewirePort, FirewireWriteAccess};
@@ -56,6 +59,48 @@ pub trait Port {
         board_mask: u16,
         out: &mut [u8],
     ) -> Result<(), PortError>;
+    /// Quadlet reads of several registers, `reqs[i]` = (board, addr) into `out[i]` (`None`: not
+    /// read; entries of `out` beyond `reqs` are left alone). Once a read of a board fails, the
+    /// board's later entries are not asked (it stopped answering). Ok when every entry was
+    /// read, else the first error. The default reads them in turn ([`read_quadlets_in_turn`]);
+    /// [`EthPort`] over a lossy link keeps a few requests outstanding at once
+    /// ([`EthPort::set_quadlet_window`]).
+    fn read_quadlets(
+        &mut self,
+        reqs: &[(u8, u16)],
+        out: &mut [Option<u32>],
+    ) -> Result<(), PortError> {
+        read_quadlets_in_turn(self, reqs, out)
+    }
+}
+
+/// [`Port::read_quadlets`] one request after the other through [`Port::read_quadlet`].
+pub fn read_quadlets_in_turn<P: Port + ?Sized>(
+    port: &mut P,
+    reqs: &[(u8, u16)],
+    out: &mut [Option<u32>],
+) -> Result<(), PortError> {
+    let mut first_err = None;
+    // Boards (bit = id) whose read failed in this batch.
+    let mut failed = 0u32;
+    for (&(board, addr), o) in reqs.iter().zip(out.iter_mut()) {
+        *o = None;
+        let bit = 1u32.checked_shl(u32::from(board)).unwrap_or(0);
+        if failed & bit != 0 {
+            continue;
+        }
+        match port.read_quadlet(board, addr) {
+            Ok(v) => *o = Some(v),
+            Err(e) => {
+                failed |= bit;
+                first_err.get_or_insert(e);
+            }
+        }
+    }
+    match first_err {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
 }
 
 impl<P: Port + ?Sized> Port for &mut P {
@@ -71,6 +116,13 @@ impl<P: Port + ?Sized> Port for &mut P {
         out: &mut [u8],
     ) -> Result<(), PortError> {
         (**self).broadcast_query_hub_read(board_mask, out)
+    }
+    fn read_quadlets(
+        &mut self,
+        reqs: &[(u8, u16)],
+        out: &mut [Option<u32>],
+    ) -> Result<(), PortError> {
+        (**self).read_quadlets(reqs, out)
     }
 }
 
@@ -111,12 +163,16 @@ pub trait Link {
 
 /// The quadlet retry of a lossy link (UDP): a quadlet read waits `wait` for its reply, then asks
 /// again, `attempts` requests in all, the last one waiting the link's whole timeout; a reply to
-/// any of them is taken (they read the same register, so each is as fresh as the others). A datagram lost at 1.5 kHz then costs `wait`,
-/// not the whole reply timeout and so the cycle (issue 22).
+/// any of them is taken (they read the same register, so each is as fresh as the others). A
+/// datagram lost at 1.5 kHz then costs `wait`, not the whole reply timeout and so the cycle
+/// (issue 22). A batch of quadlet reads ([`Port::read_quadlets`]) waits at most
+/// `reply_timeout` in all, and its retry wait follows the measured round trip.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct QuadletRetry {
     pub wait: std::time::Duration,
     pub attempts: u8,
+    /// The link's whole reply timeout.
+    pub reply_timeout: std::time::Duration,
 }
 
 impl<L: Link + ?Sized> Link for &mut L {

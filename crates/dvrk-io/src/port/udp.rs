@@ -256,6 +256,7 @@ impl Link for UdpLink {
         (wait < self.timeout).then_some(QuadletRetry {
             wait,
             attempts: MAX_QUADLET_ATTEMPTS,
+            reply_timeout: self.timeout,
         })
     }
 

@@ -262,6 +262,16 @@ impl Boards {
         buf
     }
 
+    /// Answers a quadlet read of `addr` at `node` with label `label` as if it had just arrived
+    /// (to answer again, or with a [`Fault`] set for this one reply).
+    pub fn answer_quadlet_read(&mut self, node: u8, addr: u16, label: u8) -> Vec<Vec<u8>> {
+        let req = RequestRepr::host(node, label, u64::from(addr), RequestKind::QuadletRead);
+        let mut buf = [0u8; 64];
+        let cw = dvrk_io::wire::ControlWord::new(true, self.generation);
+        let n = EthRequest::emit(&mut buf, cw, &req, &[]).unwrap();
+        self.handle(&buf[..n])
+    }
+
     /// Answers one request datagram; returns the reply datagrams (none, one or two).
     pub fn handle(&mut self, dgram: &[u8]) -> Vec<Vec<u8>> {
         let Ok(req) = EthRequest::parse(dgram) else {

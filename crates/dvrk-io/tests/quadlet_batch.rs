@@ -1,0 +1,416 @@
+//! The pipelined batch of quadlet reads (`Port::read_quadlets` on a UDP port, issue 22 item 7)
+//! against a scripted board thread on 127.0.0.1: each test decides, request by request, what
+//! the board answers, so that the batch meets losses, reordering, stale and foreign replies
+//! and silence exactly where the test puts them.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+
+use std::net::{SocketAddr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use common::Boards;
+use dvrk_io::port::{Port, PortError, UdpPort};
+
+/// One request as the board saw it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Req {
+    node: u8,
+    addr: u16,
+    label: u8,
+}
+
+/// Label of a request datagram: control word (2 bytes), then q0 = dest<<16 | tl<<10 | ...
+fn request_label(dgram: &[u8]) -> u8 {
+    dgram[4] >> 2
+}
+
+/// The status of both boards, then encoder position and ADC of each actuator, as shared mode
+/// asks them for a Classic PSM (actuators 1-4 on board 6, 5-7 on board 7).
+fn shared_cycle() -> Vec<(u8, u16)> {
+    let mut reqs = vec![(6u8, 0u16), (7, 0)];
+    for (board, axes) in [(6u8, 0..4u16), (7, 0..3)] {
+        for a in axes {
+            reqs.push((board, ((a + 1) << 4) | 5));
+            reqs.push((board, (a + 1) << 4));
+        }
+    }
+    reqs
+}
+
+fn expected(boards: &mut Boards, reqs: &[(u8, u16)]) -> Vec<Option<u32>> {
+    reqs.iter()
+        .map(|&(b, a)| boards.board(b).register(a))
+        .collect()
+}
+
+/// Gives every axis distinct encoder and current values, changed by `k`.
+fn set_values(boards: &mut Boards, k: i32) {
+    for (id, n) in [(6u8, 4usize), (7, 3)] {
+        for ax in 0..n {
+            let c = k * 1000 + i32::from(id) * 10 + ax as i32;
+            boards.board(id).set_axis(ax, c, 0x8000 + c as u16);
+        }
+    }
+}
+
+/// A PSM's two boards with [`set_values`]`(k)`.
+fn boards_with(k: i32) -> Boards {
+    let mut b = Boards::psm(8);
+    set_values(&mut b, k);
+    b
+}
+
+/// A board thread: `script(boards, request, datagram, normal replies, sock, from)` sends what
+/// it wants; it runs until `stop` returns true after a receive timeout, and returns the requests
+/// it saw.
+fn board<F>(mut boards: Boards, mut script: F) -> (SocketAddr, std::thread::JoinHandle<Vec<Req>>)
+where
+    F: FnMut(&mut Boards, Req, Vec<Vec<u8>>, &UdpSocket, SocketAddr) -> bool + Send + 'static,
+{
+    let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(300)))
+        .unwrap();
+    let addr = sock.local_addr().unwrap();
+    let h = std::thread::spawn(move || {
+        let mut seen = Vec::new();
+        let mut buf = [0u8; 2048];
+        loop {
+            let Ok((n, from)) = sock.recv_from(&mut buf) else {
+                return seen;
+            };
+            let replies = boards.handle(&buf[..n]);
+            let l = boards.log.last().unwrap();
+            let req = Req {
+                node: l.node,
+                addr: l.addr as u16,
+                label: request_label(&buf[..n]),
+            };
+            seen.push(req);
+            if script(&mut boards, req, replies, &sock, from) {
+                return seen;
+            }
+        }
+    });
+    (addr, h)
+}
+
+/// Requests that arrive within `wait` (each answered by `boards` into its replies, not sent).
+fn more_requests(
+    boards: &mut Boards,
+    sock: &UdpSocket,
+    wait: Duration,
+) -> Vec<(Req, Vec<Vec<u8>>)> {
+    let mut got = Vec::new();
+    let mut buf = [0u8; 2048];
+    sock.set_read_timeout(Some(wait)).unwrap();
+    while let Ok((n, _)) = sock.recv_from(&mut buf) {
+        let replies = boards.handle(&buf[..n]);
+        let l = boards.log.last().unwrap();
+        let req = Req {
+            node: l.node,
+            addr: l.addr as u16,
+            label: request_label(&buf[..n]),
+        };
+        got.push((req, replies));
+    }
+    sock.set_read_timeout(Some(Duration::from_millis(300)))
+        .unwrap();
+    got
+}
+
+fn port(addr: SocketAddr, window: u8) -> UdpPort {
+    let mut p = UdpPort::open_udp(addr).unwrap();
+    p.link_mut().set_timeout(Duration::from_secs(2)).unwrap();
+    p.set_quadlet_window(window);
+    // Generous, so that a loaded machine does not end a batch before the script is through.
+    p.set_quadlet_batch_budget(Some(Duration::from_secs(1)));
+    p
+}
+
+fn send_all(sock: &UdpSocket, from: SocketAddr, replies: &[Vec<u8>]) {
+    for r in replies {
+        sock.send_to(r, from).unwrap();
+    }
+}
+
+/// The board holds its replies until it has the window's requests, answers them in reverse
+/// order, then answers at once: every value lands in its own register's entry, and no more
+/// than the window's registers were ever asked before the first answer.
+#[test]
+fn replies_out_of_order_are_matched_to_their_registers_and_the_window_holds() {
+    let mut truth = boards_with(1);
+    let reqs = shared_cycle();
+    let want = expected(&mut truth, &reqs);
+    let mut held: Vec<Vec<u8>> = Vec::new();
+    let mut holding = true;
+    let extra = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let ex = extra.clone();
+    let (addr, h) = board(boards_with(1), move |boards, _req, replies, sock, from| {
+        if holding {
+            held.extend(replies);
+            if held.len() == 4 {
+                // Nothing more may come while the four are unanswered.
+                let more = more_requests(boards, sock, Duration::from_millis(20));
+                ex.lock().unwrap().extend(more.iter().map(|(q, _)| *q));
+                holding = false;
+                for r in held.drain(..).rev() {
+                    sock.send_to(&r, from).unwrap();
+                }
+                for (_, r) in more {
+                    send_all(sock, from, &r);
+                }
+            }
+        } else {
+            send_all(sock, from, &replies);
+        }
+        false
+    });
+    let mut p = port(addr, 4);
+    // A retry wait longer than the board's hold, so that no register is asked twice meanwhile.
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(100)));
+    let mut out = vec![None; reqs.len()];
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(out, want);
+    drop(p);
+    let seen = h.join().unwrap();
+    // The first four entries, each once, before any answer; each with its own label.
+    let first: Vec<(u8, u16)> = seen[..4].iter().map(|r| (r.node, r.addr)).collect();
+    assert_eq!(first, reqs[..4].to_vec());
+    let mut labels: Vec<u8> = seen.iter().map(|r| r.label).collect();
+    labels.sort_unstable();
+    labels.dedup();
+    assert_eq!(labels.len(), seen.len(), "a label used twice: {seen:?}");
+    assert_eq!(
+        seen.len() + extra.lock().unwrap().len(),
+        reqs.len(),
+        "{seen:?}"
+    );
+    assert_eq!(*extra.lock().unwrap(), vec![], "asked beyond the window");
+}
+
+/// At most `window` registers are asked at a time, whatever the window (here 2 and 6), counted
+/// by a board that answers each request only when the next one arrives or after a pause.
+#[test]
+fn at_most_the_window_is_outstanding() {
+    for window in [2u8, 6] {
+        let reqs = shared_cycle();
+        let mut pending: Vec<(Req, Vec<Vec<u8>>)> = Vec::new();
+        let max = std::sync::Arc::new(std::sync::Mutex::new(0usize));
+        let m = max.clone();
+        let (addr, h) = board(Boards::psm(8), move |boards, req, replies, sock, from| {
+            let add = |pending: &mut Vec<(Req, Vec<Vec<u8>>)>, req: Req, r| {
+                // A register asked again (presumed lost) is not another outstanding one.
+                if !pending
+                    .iter()
+                    .any(|(q, _)| (q.node, q.addr) == (req.node, req.addr))
+                {
+                    pending.push((req, r));
+                }
+                let mut mx = m.lock().unwrap();
+                *mx = (*mx).max(pending.len());
+            };
+            add(&mut pending, req, replies);
+            if pending.len() >= usize::from(window) {
+                // Full: whatever else comes in a pause is counted, then the oldest answered.
+                for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
+                    add(&mut pending, q, r);
+                }
+                let (_, r) = pending.remove(0);
+                send_all(sock, from, &r);
+            }
+            false
+        });
+        let mut p = port(addr, window);
+        p.link_mut()
+            .set_quadlet_retry_wait(Some(Duration::from_millis(200)));
+        let mut out = vec![None; reqs.len()];
+        // The board answers the last `window - 1` only when the batch gives up: Err.
+        let _ = p.read_quadlets(&reqs[..], &mut out);
+        drop(p);
+        let seen = h.join().unwrap();
+        assert!(seen.len() >= usize::from(window), "{seen:?}");
+        assert_eq!(
+            *max.lock().unwrap(),
+            usize::from(window),
+            "window {window}: {seen:?}"
+        );
+    }
+}
+
+/// A lost request and a lost reply: both registers are asked again with new labels and
+/// answered within the batch, every value right.
+#[test]
+fn a_lost_request_or_reply_is_asked_again_and_answered() {
+    let mut truth = boards_with(2);
+    let reqs = shared_cycle();
+    let want = expected(&mut truth, &reqs);
+    let lose_request = reqs[3];
+    let lose_reply = reqs[9];
+    let mut lost = (false, false);
+    let (addr, h) = board(boards_with(2), move |_, req, replies, sock, from| {
+        let r = (req.node, req.addr);
+        if r == lose_request && !lost.0 {
+            lost.0 = true;
+        } else if r == lose_reply && !lost.1 {
+            lost.1 = true;
+        } else {
+            send_all(sock, from, &replies);
+        }
+        false
+    });
+    let mut p = port(addr, 4);
+    let mut out = vec![None; reqs.len()];
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(out, want);
+    let c = p.counters();
+    assert!(c.quadlet_retries >= 2, "{c:?}");
+    assert_eq!(c.replies_ok, reqs.len() as u64, "{c:?}");
+    drop(p);
+    let seen = h.join().unwrap();
+    for r in [lose_request, lose_reply] {
+        let asked: Vec<&Req> = seen.iter().filter(|q| (q.node, q.addr) == r).collect();
+        assert!(asked.len() >= 2, "{r:?} asked {asked:?}");
+        assert_ne!(asked[0].label, asked[1].label);
+    }
+}
+
+/// The reply to a register of one cycle held back by the board and sent in the next cycle,
+/// after that cycle's first request (so after the port's drain), is skipped: the next cycle's
+/// values are all the new ones, though the stale reply comes from the right node with a label
+/// the port used (in the cycle before).
+#[test]
+fn a_stale_reply_of_an_earlier_cycle_is_never_taken() {
+    let mut truth = boards_with(3);
+    let reqs = shared_cycle();
+    let n = reqs.len();
+    let held_register = reqs[4];
+    let mut stale: Option<Vec<u8>> = None;
+    let cycle2 = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let c2 = cycle2.clone();
+    let mut in_cycle2 = false;
+    let (addr, h) = board(boards_with(3), move |boards, req, replies, sock, from| {
+        if !in_cycle2 && c2.load(std::sync::atomic::Ordering::SeqCst) {
+            // Cycle 2's first request: the values change, this request is answered with the
+            // new ones, then the reply held back in cycle 1 arrives.
+            in_cycle2 = true;
+            set_values(boards, 4);
+            let fresh = boards.answer_quadlet_read(req.node, req.addr, req.label);
+            send_all(sock, from, &fresh);
+            sock.send_to(&stale.take().unwrap(), from).unwrap();
+            return false;
+        }
+        if (req.node, req.addr) == held_register && stale.is_none() {
+            // Cycle 1: hold this reply back; the port asks again and gets the next one.
+            stale = replies.into_iter().next();
+            return false;
+        }
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = port(addr, 4);
+    let mut out = vec![None; n];
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(out, expected(&mut truth, &reqs));
+    set_values(&mut truth, 4);
+    let want = expected(&mut truth, &reqs);
+    assert_ne!(out, want, "the test needs values that change");
+    cycle2.store(true, std::sync::atomic::Ordering::SeqCst);
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(out, want);
+    assert!(p.counters().stale_replies >= 1, "{:?}", p.counters());
+    drop(p);
+    h.join().unwrap();
+}
+
+/// A reply whose source node is not the board the label was sent to is refused (it would be
+/// the right value here, so the proof is that the register is asked again).
+#[test]
+fn a_reply_from_another_source_is_refused() {
+    let mut truth = boards_with(5);
+    let reqs = shared_cycle();
+    let want = expected(&mut truth, &reqs);
+    let wrong = (7u8, 0x15u16);
+    let mut done = false;
+    let (addr, h) = board(boards_with(5), move |boards, req, replies, sock, from| {
+        if (req.node, req.addr) == wrong && !done {
+            // Right label and register, source node 8.
+            done = true;
+            boards.fault = common::Fault::WrongSource;
+            let r = boards.answer_quadlet_read(req.node, req.addr, req.label);
+            boards.fault = common::Fault::None;
+            send_all(sock, from, &r);
+            return false;
+        }
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = port(addr, 4);
+    let mut out = vec![None; reqs.len()];
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(out, want);
+    assert!(p.counters().stale_replies >= 1, "{:?}", p.counters());
+    drop(p);
+    let seen = h.join().unwrap();
+    let asked = seen.iter().filter(|q| (q.node, q.addr) == wrong).count();
+    assert!(asked >= 2, "{seen:?}");
+}
+
+/// Board 7 never answers: the batch ends at its deadline, well before the 2 s reply timeout,
+/// with board 6's registers read and board 7's `None`. The next batch asks the silent board
+/// once, not once per register.
+#[test]
+fn a_silent_board_ends_the_batch_at_its_deadline() {
+    let reqs = shared_cycle();
+    let (addr, h) = board(Boards::psm(8), move |_, req, replies, sock, from| {
+        if req.node != 7 {
+            send_all(sock, from, &replies);
+        }
+        false
+    });
+    let mut p = port(addr, 4);
+    p.set_quadlet_batch_budget(Some(Duration::from_millis(50)));
+    let mut out = vec![None; reqs.len()];
+    let t0 = Instant::now();
+    let r = p.read_quadlets(&reqs, &mut out);
+    // A liveness bound (the budget is 50 ms, the reply timeout 2 s), not a speed claim.
+    assert!(t0.elapsed() < Duration::from_secs(1), "{:?}", t0.elapsed());
+    assert!(
+        matches!(r, Err(PortError::Timeout { board: 7, .. })),
+        "{r:?}"
+    );
+    for (i, &(b, _)) in reqs.iter().enumerate() {
+        assert_eq!(out[i].is_some(), b == 6, "entry {i} {:?}", reqs[i]);
+    }
+    let before = p.counters().requests;
+    let r = p.read_quadlets(&reqs, &mut out);
+    assert!(r.is_err());
+    drop(p);
+    let seen = h.join().unwrap();
+    let to_7_in_second = seen[before as usize..]
+        .iter()
+        .filter(|q| q.node == 7)
+        .count();
+    assert_eq!(to_7_in_second, 1, "{seen:?}");
+}
+
+/// A window of 1 is today's sequential read: one request at a time, in order.
+#[test]
+fn a_window_of_one_reads_in_turn() {
+    let mut truth = boards_with(6);
+    let reqs = shared_cycle();
+    let want = expected(&mut truth, &reqs);
+    let (addr, h) = board(boards_with(6), move |_, _, replies, sock, from| {
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = port(addr, 1);
+    let mut out = vec![None; reqs.len()];
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(out, want);
+    assert_eq!(p.counters().quadlet_batches, 0);
+    drop(p);
+    let seen: Vec<(u8, u16)> = h.join().unwrap().iter().map(|r| (r.node, r.addr)).collect();
+    assert_eq!(seen, reqs);
+}
