@@ -1,9 +1,10 @@
 //! Coexistence harness (issue 13, item 4): what the sidecar costs the console.
 //!
 //! The console stand-in (`dvrk-sidecar drive`, 1500 Hz) drives the UDP board emulator
-//! (`dvrk-sidecar sim --listen 0.0.0.0:PORT`) three ways: alone, beside `serve` in shared mode
-//! (quadlet reads of its own at 1500 Hz), beside `serve` in tap mode (`tap:lo:PORT`, rate
-//! follow). The cases run interleaved, round after round, so slow drifts of the shared
+//! (`dvrk-sidecar sim --listen 0.0.0.0:PORT`) four ways: alone, beside `serve` in shared mode
+//! (quadlet reads of its own at 1500 Hz) with its default window of 4 requests in flight and with
+//! one at a time (`shared_requests_in_flight = 1`, issue 22), beside `serve` in tap mode
+//! (`tap:lo:PORT`, rate follow). The cases run interleaved, round after round, so slow drifts of the shared
 //! machine's load hit them alike; the load average is noted with every run.
 //!
 //! Per run: the stand-in's cycle time (p50, p99, max of read + write), its missed cycles
@@ -73,7 +74,10 @@ fn stop(c: Child) -> Res<String> {
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum Case {
     Alone,
+    /// Shared mode with its default window (`shared_requests_in_flight`, 4).
     Shared,
+    /// Shared mode one request at a time (`shared_requests_in_flight = 1`), as before issue 22.
+    SharedOneAtATime,
     Tap,
 }
 
@@ -81,7 +85,8 @@ impl Case {
     fn name(self) -> &'static str {
         match self {
             Case::Alone => "alone",
-            Case::Shared => "beside serve, shared",
+            Case::Shared => "beside serve, shared (4 in flight)",
+            Case::SharedOneAtATime => "beside serve, shared (1 in flight)",
             Case::Tap => "beside serve, tap",
         }
     }
@@ -90,13 +95,20 @@ impl Case {
 fn serve_config(dir: &Path, case: Case, port: u16, prefix: &str) -> Res<PathBuf> {
     let c = repo().join("config");
     let (source, access, rate) = match case {
-        Case::Shared => (format!("udp:127.0.0.1:{port}"), "shared", "1500"),
+        Case::Shared | Case::SharedOneAtATime => {
+            (format!("udp:127.0.0.1:{port}"), "shared", "1500")
+        }
         _ => (format!("tap:lo:{port}"), "shared", "\"follow\""),
+    };
+    let window = if case == Case::SharedOneAtATime {
+        "shared_requests_in_flight = 1\n"
+    } else {
+        ""
     };
     let text = format!(
         "source = \"{source}\"\naccess = \"{access}\"\nio = \"{}\"\narm = \"classic\"\n\
          instrument = \"LARGE_NEEDLE_DRIVER_400006\"\ncompliance = \"{}\"\nrate = {rate}\n\
-         prefix = \"{prefix}\"\n",
+         prefix = \"{prefix}\"\n{window}",
         c.join("io/psm-classic.toml").display(),
         c.join("compliance/paper-psm.toml").display(),
     );
@@ -346,7 +358,7 @@ fn main() -> Res<()> {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for round in 1..=rounds {
-        for case in [Case::Alone, Case::Shared, Case::Tap] {
+        for case in [Case::Alone, Case::Shared, Case::SharedOneAtATime, Case::Tap] {
             let r = run_case(case, &protocol, &ethernet, secs, &dir)?;
             let (sa, pa) = if r.case == Case::Tap {
                 (r.sample_age.as_str(), r.publish_age.as_str())
