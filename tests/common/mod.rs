@@ -132,9 +132,16 @@ impl Proc {
     /// Stops with SIGTERM and returns (status, stderr).
     pub fn terminate(&mut self) -> (ExitStatus, String) {
         self.signal(libc::SIGTERM);
-        let st = self
-            .wait_timeout(Duration::from_secs(20))
-            .unwrap_or_else(|| panic!("{} did not stop within 20 s of SIGTERM", self.name));
+        let Some(st) = self.wait_timeout(Duration::from_secs(20)) else {
+            // Killed, so that its stderr ends and says how far the stop got.
+            self.signal(libc::SIGKILL);
+            let _ = self.wait_timeout(Duration::from_secs(5));
+            panic!(
+                "{} did not stop within 20 s of SIGTERM; its stderr: {}",
+                self.name,
+                self.stderr_text()
+            );
+        };
         (st, self.stderr_text())
     }
 }

@@ -435,6 +435,7 @@ pub fn run(path: &Path) -> Result<()> {
         );
     }
     let stop = StopFlag::install()?;
+    spawn_shutdown_guard(stop.clone());
     let first = &svc.arms[0];
     match first.source.clone() {
         Source::Sim => {
@@ -464,6 +465,48 @@ pub fn run(path: &Path) -> Result<()> {
             let sources = crate::tap::TapSource::open_arms(&iface, port, ios)?;
             run_loop(&svc, sources, &stop)
         }
+    }
+}
+
+/// How far the stop got, for the shutdown guard's message: 0 the cycle loop has not noticed
+/// it, 1 the loop ended, 2 the housekeeping thread was joined, 3 the final counters logged.
+static STOP_PHASE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+
+fn stop_phase(p: u8) {
+    STOP_PHASE.store(p, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// How long `serve` may take to stop after SIGTERM or SIGINT before it exits anyway.
+pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// A thread that waits for the stop request, then gives the service [`SHUTDOWN_GRACE`] to
+/// finish (the loop notices the request within a cycle; then the housekeeping thread is joined
+/// and iceoryx2's resources are released) and, if it has not, says so and exits with status 3.
+/// A stop that hangs (seen once in CI: a `serve` still alive 20 s after SIGTERM, cause not
+/// found) then costs 10 s, not a unit stuck until systemd's SIGKILL. The process ends with
+/// `run`, so after a normal stop the thread goes with it.
+fn spawn_shutdown_guard(stop: StopFlag) {
+    let spawned = std::thread::Builder::new()
+        .name("shutdown-guard".into())
+        .spawn(move || {
+            while !stop.raised() {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+            std::thread::sleep(SHUTDOWN_GRACE);
+            let phase = match STOP_PHASE.load(std::sync::atomic::Ordering::Relaxed) {
+                0 => "the cycle loop had not noticed the stop",
+                1 => "joining the housekeeping thread",
+                2 => "logging the final counters",
+                _ => "releasing the shared memory",
+            };
+            tracing::error!(
+                grace_s = SHUTDOWN_GRACE.as_secs(),
+                "the stop did not finish in time after SIGTERM/SIGINT ({phase}); exiting without it"
+            );
+            std::process::exit(3);
+        });
+    if let Err(e) = spawned {
+        warn!("no shutdown guard: starting its thread failed: {e}");
     }
 }
 
@@ -1222,11 +1265,13 @@ fn run_loop<Src: SampleSource>(
             }
         }
     }
+    stop_phase(1);
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
     drop(summaries);
     if housekeeping.join().is_err() {
         warn!("the housekeeping thread panicked");
     }
+    stop_phase(2);
     for (pipe, cfg) in pipes.iter().zip(&svc.arms) {
         let c = pipe.counters;
         info!(
@@ -1239,6 +1284,7 @@ fn run_loop<Src: SampleSource>(
             "stopped"
         );
     }
+    stop_phase(3);
     Ok(())
 }
 
