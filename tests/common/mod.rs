@@ -136,10 +136,10 @@ impl Proc {
             // Killed, so that its stderr ends and says how far the stop got.
             self.signal(libc::SIGKILL);
             let _ = self.wait_timeout(Duration::from_secs(5));
+            let err = self.stderr_text();
             panic!(
-                "{} did not stop within 20 s of SIGTERM; its stderr: {}",
-                self.name,
-                self.stderr_text()
+                "{} did not stop within 20 s of SIGTERM; its stderr: {err}",
+                self.name
             );
         };
         (st, self.stderr_text())
