@@ -68,7 +68,7 @@ pub struct SidecarParams {
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: f64,
     /// Shared mode over UDP: how many quadlet requests the sidecar keeps outstanding at the
-    /// boards at once (1 to 16, default 4). More hides more round trips and lost datagrams
+    /// boards at once (1 to 16, default 1). More hides more round trips and lost datagrams
     /// within a cycle, but the FPGA serves one packet at a time, so each request queued there
     /// delays the console's own packets behind it (reference section 8.4; RELIABILITY.md).
     /// 1: one request at a time, as before (a lost datagram asked again after 150 µs, the last
