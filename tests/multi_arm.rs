@@ -47,15 +47,6 @@ scenario = "{scen}"
     path
 }
 
-fn flag_names(s: &Value) -> Vec<String> {
-    s["header"]["flags"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_str().unwrap().to_owned())
-        .collect()
-}
-
 fn seqs(samples: &[Value]) -> Vec<u64> {
     samples
         .iter()

@@ -215,6 +215,16 @@ pub fn emulator(port: u16, scenario: &str) -> Proc {
 
 /// Runs `dvrk-sidecar echo SERVICE --json --count N` and returns one JSON value per sample.
 /// Fails the test when it does not finish within `limit` (a liveness bound, not a speed claim).
+/// The flag names of a sample as `echo --json` prints them (`header.flags`).
+pub fn flag_names(sample: &serde_json::Value) -> Vec<String> {
+    sample["header"]["flags"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_owned())
+        .collect()
+}
+
 pub fn echo_json(service: &str, count: u64, limit: Duration) -> Vec<serde_json::Value> {
     let mut p = Proc::spawn(
         "echo",
