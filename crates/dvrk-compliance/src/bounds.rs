@@ -48,3 +48,8 @@ pub const MAX_DISTAL_WEIGHT_N: f64 = 10.0;
 /// (`inverse_compliance_rel_sigma`): the 2017 recordings scatter by a few percent; 50% is no
 /// stiffness model at all.
 pub const MAX_STIFFNESS_REL_SIGMA: f64 = 0.5;
+
+/// The largest plausible relative scatter of the calibrated backlash over the depths
+/// (`backlash_rel_sigma`): the 2017 recordings and the simulator scatter by a few percent; 50%
+/// is no backlash model at all.
+pub const MAX_BACKLASH_REL_SIGMA: f64 = 0.5;

@@ -257,6 +257,10 @@ pub struct JointFit {
     pub inverse_compliance_nm_per_rad: [f64; 4],
     /// Mean backlash over depths (rad).
     pub backlash_rad: f64,
+    /// The relative scatter (1 sigma) of the per-depth backlashes around their mean,
+    /// `std / mean` with `n - 1` degrees of freedom; `None` with one depth or a zero mean.
+    /// Written to the parameter file as `backlash_rel_sigma`.
+    pub backlash_rel_sigma: Option<f64>,
     /// Coefficient of determination of the cubic against the per-depth stiffnesses.
     pub r_squared: f64,
     /// The relative scatter (1 sigma) of the per-depth `1/K` around the cubic,
@@ -282,6 +286,18 @@ pub fn relative_scatter(c: &[f64; 4], l: &[f64], k: &[f64]) -> Option<f64> {
         })
         .sum();
     let r = (ss / (n - 4) as f64).sqrt();
+    r.is_finite().then_some(r)
+}
+
+/// The sample standard deviation of `values` over their `mean`, `None` with fewer than two
+/// values or a mean that is not positive (see [`JointFit::backlash_rel_sigma`]).
+pub fn relative_spread(values: impl ExactSizeIterator<Item = f64>, mean: f64) -> Option<f64> {
+    let n = values.len();
+    if n < 2 || mean.is_nan() || mean <= 0.0 {
+        return None;
+    }
+    let ss: f64 = values.map(|v| (v - mean).powi(2)).sum();
+    let r = (ss / (n - 1) as f64).sqrt() / mean;
     r.is_finite().then_some(r)
 }
 
@@ -904,11 +920,13 @@ pub fn fit_joint(rows: &[DataRow], joint: u8, opts: &FitOptions) -> Result<Joint
         });
     }
     let backlash_rad = depths.iter().map(|d| d.backlash_rad).sum::<f64>() / depths.len() as f64;
+    let backlash_rel_sigma = relative_spread(depths.iter().map(|d| d.backlash_rad), backlash_rad);
     Ok(JointFit {
         joint,
         depths,
         inverse_compliance_nm_per_rad: c,
         backlash_rad,
+        backlash_rel_sigma,
         r_squared,
         rel_sigma: relative_scatter(&c, &l, &k),
         insertion_range_m: range,
@@ -1254,6 +1272,16 @@ mod tests {
             "{}",
             fit.backlash_rad
         );
+        // The depths' backlashes scatter; the fit says by how much, and it is what they show.
+        let b: Vec<f64> = fit.depths.iter().map(|d| d.backlash_rad).collect();
+        let rel = fit.backlash_rel_sigma.unwrap();
+        let (lo, hi) = b.iter().fold((f64::INFINITY, 0.0_f64), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+        assert!(
+            rel > 0.0 && rel * fit.backlash_rad <= hi - lo,
+            "{rel} {b:?}"
+        );
         for l in depths() {
             let rel = eval_cubic(&fit.inverse_compliance_nm_per_rad, l) / eval_cubic(&PAPER_J2, l);
             assert!((rel - 1.0).abs() < 0.05, "L {l}: {rel}");
@@ -1432,6 +1460,15 @@ mod tests {
             .collect();
         let (_, r2) = fit_inverse_compliance(1, &l, &k).unwrap();
         assert!(r2 < 1.0 && r2 > 0.9, "{r2}");
+    }
+
+    #[test]
+    fn relative_spread_is_the_sample_deviation_over_the_mean() {
+        // 1, 2, 3: sample deviation 1, mean 2.
+        assert_eq!(relative_spread([1.0, 2.0, 3.0].into_iter(), 2.0), Some(0.5));
+        assert_eq!(relative_spread([2.0].into_iter(), 2.0), None);
+        assert_eq!(relative_spread([0.0, 0.0].into_iter(), 0.0), None);
+        assert_eq!(relative_spread([1.0, f64::NAN].into_iter(), 1.0), None);
     }
 
     #[test]

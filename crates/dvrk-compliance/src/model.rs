@@ -185,10 +185,15 @@ pub const DISTAL_INERTIA_REL_SIGMA: f64 = 0.1;
 /// standard error: the weight is lumped at L, and the torque-offset table holds it at the
 /// sweep's pose only (see [`crate::dynamics::DistalGravityParams`]).
 pub const DISTAL_GRAVITY_REL_SIGMA: f64 = 0.1;
-/// Relative uncertainty (1 sigma) of the file's backlash: `fit` takes the mean of the clamp
-/// test's per-depth backlashes, which scatter by about 3% around a mean that came out 3.7% below
-/// the simulator's truth (2.888 against 3.0 mrad).
+/// Relative uncertainty (1 sigma) of a file's backlash when the file does not state its own
+/// (`backlash_rel_sigma`, which `fit` writes): `fit` takes the mean of the clamp test's
+/// per-depth backlashes, which scatter by 1-3% on the simulator, around a mean that came out
+/// 3.7% below its truth (2.888 against 3.0 mrad) for joint 1.
 pub const BACKLASH_REL_SIGMA: f64 = 0.05;
+/// The least relative uncertainty a file's `backlash_rel_sigma` is taken for: the clamp test
+/// reads the play from two hysteresis branches whose gap depends on the settle and the torque
+/// offset, which the depths' scatter does not show.
+pub const BACKLASH_REL_SIGMA_FLOOR: f64 = 0.01;
 /// The 95% two-sided quantile of a normal distribution.
 const Z95: f64 = 1.959_964;
 
@@ -203,6 +208,8 @@ pub struct JointModel {
     pub(crate) insertion_range_m: [f64; 2],
     /// `inverse_compliance_rel_sigma` of the file, if it has one.
     pub(crate) stiffness_rel_sigma_from_file: Option<f64>,
+    /// `backlash_rel_sigma` of the file, if it has one.
+    pub(crate) backlash_rel_sigma_from_file: Option<f64>,
     pub(crate) torque_offset: TorqueOffsetTable,
     pub(crate) hysteresis_kind: HysteresisKind,
     pub(crate) hysteresis_gap_rad: Option<f64>,
@@ -250,7 +257,6 @@ impl JointModel {
         self.inverse_compliance_nm_per_rad
     }
 
-    /// The insertion range `[min, max]` (m) over which the cubic is valid (positive).
     /// The stiffness's relative uncertainty (1 sigma) inside the fitted range: the fit's scatter
     /// of `1/K` around the cubic, at least [`STIFFNESS_REL_SIGMA_FLOOR`]; without one in the file,
     /// [`STIFFNESS_REL_SIGMA`].
@@ -259,6 +265,15 @@ impl JointModel {
             .map_or(STIFFNESS_REL_SIGMA, |r| r.max(STIFFNESS_REL_SIGMA_FLOOR))
     }
 
+    /// The backlash's relative uncertainty (1 sigma): the fit's scatter of the backlash over
+    /// the depths, at least [`BACKLASH_REL_SIGMA_FLOOR`]; without one in the file,
+    /// [`BACKLASH_REL_SIGMA`].
+    pub fn backlash_rel_sigma(&self) -> f64 {
+        self.backlash_rel_sigma_from_file
+            .map_or(BACKLASH_REL_SIGMA, |r| r.max(BACKLASH_REL_SIGMA_FLOOR))
+    }
+
+    /// The insertion range `[min, max]` (m) over which the cubic is valid (positive).
     pub fn insertion_range_m(&self) -> [f64; 2] {
         self.insertion_range_m
     }
@@ -614,7 +629,7 @@ fn other_side_probability(evidence_abs: f64, sigma: f64) -> f64 {
 /// `play + K |tau|` and the error the part not corrected, `(1 - |m|)` of it; on the other side
 /// (probability `p_other`) the error is `(1 + |m|)` of it. The 95% quantile of that mixture is the
 /// first while `p_other` is below 5%, the second otherwise; the elastic part's noise (torque noise
-/// and the stiffness's uncertainty) adds 1.96 sigma.
+/// and the stiffness's uncertainty) adds 1.96 sigma; the caller adds the backlash's own.
 fn dynamic_joint_bound(
     play: f64,
     m: f64,
@@ -633,9 +648,7 @@ fn dynamic_joint_bound(
     };
     BoundParts {
         bias: side,
-        sigma: (k * sigma_tau)
-            .hypot(rel_k * k * tau)
-            .hypot(BACKLASH_REL_SIGMA * play),
+        sigma: (k * sigma_tau).hypot(rel_k * k * tau),
     }
 }
 
@@ -761,9 +774,11 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// error is the share not corrected, `(1 - |m|) (delta + K |tau_shaft|)`; if the evidence leaves
 /// the other side more than 5% likely (from the evidence against its noise), `(1 + |m|)` of it.
 /// The random part: the torque noise as far as the correction uses the measured torque, the
-/// free load's uncertainty, a contact below the evidence's floor (+-floor as 3 sigma), the
-/// stiffness's scatter as `fit` measured it (`inverse_compliance_rel_sigma`, growing threefold
-/// to the end of the insertion margin) and 5% of the backlash. Withheld (`1 - w`): the whole
+/// free load's uncertainty, the averaged torque not taken for contact beyond its own noise (a
+/// load below the evidence's floor, at its measured size), the stiffness's scatter as `fit`
+/// measured it (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion
+/// margin) and the backlash's (`backlash_rel_sigma`, at least 1%; 5% in a file without it).
+/// Withheld (`1 - w`): the whole
 /// play plus `K` times what the shaft may carry (the last trusted torque and the free load;
 /// before any trusted sample, the effort beyond its offset). The two are mixed by `w`. Each
 /// joint's bound is `bias + 1.96 sigma`; the tip's adds the joints' systematic parts as a vector
@@ -983,6 +998,7 @@ impl Compensator {
             out.insertion_clamped |= clamped;
             let k = 1.0 / cubic(&joint.inverse_compliance_nm_per_rad, l_k);
             let play = joint.play_rad();
+            let rel_play = joint.backlash_rel_sigma();
 
             // The correction the model would make with full trust.
             let tau_ext = if ready { tau_meas - tau_motion } else { 0.0 };
@@ -1011,6 +1027,7 @@ impl Compensator {
                 (0.0, 0.0)
             };
             let mut evidence_margin = 0.0;
+            let mut average_sigma = 0.0;
             let mut contact_share = 1.0;
             let (full, tau_shaft, m) = match &joint.dynamics {
                 Some(_) => {
@@ -1028,6 +1045,9 @@ impl Compensator {
                     if !tr.tau_average.is_finite() {
                         tr.tau_average = 0.0;
                     }
+                    // The average's own noise: an exponential average of white noise of
+                    // `sigma_tau` has the standard deviation `sigma_tau sqrt(alpha / (2 - alpha))`.
+                    average_sigma = sigma_tau * (alpha / (2.0 - alpha)).sqrt();
                     let contact = tr.tau_average;
                     let contact_excess = (contact.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm)
                         .max(0.0)
@@ -1075,16 +1095,22 @@ impl Compensator {
                     // to `sigma_free`; the measured torque's noise enters only through the
                     // share `m` of it the correction applies. With contact the shaft carries
                     // the measured torque, known to the torque noise.
-                    // A contact below the evidence's floor goes unseen: while the share is below
-                    // 1, a torque within +-floor is possible, taken as 3 sigma (a contact
-                    // near the floor is seen in part, and most cycles have none). It widens
-                    // the elastic part, not the evidence for the side.
-                    let floor = PLAY_EVIDENCE_FLOOR * joint.tau_min_nm;
-                    let unseen = (1.0 - contact_share) * floor / 3.0;
+                    // The load the correction leaves out: the share `1 - contact_share` of the
+                    // averaged measured torque not taken for contact (below the evidence's floor
+                    // it is as likely a torque-offset or model error as contact; either way the
+                    // shaft may carry it), beyond what the average's own noise explains. The
+                    // measurement says how large it is, so the bound takes it at that size
+                    // rather than at the floor (a free arm whose model fits carries little; a
+                    // light contact near the floor, nearly the floor). It widens the elastic
+                    // part, not the evidence for the side.
+                    let unseen =
+                        (1.0 - contact_share) * (tr.tau_average.abs() - average_sigma).max(0.0);
                     let sigma_side = sigma_free.hypot(contact_share * sigma_tau);
                     let (tau_b, sigma_b) = (tau_shaft, sigma_side.hypot(unseen));
                     let p_other = other_side_probability(evidence_margin, sigma_side);
-                    dynamic_joint_bound(play, m, p_other, k, sigma_b, tau_b, rel_k)
+                    let mut b = dynamic_joint_bound(play, m, p_other, k, sigma_b, tau_b, rel_k);
+                    b.sigma = b.sigma.hypot(rel_play * play);
+                    b
                 }
                 None => joint_bound(play, m, k, sigma_tau.hypot(sigma_free), tau_shaft, rel_k),
             };
@@ -1107,7 +1133,7 @@ impl Compensator {
             // deflection are the error of an uncorrected joint.
             let withheld = BoundParts {
                 bias: play + k_hi * shaft_load,
-                sigma: (k * sigma_tau).hypot(BACKLASH_REL_SIGMA * play),
+                sigma: (k * sigma_tau).hypot(rel_play * play),
             };
             parts[j] = trusted.mix(w, &withheld);
             let bound = parts[j].joint_bound();

@@ -65,6 +65,11 @@ pub struct JointParams {
     /// (older files, the paper's): [`crate::model::STIFFNESS_REL_SIGMA`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inverse_compliance_rel_sigma: Option<f64>,
+    /// The relative scatter (1 sigma) of the backlash over the calibrated depths, as `fit` found
+    /// it: the backlash's uncertainty in each sample's 95% bound (issue 20). Absent (older
+    /// files, the paper's): [`crate::model::BACKLASH_REL_SIGMA`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub backlash_rel_sigma: Option<f64>,
     /// The torque offset table `tau_0(q)`.
     pub torque_offset: TorqueOffsetParams,
     /// The kind and signed gap of the clamp hysteresis, as `fit` found it; absent = a play.
@@ -248,6 +253,9 @@ impl ComplianceParams {
             if let Some(r) = j.inverse_compliance_rel_sigma {
                 let _ = writeln!(s, "inverse_compliance_rel_sigma = {}", toml_float(r));
             }
+            if let Some(r) = j.backlash_rel_sigma {
+                let _ = writeln!(s, "backlash_rel_sigma = {}", toml_float(r));
+            }
             if let Some(h) = &j.hysteresis {
                 let kind = match h.kind {
                     HysteresisKind::Play => "play",
@@ -363,6 +371,7 @@ impl ComplianceConfig {
                     inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
                     insertion_range_m: j.insertion_range_m,
                     inverse_compliance_rel_sigma: j.stiffness_rel_sigma_from_file,
+                    backlash_rel_sigma: j.backlash_rel_sigma_from_file,
                     torque_offset: TorqueOffsetParams {
                         position_rad: j.torque_offset.position_rad().to_vec(),
                         effort_nm: j.torque_offset.effort_nm().to_vec(),
@@ -408,26 +417,39 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         inverse_compliance_nm_per_rad: coeffs,
         insertion_range_m: [min_m, max_m],
         inverse_compliance_rel_sigma,
+        backlash_rel_sigma,
         torque_offset,
         hysteresis,
         dynamics,
         ..
     } = jp;
-    if let Some(r) = inverse_compliance_rel_sigma {
-        check_finite(joint, "inverse_compliance_rel_sigma", &[r], false)?;
+    for (field, value, max) in [
+        (
+            "inverse_compliance_rel_sigma",
+            inverse_compliance_rel_sigma,
+            crate::bounds::MAX_STIFFNESS_REL_SIGMA,
+        ),
+        (
+            "backlash_rel_sigma",
+            backlash_rel_sigma,
+            crate::bounds::MAX_BACKLASH_REL_SIGMA,
+        ),
+    ] {
+        let Some(r) = value else { continue };
+        check_finite(joint, field, &[r], false)?;
         if r < 0.0 {
             return Err(ParamsError::Negative {
                 joint,
-                field: "inverse_compliance_rel_sigma".to_owned(),
+                field: field.to_owned(),
                 value: r,
             });
         }
-        if r > crate::bounds::MAX_STIFFNESS_REL_SIGMA {
+        if r > max {
             return Err(ParamsError::AboveBound {
                 joint,
-                field: "inverse_compliance_rel_sigma".to_owned(),
+                field: field.to_owned(),
                 value: r,
-                max: crate::bounds::MAX_STIFFNESS_REL_SIGMA,
+                max,
             });
         }
     }
@@ -672,6 +694,7 @@ fn validate_joint(jp: JointParams) -> Result<JointModel, ParamsError> {
         inverse_compliance_nm_per_rad: coeffs,
         insertion_range_m: [min_m, max_m],
         stiffness_rel_sigma_from_file: inverse_compliance_rel_sigma,
+        backlash_rel_sigma_from_file: backlash_rel_sigma,
         torque_offset: TorqueOffsetTable::from_validated(
             torque_offset.position_rad,
             torque_offset.effort_nm,

@@ -157,6 +157,7 @@ fn valid_joint(index: i64) -> JointParams {
         inverse_compliance_nm_per_rad: [639.16, -432.35, 136.32, 3.12],
         insertion_range_m: [0.09, 0.22],
         inverse_compliance_rel_sigma: None,
+        backlash_rel_sigma: None,
         torque_offset: TorqueOffsetParams {
             position_rad: vec![-1.0, 1.0],
             effort_nm: vec![0.0, 0.0],
@@ -494,6 +495,46 @@ fn the_stiffness_scatter_is_checked_and_round_trips() {
 }
 
 #[test]
+fn the_backlash_scatter_is_checked_and_round_trips() {
+    for (value, negative) in [(-0.01, true), (0.6, false)] {
+        let mut j = valid_joint(1);
+        j.backlash_rel_sigma = Some(value);
+        let want = if negative {
+            ParamsError::Negative {
+                joint: 1,
+                field: "backlash_rel_sigma".to_owned(),
+                value,
+            }
+        } else {
+            ParamsError::AboveBound {
+                joint: 1,
+                field: "backlash_rel_sigma".to_owned(),
+                value,
+                max: dvrk_compliance::bounds::MAX_BACKLASH_REL_SIGMA,
+            }
+        };
+        assert_eq!(config_error(vec![j]), want);
+    }
+    let mut j = valid_joint(1);
+    j.backlash_rel_sigma = Some(f64::INFINITY);
+    assert!(matches!(
+        config_error(vec![j]),
+        ParamsError::NonFinite { joint: 1, ref field, .. } if field == "backlash_rel_sigma"
+    ));
+    let mut j = valid_joint(2);
+    j.backlash_rel_sigma = Some(0.0244);
+    let p = ComplianceParams {
+        model: ModelKind::Paper,
+        joint: vec![valid_joint(1), j],
+    };
+    let text = dvrk_compliance::params_to_toml(&p);
+    assert!(text.contains("backlash_rel_sigma = 0.0244"), "{text}");
+    let back = common::config(&text).unwrap().to_params();
+    assert_eq!(back.joint[0].backlash_rel_sigma, None);
+    assert_eq!(back.joint[1].backlash_rel_sigma, Some(0.0244));
+}
+
+#[test]
 fn model_defaults_to_paper_and_joints_may_be_absent() {
     let c = common::config("joint = []").unwrap();
     assert_eq!(c.model(), ModelKind::Paper);
@@ -583,6 +624,7 @@ fn any_joint() -> impl Strategy<Value = JointParams> {
                     tau_min_nm,
                     inverse_compliance_nm_per_rad: c,
                     inverse_compliance_rel_sigma: None,
+                    backlash_rel_sigma: None,
                     insertion_range_m: range,
                     torque_offset: TorqueOffsetParams {
                         position_rad: table.iter().map(|t| t.0).collect(),

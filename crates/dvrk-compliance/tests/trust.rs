@@ -340,3 +340,56 @@ fn the_fitted_stiffness_scatter_sets_the_bound_and_grows_outside_the_range() {
     let k_ratio = |r: &dvrk_compliance::Correction| r.bound_rad[0] / r.delta_rad[0].abs();
     assert!(k_ratio(&half) > k_ratio(&inside), "{half:?} {inside:?}");
 }
+
+#[test]
+fn the_fitted_backlash_scatter_sets_the_bound() {
+    // Two files with a dynamics model that differ only in the backlash scatter the fit measured.
+    let with = |rel: Option<f64>| {
+        let mut p = common::params(BASE).unwrap();
+        for j in &mut p.joint {
+            j.dynamics = Some(DYN);
+            j.backlash_rel_sigma = rel;
+        }
+        ComplianceConfig::from_params(p).unwrap()
+    };
+    let (tight, loose, absent) = (with(Some(0.01)), with(Some(0.2)), with(None));
+    assert!((tight.joint(0).unwrap().backlash_rel_sigma() - 0.01).abs() < 1e-15);
+    assert_eq!(
+        absent.joint(0).unwrap().backlash_rel_sigma(),
+        dvrk_compliance::model::BACKLASH_REL_SIGMA
+    );
+    // A scatter below the floor is taken for the floor.
+    assert_eq!(
+        with(Some(1e-6)).joint(0).unwrap().backlash_rel_sigma(),
+        dvrk_compliance::model::BACKLASH_REL_SIGMA_FLOOR
+    );
+    // A free arm at rest (the play dominates its bound): the looser fit gives the wider bound.
+    let rt = still(&mut Compensator::new(), &tight, 0, 400, 0.15, 0.0);
+    let rl = still(&mut Compensator::new(), &loose, 0, 400, 0.15, 0.0);
+    assert!(
+        rl.bound_parts[0].sigma > rt.bound_parts[0].sigma,
+        "{rl:?} {rt:?}"
+    );
+    assert!(rl.bound_rad[0] > rt.bound_rad[0], "{rl:?} {rt:?}");
+}
+
+#[test]
+fn a_free_arm_whose_torque_is_its_noise_gets_no_unseen_contact_in_its_bound() {
+    // A still arm with no external torque: the averaged torque is zero, so the only random
+    // parts are the backlash's scatter and the stiffness's (the torque noise does not enter a
+    // correction made without contact evidence). The earlier bound took a contact of up to a
+    // quarter of tau_min as possible in every such cycle (K floor / 3 = 2e-4 rad here).
+    let mut p = common::params(BASE).unwrap();
+    for j in &mut p.joint {
+        j.dynamics = Some(DYN);
+        j.backlash_rel_sigma = Some(0.01);
+    }
+    let cfg = ComplianceConfig::from_params(p).unwrap();
+    let r = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.0);
+    assert_eq!(r.weight, [1.0, 1.0], "{r:?}");
+    // joint 1: play 2 mrad, 1% of it is 2e-5 rad; K = 1/20 rad/N·m.
+    assert!(r.bound_parts[0].sigma < 3e-5, "{r:?}");
+    // A light contact below the evidence floor is in the bound at its measured size.
+    let light = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.01);
+    assert!(light.bound_parts[0].sigma > 0.5 * 0.01 / 20.0, "{light:?}");
+}

@@ -43,6 +43,7 @@ fn true_model(psm: &SimPsm) -> ComplianceConfig {
                 inverse_compliance_nm_per_rad: shaft.inverse_compliance_cubic[j],
                 insertion_range_m: shaft.insertion_range_m,
                 inverse_compliance_rel_sigma: None,
+                backlash_rel_sigma: None,
                 torque_offset: TorqueOffsetParams {
                     position_rad,
                     effort_nm,

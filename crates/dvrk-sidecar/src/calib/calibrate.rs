@@ -836,6 +836,7 @@ mod tests {
                 inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
                 insertion_range_m: j.insertion_range_m,
                 inverse_compliance_rel_sigma: None,
+                backlash_rel_sigma: None,
                 torque_offset: dvrk_compliance::TorqueOffsetParams {
                     position_rad: t0.position_rad,
                     effort_nm: t0.effort_nm,

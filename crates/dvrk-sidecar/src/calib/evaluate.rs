@@ -361,6 +361,7 @@ mod tests {
                 inverse_compliance_nm_per_rad: [0.0, 0.0, 0.0, 20.0],
                 insertion_range_m: [0.09, 0.22],
                 inverse_compliance_rel_sigma: None,
+                backlash_rel_sigma: None,
                 torque_offset: TorqueOffsetParams {
                     position_rad: vec![0.0],
                     effort_nm: vec![0.1],

@@ -150,6 +150,11 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
             inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
             insertion_range_m: j.insertion_range_m,
             inverse_compliance_rel_sigma: j.rel_sigma,
+            // A scatter beyond the file's bound (half the backlash) is written at the bound: the
+            // bound then says the backlash is barely known, and the file stays loadable.
+            backlash_rel_sigma: j
+                .backlash_rel_sigma
+                .map(|r| r.min(dvrk_compliance::bounds::MAX_BACKLASH_REL_SIGMA)),
             torque_offset,
             hysteresis: Some(hysteresis_of(j)),
             dynamics: None,
