@@ -449,89 +449,63 @@ fn physical_bounds_name_joint_field_and_value() {
     );
 }
 
+/// The relative scatters `fit` writes (`inverse_compliance_rel_sigma`, `backlash_rel_sigma`):
+/// one rule for both, and what the fitter writes reads back as written.
 #[test]
-fn the_stiffness_scatter_is_checked_and_round_trips() {
-    for (value, negative) in [(-0.01, true), (0.6, false)] {
-        let mut j = valid_joint(1);
-        j.inverse_compliance_rel_sigma = Some(value);
-        let e = config_error(vec![j]);
-        let want = if negative {
+fn the_fitted_scatters_are_checked_and_round_trip() {
+    type Field = fn(&mut JointParams) -> &mut Option<f64>;
+    let fields: [(&str, f64, Field); 2] = [
+        (
+            "inverse_compliance_rel_sigma",
+            dvrk_compliance::bounds::MAX_STIFFNESS_REL_SIGMA,
+            |j| &mut j.inverse_compliance_rel_sigma,
+        ),
+        (
+            "backlash_rel_sigma",
+            dvrk_compliance::bounds::MAX_BACKLASH_REL_SIGMA,
+            |j| &mut j.backlash_rel_sigma,
+        ),
+    ];
+    for (field, max, slot) in fields {
+        let with = |index: i64, value: Option<f64>| {
+            let mut j = valid_joint(index);
+            *slot(&mut j) = value;
+            j
+        };
+        assert_eq!(
+            config_error(vec![with(1, Some(-0.01))]),
             ParamsError::Negative {
                 joint: 1,
-                field: "inverse_compliance_rel_sigma".to_owned(),
-                value,
+                field: field.to_owned(),
+                value: -0.01,
             }
-        } else {
+        );
+        assert_eq!(
+            config_error(vec![with(1, Some(0.6))]),
             ParamsError::AboveBound {
                 joint: 1,
-                field: "inverse_compliance_rel_sigma".to_owned(),
-                value,
-                max: 0.5,
+                field: field.to_owned(),
+                value: 0.6,
+                max,
             }
+        );
+        for bad in [f64::NAN, f64::INFINITY] {
+            assert!(matches!(
+                config_error(vec![with(1, Some(bad))]),
+                ParamsError::NonFinite { joint: 1, field: ref f, .. } if f == field
+            ));
+        }
+        // Written by the fitter and read back as written; absent stays absent.
+        let p = ComplianceParams {
+            model: ModelKind::Paper,
+            joint: vec![with(1, Some(0.0123)), valid_joint(2)],
         };
-        assert_eq!(e, want);
+        let text = dvrk_compliance::params_to_toml(&p);
+        assert!(text.contains(&format!("{field} = 0.0123")), "{text}");
+        let mut back = common::config(&text).unwrap().to_params();
+        assert_eq!(*slot(&mut back.joint[0]), Some(0.0123), "{field}");
+        assert_eq!(*slot(&mut back.joint[1]), None, "{field}");
     }
-    let mut j = valid_joint(1);
-    j.inverse_compliance_rel_sigma = Some(f64::NAN);
-    assert!(matches!(
-        config_error(vec![j]),
-        ParamsError::NonFinite { joint: 1, ref field, .. } if field == "inverse_compliance_rel_sigma"
-    ));
-    // Written by the fitter and read back as written; absent stays absent.
-    let mut j = valid_joint(1);
-    j.inverse_compliance_rel_sigma = Some(0.0123);
-    let p = ComplianceParams {
-        model: ModelKind::Paper,
-        joint: vec![j, valid_joint(2)],
-    };
-    let text = dvrk_compliance::params_to_toml(&p);
-    assert!(
-        text.contains("inverse_compliance_rel_sigma = 0.0123"),
-        "{text}"
-    );
-    let back = common::config(&text).unwrap().to_params();
-    assert_eq!(back.joint[0].inverse_compliance_rel_sigma, Some(0.0123));
-    assert_eq!(back.joint[1].inverse_compliance_rel_sigma, None);
-}
-
-#[test]
-fn the_backlash_scatter_is_checked_and_round_trips() {
-    for (value, negative) in [(-0.01, true), (0.6, false)] {
-        let mut j = valid_joint(1);
-        j.backlash_rel_sigma = Some(value);
-        let want = if negative {
-            ParamsError::Negative {
-                joint: 1,
-                field: "backlash_rel_sigma".to_owned(),
-                value,
-            }
-        } else {
-            ParamsError::AboveBound {
-                joint: 1,
-                field: "backlash_rel_sigma".to_owned(),
-                value,
-                max: dvrk_compliance::bounds::MAX_BACKLASH_REL_SIGMA,
-            }
-        };
-        assert_eq!(config_error(vec![j]), want);
-    }
-    let mut j = valid_joint(1);
-    j.backlash_rel_sigma = Some(f64::INFINITY);
-    assert!(matches!(
-        config_error(vec![j]),
-        ParamsError::NonFinite { joint: 1, ref field, .. } if field == "backlash_rel_sigma"
-    ));
-    let mut j = valid_joint(2);
-    j.backlash_rel_sigma = Some(0.0244);
-    let p = ComplianceParams {
-        model: ModelKind::Paper,
-        joint: vec![valid_joint(1), j],
-    };
-    let text = dvrk_compliance::params_to_toml(&p);
-    assert!(text.contains("backlash_rel_sigma = 0.0244"), "{text}");
-    let back = common::config(&text).unwrap().to_params();
-    assert_eq!(back.joint[0].backlash_rel_sigma, None);
-    assert_eq!(back.joint[1].backlash_rel_sigma, Some(0.0244));
 }
 
 #[test]
