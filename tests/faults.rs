@@ -600,14 +600,8 @@ fn an_emulator_restart_is_recovered() {
 /// just before on the same (shared, noisy) machine: a liveness bound, not a speed claim.
 #[test]
 fn shared_mode_keeps_ninety_percent_valid_under_ten_percent_loss() {
-    // The window a lab sets for a lossy link (issue 22 item 7): 4 requests in flight, a lost
-    // datagram asked again within the cycle.
-    let mut rig = Rig::start_with(
-        "shared-loss",
-        Faults::default(),
-        7,
-        "shared_requests_in_flight = 4",
-    );
+    // The default configuration, as users check the goal (issue 22 item 7).
+    let mut rig = Rig::start("shared-loss", Faults::default(), 7);
     rig.wait_first_valid();
     let window = |rig: &Rig, secs: u64| {
         let before_recs = rig.collector.records().len();
@@ -656,6 +650,9 @@ fn shared_mode_keeps_ninety_percent_valid_under_ten_percent_loss() {
     // The rate under loss (`published_hz` against `without_loss_hz` above) depends on the
     // machine's load: it is a benchmark figure (issue 22 item 7, RELIABILITY.md), not asserted.
     let (st, err) = rig.stop_serve();
+    if std::env::var_os("SHOW_SERVE_LOG").is_some() {
+        eprintln!("{err}");
+    }
     assert!(st.success(), "{err}");
 }
 
