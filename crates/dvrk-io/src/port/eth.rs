@@ -185,12 +185,14 @@ impl Batch {
 
     /// A reply of `node` to the request of rank `rank` was taken. A board answers its requests
     /// in the order they arrive (the FPGA serves one packet at a time, reference §8.4), so an
-    /// entry of the same node whose newest request was sent before that one and is still
-    /// unanswered lost its request or its reply: it is due now, not after the retry wait.
-    fn overtaken(&mut self, n: usize, node: u8, rank: u8, attempts: u8, now: Instant) {
+    /// entry of the same node (of any node when one FPGA answers for all, `one_server`) whose
+    /// newest request was sent before that one and is still unanswered lost its request or
+    /// its reply: it is due now, not after the retry wait.
+    fn overtaken(&mut self, n: usize, node: u8, rank: u8, r: QuadletRetry, now: Instant) {
+        let attempts = batch_attempts(r);
         for j in 0..n {
             if self.state[j] == Entry::InFlight
-                && self.node[j] == node
+                && (r.one_server || self.node[j] == node)
                 && self.newest[j] < rank
                 && self.sends[j] < attempts
             {
@@ -728,10 +730,7 @@ impl<L: Link> EthPort<L> {
         // its own would; an explicit budget also caps the batch as a whole.
         let timeout = retry.reply_timeout;
         let end = self.batch_budget.and_then(|b| start.checked_add(b));
-        // Twice a single read's attempts: a register is asked again as soon as its loss is
-        // known, so the attempts are cheap (at 10% loss each way a register then fails once in
-        // 10^6); the last one waits until the register's deadline.
-        let attempts = retry.attempts.max(1).saturating_mul(2);
+        let attempts = batch_attempts(retry);
         let window = usize::from(self.window);
         if self.resync {
             // Replies of an earlier cycle may be queued: throw them away before this batch's
@@ -921,7 +920,7 @@ impl<L: Link> EthPort<L> {
                     self.rtt_sample(now.saturating_duration_since(b.sent_at[l]));
                     rto = self.batch_retry_wait(retry);
                     backoff = 0;
-                    b.overtaken(n, src, b.label_rank[l], attempts, now);
+                    b.overtaken(n, src, b.label_rank[l], retry, now);
                 }
                 Err(PortError::WrongLabel { .. } | PortError::WrongSource { .. }) => {
                     // Not of this batch: a late reply of an earlier cycle, skipped.
@@ -1149,6 +1148,13 @@ impl<L: Link> Port for EthPort<L> {
         )?;
         self.read_block(hub, HUB_ADDRESS, out)
     }
+}
+
+/// Requests one register of a batch may take: twice a single read's attempts. A register is
+/// asked again as soon as its loss is known, so the attempts are cheap (at 10% loss each way a
+/// register then fails once in 10^6); the last one waits until the register's deadline.
+fn batch_attempts(r: QuadletRetry) -> u8 {
+    r.attempts.max(1).saturating_mul(2)
 }
 
 /// Bit of `board` in a 16-board mask (0 for an id out of range, refused before it is asked).

@@ -174,6 +174,11 @@ pub struct QuadletRetry {
     pub attempts: u8,
     /// The link's whole reply timeout.
     pub reply_timeout: std::time::Duration,
+    /// Every reply comes from one FPGA (a single board, or the hub that forwards to the others),
+    /// which serves one packet at a time (reference §8.4): replies come in the order of the
+    /// requests whatever node they name. False when each board answers on its own (Rev 9
+    /// per-board addresses): only one board's replies are in order.
+    pub one_server: bool,
 }
 
 impl<L: Link + ?Sized> Link for &mut L {
