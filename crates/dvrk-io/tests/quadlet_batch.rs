@@ -536,14 +536,15 @@ fn a_lost_reply_is_asked_again_once_a_later_request_is_answered() {
             false
         });
         let mut p = port(addr, 4);
-        // Retry wait capped at 4 x this: far longer than the batch; the reply timeout is 2 s.
+        // The first requests' retry wait, before a round trip is measured: longer than the
+        // batch; the reply timeout is 2 s.
         p.link_mut()
             .set_quadlet_retry_wait(Some(Duration::from_millis(400)));
         let mut out = vec![None; reqs.len()];
         p.read_quadlets(&reqs, &mut out).unwrap();
         assert_eq!(out, want);
         let c = p.counters();
-        assert_eq!(c.quadlet_retries, 1, "{lose:?}: {c:?}");
+        assert!(c.quadlet_retries >= 1, "{lose:?}: {c:?}");
         drop(p);
         let seen = h.join().unwrap();
         let asked: Vec<usize> = seen
@@ -552,7 +553,8 @@ fn a_lost_reply_is_asked_again_once_a_later_request_is_answered() {
             .filter(|(_, q)| (q.node, q.addr) == lose)
             .map(|(k, _)| k)
             .collect();
-        assert_eq!(asked.len(), 2, "{seen:?}");
+        // Twice, or more if a loaded machine delayed the repeat's answer past the retry wait.
+        assert!(asked.len() >= 2, "{seen:?}");
         // Asked again while the cycle's later registers were still being asked: not left
         // for the retry wait.
         assert!(asked[1] < reqs.len(), "{lose:?}: {seen:?}");
