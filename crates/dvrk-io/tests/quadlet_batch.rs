@@ -623,3 +623,67 @@ fn probe_ten_percent_loss() {
         h.join().unwrap();
     }
 }
+
+/// A reply held back by the board for several cycles (longer than one batch, shorter than the
+/// reply timeout) is never taken for another register: the label of a request without reply is
+/// not used again within the reply timeout, though 64 labels wrap in four cycles. The held reply
+/// arrives in the fifth cycle and is skipped, and that cycle's values are all its own.
+#[test]
+fn the_label_of_an_unanswered_request_is_not_reused_within_the_reply_timeout() {
+    let reqs = shared_cycle();
+    let n = reqs.len();
+    let held_register = reqs[4];
+    let cycle = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(1));
+    let c = cycle.clone();
+    let mut held: Option<(Req, Vec<u8>)> = None;
+    let mut sent_back = false;
+    let mut seen_cycle = 1;
+    let (addr, h) = board(boards_with(3), move |boards, req, replies, sock, from| {
+        let now_cycle = c.load(std::sync::atomic::Ordering::SeqCst);
+        if now_cycle != seen_cycle {
+            seen_cycle = now_cycle;
+            set_values(boards, now_cycle as i32 + 3);
+            if now_cycle == 5 && !sent_back {
+                // The fifth cycle's first request: answer it, then the reply held since the
+                // first cycle arrives.
+                sent_back = true;
+                let fresh = boards.answer_quadlet_read(req.node, req.addr, req.label);
+                send_all(sock, from, &fresh);
+                sock.send_to(&held.as_ref().unwrap().1, from).unwrap();
+                return false;
+            }
+        }
+        if (req.node, req.addr) == held_register && held.is_none() {
+            held = Some((req, replies.into_iter().next().unwrap()));
+            return false;
+        }
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = port(addr, 4);
+    let mut out = vec![None; n];
+    for k in 1..=5usize {
+        cycle.store(k, std::sync::atomic::Ordering::SeqCst);
+        let mut truth = boards_with(k as i32 + 3);
+        if k == 1 {
+            truth = boards_with(3);
+        }
+        let r = p.read_quadlets(&reqs, &mut out);
+        assert_eq!(r, Ok(()), "cycle {k}: {:?}", p.counters());
+        assert_eq!(out, expected(&mut truth, &reqs), "cycle {k}");
+    }
+    assert!(p.counters().stale_replies >= 1, "{:?}", p.counters());
+    drop(p);
+    let seen = h.join().unwrap();
+    let held_at = seen
+        .iter()
+        .position(|q| (q.node, q.addr) == held_register)
+        .unwrap();
+    let held_label = seen[held_at].label;
+    let first_again = seen[held_at + 1..]
+        .iter()
+        .position(|q| q.label == held_label);
+    // Labels wrap after 64 requests; these cycles made more than that.
+    assert!(seen.len() > 64, "{}", seen.len());
+    assert_eq!(first_again, None, "label {held_label} used again: {seen:?}");
+}

@@ -109,6 +109,8 @@ struct Batch {
     newest: [u8; MAX_BATCH],
     /// The entry's newest request is known lost: a later one to its node was answered.
     lost: [bool; MAX_BATCH],
+    /// Label whose reply answered the entry (NO_ENTRY: none yet).
+    answered_by: [u8; MAX_BATCH],
     label_entry: [u8; 64],
     label_rank: [u8; 64],
     sent_at: [Instant; 64],
@@ -132,6 +134,7 @@ impl Batch {
             deadline: [start; MAX_BATCH],
             newest: [0; MAX_BATCH],
             lost: [false; MAX_BATCH],
+            answered_by: [NO_ENTRY; MAX_BATCH],
             label_entry: [NO_ENTRY; 64],
             label_rank: [0; 64],
             sent_at: [start; 64],
@@ -154,6 +157,7 @@ impl Batch {
         now: Instant,
         due: Instant,
     ) -> Result<(), PortError> {
+        port.avoid_labels = self.accept;
         let label = port.send_request(
             self.node[i],
             addr,
@@ -279,6 +283,14 @@ pub struct EthPort<L: Link> {
     /// None before the first reply of a batch.
     srtt_ns: Option<u64>,
     rttvar_ns: u64,
+    /// Until when each label is not used again: its request got no reply, which may still
+    /// come, late. A quadlet reply carries no address, so a late reply whose label a later
+    /// request to the same node reused would be taken for that request's register.
+    quarantined_until: [Instant; 64],
+    /// Labels not to take: those of the batch under way and of the one before it (whose
+    /// late replies and duplicates may still come).
+    avoid_labels: u64,
+    prev_batch_labels: u64,
     counters: EthCounters,
     tx: Box<[u8; TX_CAP]>,
     rx: Box<[u8; RX_CAP]>,
@@ -312,6 +324,9 @@ impl<L: Link> EthPort<L> {
             silent_boards: 0,
             srtt_ns: None,
             rttvar_ns: 0,
+            quarantined_until: [Instant::now(); 64],
+            avoid_labels: 0,
+            prev_batch_labels: 0,
             counters: EthCounters::default(),
             tx: Box::new([0; TX_CAP]),
             rx: Box::new([0; RX_CAP]),
@@ -428,10 +443,43 @@ impl<L: Link> EthPort<L> {
             .ok_or(PortError::BoardOutOfRange { board })
     }
 
+    /// The next label in turn that is neither quarantined nor to be avoided; when every
+    /// label is, the one whose quarantine ends first (of those not in the batch under way).
     fn take_label(&mut self) -> u8 {
-        let l = self.next_label;
+        let now = Instant::now();
+        let mut pick: Option<u8> = None;
+        for k in 0..64u8 {
+            let l = self.next_label.wrapping_add(k) & LABEL_MASK;
+            let bit = 1u64 << l;
+            if self.avoid_labels & bit != 0 {
+                continue;
+            }
+            let until = self.quarantined_until[usize::from(l)];
+            if self.prev_batch_labels & bit == 0 && until <= now {
+                pick = Some(l);
+                break;
+            }
+            if pick.is_none_or(|p| until < self.quarantined_until[usize::from(p)]) {
+                pick = Some(l);
+            }
+        }
+        let l = pick.unwrap_or(self.next_label);
         self.next_label = (l + 1) & LABEL_MASK;
         l
+    }
+
+    /// The labels in `mask` were sent and not answered: they are not used again for the
+    /// link's reply timeout, so that their late replies meet no request of another register.
+    fn quarantine(&mut self, mask: u64) {
+        let Some(r) = self.link.quadlet_retry() else {
+            return;
+        };
+        let until = Instant::now() + r.reply_timeout;
+        for l in 0..64usize {
+            if mask & (1u64 << l) != 0 {
+                self.quarantined_until[l] = until;
+            }
+        }
     }
 
     /// `late`: the reply taken answered an earlier request of the read, so the wait was too
@@ -913,6 +961,7 @@ impl<L: Link> EthPort<L> {
                         *o = Some(v);
                     }
                     b.state[i] = Entry::Done;
+                    b.answered_by[i] = l as u8;
                     b.taken += 1;
                     b.answered |= board_bit(reqs[i].0);
                     self.counters.replies_ok += 1;
@@ -944,6 +993,16 @@ impl<L: Link> EthPort<L> {
         // Replies still to come (requests outstanding, lost or late) must not meet the next
         // request unchecked: drain before it.
         self.resync = unexpected || b.labels_used > b.taken;
+        let mut answered_labels = 0u64;
+        for l in 0..64usize {
+            let i = usize::from(b.label_entry[l]);
+            if b.accept & (1u64 << l) != 0 && b.answered_by.get(i) == Some(&(l as u8)) {
+                answered_labels |= 1u64 << l;
+            }
+        }
+        self.quarantine(b.accept & !answered_labels);
+        self.avoid_labels = 0;
+        self.prev_batch_labels = b.accept;
         self.silent_boards = (self.silent_boards | b.asked) & !b.answered;
         if b.asked != 0 {
             self.link_answers = b.answered != 0;
@@ -1029,8 +1088,16 @@ impl<L: Link> Port for EthPort<L> {
         let mut accept = 0u64;
         let mut attempt = 1;
         loop {
-            let label =
-                self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward)?;
+            self.avoid_labels = accept;
+            let sent = self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward);
+            self.avoid_labels = 0;
+            let label = match sent {
+                Ok(l) => l,
+                Err(e) => {
+                    self.quarantine(accept);
+                    return Err(e);
+                }
+            };
             accept |= 1 << label;
             let wait = retry.filter(|_| attempt < attempts).map(|r| r.wait);
             let r = self.await_reply_of(
@@ -1055,12 +1122,17 @@ impl<L: Link> Port for EthPort<L> {
                 }
                 Err(e @ (PortError::Timeout { .. } | PortError::WrongLabel { .. })) => {
                     self.link_answers = false;
+                    self.quarantine(accept);
                     return Err(e);
                 }
                 r => {
                     if r.is_ok() {
                         self.link_answers = true;
                         self.adapt_retry_wait(retry, self.last_label != label);
+                        // The other requests of the read may still be answered, late.
+                        self.quarantine(accept & !(1u64 << (self.last_label & LABEL_MASK)));
+                    } else {
+                        self.quarantine(accept);
                     }
                     return r.map(|(v, _)| v);
                 }
@@ -1115,8 +1187,11 @@ impl<L: Link> Port for EthPort<L> {
             &[],
             self.noforward,
         )?;
-        self.await_reply(board, addr, Some(node), label, Expect::Block(len), out)
-            .map(|_| ())
+        let r = self.await_reply(board, addr, Some(node), label, Expect::Block(len), out);
+        if r.is_err() {
+            self.quarantine(1u64 << (label & LABEL_MASK));
+        }
+        r.map(|_| ())
     }
 
     /// Writes (seq<<16 | mask) to the query register 0x1800 at node 0x3F, then block-reads the
