@@ -2,8 +2,8 @@
 //!
 //! The console stand-in (`dvrk-sidecar drive`, 1500 Hz) drives the UDP board emulator
 //! (`dvrk-sidecar sim --listen 0.0.0.0:PORT`) four ways: alone, beside `serve` in shared mode
-//! (quadlet reads of its own at 1500 Hz) with a window of 4 requests in flight (issue 22, for
-//! lossy links) and one at a time (`shared_requests_in_flight = 1`, the default), beside `serve`
+//! (quadlet reads of its own at 1500 Hz) with a window of 4 requests in flight (issue 22, the
+//! default) and one at a time (`shared_requests_in_flight = 1`), beside `serve`
 //! in tap mode
 //! (`tap:lo:PORT`, rate follow). The cases run interleaved, round after round, so slow drifts of the shared
 //! machine's load hit them alike; the load average is noted with every run.
@@ -75,9 +75,9 @@ fn stop(c: Child) -> Res<String> {
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum Case {
     Alone,
-    /// Shared mode with 4 requests in flight (`shared_requests_in_flight = 4`).
+    /// Shared mode with 4 requests in flight (`shared_requests_in_flight = 4`, the default).
     Shared,
-    /// Shared mode one request at a time (`shared_requests_in_flight = 1`, the default).
+    /// Shared mode one request at a time (`shared_requests_in_flight = 1`).
     SharedOneAtATime,
     Tap,
 }

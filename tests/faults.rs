@@ -463,7 +463,9 @@ fn steady_faults_never_publish_a_wrong_sample_as_valid() {
         assert!(injected.injected() > 0, "{case}: nothing injected");
         assert_trustworthy(case, &r);
         assert!(r.valid > 0, "{case}: no valid sample at all");
-        if injected.lost + injected.flipped > 0 {
+        // A flipped bit fails its CRC and the cycle. A lost datagram is asked again within
+        // the cycle (issue 22 item 7), so loss alone may leave every sample valid.
+        if injected.flipped > 0 {
             assert!(
                 r.invalid > 0,
                 "{case}: faults without a single invalid sample"
@@ -480,6 +482,11 @@ fn steady_faults_never_publish_a_wrong_sample_as_valid() {
     assert!(st.success(), "{err}");
     // The summary counted what the checks refused and the port's CRC check caught.
     assert!(err.contains("samples published as invalid"), "{err}");
+    // The lost datagrams were asked again.
+    assert!(
+        err.contains("UDP port at the stop") && !err.contains("quadlet_retries=0 "),
+        "{err}"
+    );
 }
 
 /// Replies without CRCs, as a real FPGA sends them (the UDP checksum protects the wire, but the
@@ -600,14 +607,8 @@ fn an_emulator_restart_is_recovered() {
 /// just before on the same (shared, noisy) machine: a liveness bound, not a speed claim.
 #[test]
 fn shared_mode_keeps_ninety_percent_valid_under_ten_percent_loss() {
-    // The window a lab sets for a lossy link (issue 22 item 7): 4 requests in flight, a lost
-    // datagram asked again within the cycle.
-    let mut rig = Rig::start_with(
-        "shared-loss",
-        Faults::default(),
-        7,
-        "shared_requests_in_flight = 4",
-    );
+    // The default configuration, as users check the goal (issue 22 item 7).
+    let mut rig = Rig::start("shared-loss", Faults::default(), 7);
     rig.wait_first_valid();
     let window = |rig: &Rig, secs: u64| {
         let before_recs = rig.collector.records().len();
@@ -656,6 +657,9 @@ fn shared_mode_keeps_ninety_percent_valid_under_ten_percent_loss() {
     // The rate under loss (`published_hz` against `without_loss_hz` above) depends on the
     // machine's load: it is a benchmark figure (issue 22 item 7, RELIABILITY.md), not asserted.
     let (st, err) = rig.stop_serve();
+    if std::env::var_os("SHOW_SERVE_LOG").is_some() {
+        eprintln!("{err}");
+    }
     assert!(st.success(), "{err}");
 }
 

@@ -182,11 +182,16 @@ fn replies_out_of_order_are_matched_to_their_registers_and_the_window_holds() {
     labels.sort_unstable();
     labels.dedup();
     assert_eq!(labels.len(), seen.len(), "a label used twice: {seen:?}");
-    assert_eq!(
-        seen.len() + extra.lock().unwrap().len(),
-        reqs.len(),
-        "{seen:?}"
-    );
+    // A board answers in order (reference §8.4), so the port takes a reply that overtook
+    // earlier requests to the same board as the sign that those were lost, and asks them
+    // again at once: reversed replies cost at most one more request per register.
+    for r in &reqs {
+        let asked = seen.iter().filter(|q| (q.node, q.addr) == *r).count();
+        assert!(
+            (1..=2).contains(&asked),
+            "{r:?} asked {asked} times: {seen:?}"
+        );
+    }
     assert_eq!(*extra.lock().unwrap(), vec![], "asked beyond the window");
 }
 
@@ -311,7 +316,8 @@ fn a_stale_reply_of_an_earlier_cycle_is_never_taken() {
     });
     let mut p = port(addr, 4);
     let mut out = vec![None; n];
-    p.read_quadlets(&reqs, &mut out).unwrap();
+    let r = p.read_quadlets(&reqs, &mut out);
+    assert_eq!(r, Ok(()), "{:?}", p.counters());
     assert_eq!(out, expected(&mut truth, &reqs));
     set_values(&mut truth, 4);
     let want = expected(&mut truth, &reqs);
@@ -406,6 +412,9 @@ fn a_window_of_one_reads_in_turn() {
         false
     });
     let mut p = port(addr, 1);
+    // Longer than a loaded machine's scheduling delays: no read is asked twice.
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(100)));
     let mut out = vec![None; reqs.len()];
     p.read_quadlets(&reqs, &mut out).unwrap();
     assert_eq!(out, want);
@@ -413,4 +422,268 @@ fn a_window_of_one_reads_in_turn() {
     drop(p);
     let seen: Vec<(u8, u16)> = h.join().unwrap().iter().map(|r| (r.node, r.addr)).collect();
     assert_eq!(seen, reqs);
+}
+
+/// A board thread that answers every request at once, except the first request of each
+/// register in `hold`, answered that long after it arrived; repeats of those registers are
+/// lost. It stops after a second without requests and returns the requests it saw.
+fn holding_board(
+    mut boards: Boards,
+    hold: Vec<((u8, u16), Duration)>,
+) -> (SocketAddr, std::thread::JoinHandle<Vec<Req>>) {
+    let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(1)))
+        .unwrap();
+    let addr = sock.local_addr().unwrap();
+    let h = std::thread::spawn(move || {
+        let mut seen = Vec::new();
+        let mut held: Vec<(Instant, SocketAddr, Vec<Vec<u8>>)> = Vec::new();
+        let mut buf = [0u8; 2048];
+        let mut last = Instant::now();
+        while !held.is_empty() || last.elapsed() < Duration::from_secs(1) {
+            let now = Instant::now();
+            held.retain(|(due, to, r)| {
+                if *due <= now {
+                    send_all(&sock, *to, r);
+                }
+                *due > now
+            });
+            let Ok((n, from)) = sock.recv_from(&mut buf) else {
+                continue;
+            };
+            last = Instant::now();
+            let replies = boards.handle(&buf[..n]);
+            let l = boards.log.last().unwrap();
+            let req = Req {
+                node: l.node,
+                addr: l.addr as u16,
+                label: request_label(&buf[..n]),
+            };
+            let first = !seen
+                .iter()
+                .any(|q: &Req| (q.node, q.addr) == (req.node, req.addr));
+            seen.push(req);
+            match hold.iter().find(|(r, _)| *r == (req.node, req.addr)) {
+                None => send_all(&sock, from, &replies),
+                Some((_, d)) if first => held.push((last + *d, from, replies)),
+                Some(_) => {}
+            }
+        }
+        seen
+    });
+    (addr, h)
+}
+
+/// Each register's reply timeout counts from its own first request, as a read on its own
+/// would wait. With a window of 2, the board holds the first two registers' replies for 0.6 of
+/// the reply timeout, so the last register is first asked about 0.6 timeouts into the batch;
+/// its reply is held as long, so it arrives 1.2 timeouts after the batch began but 0.6 after
+/// its register was asked. It is taken: a deadline shared by the batch would have given the
+/// register up (the shared deadline that failed two-arm runs on a loaded machine).
+#[test]
+fn a_register_waits_its_reply_timeout_from_its_own_first_request() {
+    let mut truth = boards_with(7);
+    let reqs: Vec<(u8, u16)> = shared_cycle()[..4].to_vec();
+    let want = expected(&mut truth, &reqs);
+    let timeout = Duration::from_secs(1);
+    let hold = timeout * 3 / 5;
+    let (addr, h) = holding_board(
+        boards_with(7),
+        vec![(reqs[0], hold), (reqs[1], hold), (reqs[3], hold)],
+    );
+    let mut p = port(addr, 2);
+    p.link_mut().set_timeout(timeout).unwrap();
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(100)));
+    p.set_quadlet_batch_budget(None);
+    let mut out = vec![None; reqs.len()];
+    let r = p.read_quadlets(&reqs, &mut out);
+    assert_eq!(r, Ok(()), "{:?}", p.counters());
+    assert_eq!(out, want);
+    let c = p.counters();
+    assert_eq!(c.batch_deadlines, 0, "{c:?}");
+    assert!(
+        c.quadlet_retries >= 1,
+        "the held registers were asked again: {c:?}"
+    );
+    drop(p);
+    let seen = h.join().unwrap();
+    // The last register was first asked after the held ones were answered.
+    let first_of = |r: (u8, u16)| seen.iter().position(|q| (q.node, q.addr) == r).unwrap();
+    assert!(first_of(reqs[3]) > first_of(reqs[1]), "{seen:?}");
+}
+
+/// A register whose reply was lost is asked again as soon as the board answers a request
+/// sent after it (a board answers in order), not after the retry wait: with a retry wait
+/// longer than the whole test could take, the batch still completes, and the lost register's
+/// repeat arrives at the board before the cycle's last register is asked. Behind one address
+/// (one FPGA serves every node, here the test board) a reply of another node shows the loss
+/// too: board 6's last register is asked again once board 7 answers.
+#[test]
+fn a_lost_reply_is_asked_again_once_a_later_request_is_answered() {
+    let reqs = shared_cycle();
+    // reqs[2]: followed by requests to its own board; reqs[9]: board 6's last register.
+    for lose in [reqs[2], reqs[9]] {
+        let mut truth = boards_with(8);
+        let want = expected(&mut truth, &reqs);
+        let mut lost = false;
+        let (addr, h) = board(boards_with(8), move |_, req, replies, sock, from| {
+            if (req.node, req.addr) == lose && !lost {
+                lost = true;
+                return false;
+            }
+            send_all(sock, from, &replies);
+            false
+        });
+        let mut p = port(addr, 4);
+        // The first requests' retry wait, before a round trip is measured: longer than the
+        // batch; the reply timeout is 2 s.
+        p.link_mut()
+            .set_quadlet_retry_wait(Some(Duration::from_millis(400)));
+        let mut out = vec![None; reqs.len()];
+        p.read_quadlets(&reqs, &mut out).unwrap();
+        assert_eq!(out, want);
+        let c = p.counters();
+        assert!(c.quadlet_retries >= 1, "{lose:?}: {c:?}");
+        drop(p);
+        let seen = h.join().unwrap();
+        let asked: Vec<usize> = seen
+            .iter()
+            .enumerate()
+            .filter(|(_, q)| (q.node, q.addr) == lose)
+            .map(|(k, _)| k)
+            .collect();
+        // Twice, or more if a loaded machine delayed the repeat's answer past the retry wait.
+        assert!(asked.len() >= 2, "{seen:?}");
+        // Asked again while the cycle's later registers were still being asked: not left
+        // for the retry wait.
+        assert!(asked[1] < reqs.len(), "{lose:?}: {seen:?}");
+    }
+}
+
+/// Not a check: the figures of RELIABILITY.md's probe (issue 22 item 7). A board thread that
+/// loses 10% of the requests and 10% of the replies (seeded), 3000 shared-mode cycles per
+/// window, reply timeout 5 ms; prints the batch time's p50, mean and p99, the share of cycles
+/// read whole and the repeats per cycle. `cargo test -p dvrk-io --test quadlet_batch --
+/// --ignored --nocapture probe`.
+#[test]
+#[ignore]
+fn probe_ten_percent_loss() {
+    fn chance(state: &mut u64, p: f64) -> bool {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        (((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64) < p
+    }
+    let windows: Vec<u8> = std::env::var("PROBE_WINDOWS")
+        .ok()
+        .map(|s| s.split(',').filter_map(|w| w.parse().ok()).collect())
+        .unwrap_or_else(|| vec![1, 4]);
+    let cycles = 3000;
+    for window in windows {
+        let mut rng = 22u64;
+        let (addr, h) = board(boards_with(1), move |_, _, replies, sock, from| {
+            if !chance(&mut rng, 0.1) {
+                for r in replies {
+                    if !chance(&mut rng, 0.1) {
+                        sock.send_to(&r, from).unwrap();
+                    }
+                }
+            }
+            false
+        });
+        let mut p = UdpPort::open_udp(addr).unwrap();
+        p.link_mut().set_timeout(Duration::from_millis(5)).unwrap();
+        p.set_quadlet_window(window);
+        let reqs = shared_cycle();
+        let mut out = vec![None; reqs.len()];
+        let mut times = Vec::with_capacity(cycles);
+        let mut whole = 0;
+        for _ in 0..cycles {
+            let t0 = Instant::now();
+            whole += usize::from(p.read_quadlets(&reqs, &mut out).is_ok());
+            times.push(t0.elapsed());
+        }
+        times.sort_unstable();
+        let mean = times.iter().sum::<Duration>() / cycles as u32;
+        let c = p.counters();
+        eprintln!(
+            "PROBE window={window} p50_us={:.0} mean_us={:.0} p99_us={:.0} whole={:.4} \
+             repeats_per_cycle={:.2} stale_per_cycle={:.2} retry_wait_us={:.0}",
+            times[cycles / 2].as_secs_f64() * 1e6,
+            mean.as_secs_f64() * 1e6,
+            times[cycles * 99 / 100].as_secs_f64() * 1e6,
+            whole as f64 / cycles as f64,
+            c.quadlet_retries as f64 / cycles as f64,
+            c.stale_replies as f64 / cycles as f64,
+            p.quadlet_retry_wait().unwrap_or_default().as_secs_f64() * 1e6,
+        );
+        drop(p);
+        h.join().unwrap();
+    }
+}
+
+/// A reply held back by the board for several cycles (longer than one batch, shorter than the
+/// reply timeout) is never taken for another register: the label of a request without reply is
+/// not used again within the reply timeout, though 64 labels wrap in four cycles. The held reply
+/// arrives in the fifth cycle and is skipped, and that cycle's values are all its own.
+#[test]
+fn the_label_of_an_unanswered_request_is_not_reused_within_the_reply_timeout() {
+    let reqs = shared_cycle();
+    let n = reqs.len();
+    let held_register = reqs[4];
+    let cycle = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(1));
+    let c = cycle.clone();
+    let mut held: Option<(Req, Vec<u8>)> = None;
+    let mut sent_back = false;
+    let mut seen_cycle = 1;
+    let (addr, h) = board(boards_with(3), move |boards, req, replies, sock, from| {
+        let now_cycle = c.load(std::sync::atomic::Ordering::SeqCst);
+        if now_cycle != seen_cycle {
+            seen_cycle = now_cycle;
+            set_values(boards, now_cycle as i32 + 3);
+            if now_cycle == 5 && !sent_back {
+                // The fifth cycle's first request: answer it, then the reply held since the
+                // first cycle arrives.
+                sent_back = true;
+                let fresh = boards.answer_quadlet_read(req.node, req.addr, req.label);
+                send_all(sock, from, &fresh);
+                sock.send_to(&held.as_ref().unwrap().1, from).unwrap();
+                return false;
+            }
+        }
+        if (req.node, req.addr) == held_register && held.is_none() {
+            held = Some((req, replies.into_iter().next().unwrap()));
+            return false;
+        }
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = port(addr, 4);
+    let mut out = vec![None; n];
+    for k in 1..=5usize {
+        cycle.store(k, std::sync::atomic::Ordering::SeqCst);
+        let mut truth = boards_with(k as i32 + 3);
+        if k == 1 {
+            truth = boards_with(3);
+        }
+        let r = p.read_quadlets(&reqs, &mut out);
+        assert_eq!(r, Ok(()), "cycle {k}: {:?}", p.counters());
+        assert_eq!(out, expected(&mut truth, &reqs), "cycle {k}");
+    }
+    assert!(p.counters().stale_replies >= 1, "{:?}", p.counters());
+    drop(p);
+    let seen = h.join().unwrap();
+    let held_at = seen
+        .iter()
+        .position(|q| (q.node, q.addr) == held_register)
+        .unwrap();
+    let held_label = seen[held_at].label;
+    let first_again = seen[held_at + 1..]
+        .iter()
+        .position(|q| q.label == held_label);
+    // Labels wrap after 64 requests; these cycles made more than that.
+    assert!(seen.len() > 64, "{}", seen.len());
+    assert_eq!(first_again, None, "label {held_label} used again: {seen:?}");
 }

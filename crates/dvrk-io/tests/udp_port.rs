@@ -556,6 +556,10 @@ fn a_lost_quadlet_is_asked_for_again_within_the_timeout() {
         .unwrap();
     let mut p = UdpPort::open_udp(board.local_addr().unwrap()).unwrap();
     p.link_mut().set_timeout(Duration::from_secs(2)).unwrap();
+    // Longer than a loaded machine keeps the board thread from running (the default 150 µs
+    // is not: the answered request was asked again meanwhile), far below the timeout.
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(5)));
     let t = std::thread::spawn(move || {
         let mut boards = Boards::psm(8);
         let mut buf = [0u8; 2048];

@@ -20,13 +20,13 @@ const RX_CAP: usize = 4096;
 const MAX_STALE: u8 = 64;
 
 /// Default of [`EthPort::set_quadlet_window`]: quadlet requests a batch keeps outstanding at
-/// once. 1: one at a time, each read waiting up to the reply timeout, as the reads were before
-/// the batch. The FPGA serves one packet at a time (reference §8.4), so each request queued
-/// there delays the console's own packets by one quadlet transaction, and a batch shares one
-/// reply timeout among its reads, so a scheduler stall longer than it fails the whole cycle
-/// (seen in CI: two-arm shared-mode runs on a loaded machine). A lossy link is better served
-/// by 4 (RELIABILITY.md); that is the lab's choice, `shared_requests_in_flight`.
-pub const DEFAULT_QUADLET_WINDOW: u8 = 1;
+/// once. 4 hides the round trips of a cycle's reads and lets a lost datagram be asked again
+/// within the cycle (RELIABILITY.md, issue 22 item 7). Each register still waits up to the
+/// reply timeout from its own first request, as a read on its own would, so a stall of a
+/// loaded host costs no more than it did with one read at a time. The FPGA serves one packet
+/// at a time (reference §8.4): each request queued there delays the console's own packets by
+/// one quadlet transaction, so a bench beside a console may set 1 (`shared_requests_in_flight`).
+pub const DEFAULT_QUADLET_WINDOW: u8 = 4;
 /// Largest window [`EthPort::set_quadlet_window`] takes.
 pub const MAX_QUADLET_WINDOW: u8 = 16;
 /// Floor of the retry wait a batch estimates from the measured round trip (a loopback board
@@ -40,6 +40,11 @@ const MAX_BATCH: usize = 32;
 /// request).
 const MAX_BATCH_LABELS: u8 = 32;
 const NO_ENTRY: u8 = u8::MAX;
+/// Datagrams one batch reads at most: every label it may use answered four times over (late
+/// replies of the cycle before, duplicates). More is a flood, and ends the batch.
+const MAX_BATCH_DATAGRAMS: usize = 4 * MAX_BATCH_LABELS as usize;
+/// Most doublings of a batch's retry wait while its board stays silent.
+const MAX_BACKOFF_SHIFT: u32 = 8;
 
 /// Per-port counters, read by the binary's 1 Hz summary.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -71,7 +76,8 @@ pub struct EthCounters {
     pub writes: u64,
     /// Pipelined batches of quadlet reads ([`Port::read_quadlets`]).
     pub quadlet_batches: u64,
-    /// Batches that ended at their deadline with registers unread.
+    /// Batches that gave up a register at its deadline (the reply timeout from its first
+    /// request, or the batch's budget), leaving it unread.
     pub batch_deadlines: u64,
 }
 
@@ -87,6 +93,149 @@ enum Entry {
     /// Not asked: its board stopped answering in this batch, or the board id is invalid.
     Skipped,
     Done,
+}
+
+/// Bookkeeping of one pipelined batch ([`Port::read_quadlets`] on [`EthPort`]), on the
+/// stack: per entry its node, state, requests sent, when its newest request is presumed lost
+/// (`due`) and when the entry is given up (`deadline`: the reply timeout counted from its first
+/// request); per label the entry it asked for, when, and the request's rank in the batch.
+struct Batch {
+    node: [u8; MAX_BATCH],
+    state: [Entry; MAX_BATCH],
+    sends: [u8; MAX_BATCH],
+    due: [Instant; MAX_BATCH],
+    deadline: [Instant; MAX_BATCH],
+    /// Rank (0, 1, ... in the order sent) of each entry's newest request.
+    newest: [u8; MAX_BATCH],
+    /// The entry's newest request is known lost: a later one to its node was answered.
+    lost: [bool; MAX_BATCH],
+    /// Label whose reply answered the entry (NO_ENTRY: none yet).
+    answered_by: [u8; MAX_BATCH],
+    label_entry: [u8; 64],
+    label_rank: [u8; 64],
+    sent_at: [Instant; 64],
+    /// Labels sent in this batch (bit = label).
+    accept: u64,
+    labels_used: u8,
+    taken: u8,
+    /// Boards (bit = id) asked, answering, and given up in this batch.
+    asked: u16,
+    answered: u16,
+    failed: u16,
+}
+
+impl Batch {
+    fn new(start: Instant) -> Self {
+        Self {
+            node: [0; MAX_BATCH],
+            state: [Entry::Unsent; MAX_BATCH],
+            sends: [0; MAX_BATCH],
+            due: [start; MAX_BATCH],
+            deadline: [start; MAX_BATCH],
+            newest: [0; MAX_BATCH],
+            lost: [false; MAX_BATCH],
+            answered_by: [NO_ENTRY; MAX_BATCH],
+            label_entry: [NO_ENTRY; 64],
+            label_rank: [0; 64],
+            sent_at: [start; 64],
+            accept: 0,
+            labels_used: 0,
+            taken: 0,
+            asked: 0,
+            answered: 0,
+            failed: 0,
+        }
+    }
+
+    /// Sends entry `i`'s request, first or repeated, with a new label, and records it: the
+    /// label now answers for entry `i`, the entry is in flight until `due`.
+    fn ask<L: Link>(
+        &mut self,
+        port: &mut EthPort<L>,
+        i: usize,
+        addr: u16,
+        now: Instant,
+        due: Instant,
+    ) -> Result<(), PortError> {
+        port.avoid_labels = self.accept;
+        let label = port.send_request(
+            self.node[i],
+            addr,
+            RequestKind::QuadletRead,
+            &[],
+            port.noforward,
+        )?;
+        let l = usize::from(label & LABEL_MASK);
+        self.label_entry[l] = i as u8;
+        self.label_rank[l] = self.labels_used;
+        self.sent_at[l] = now;
+        self.accept |= 1 << l;
+        self.newest[i] = self.labels_used;
+        self.lost[i] = false;
+        self.labels_used += 1;
+        self.sends[i] = self.sends[i].saturating_add(1);
+        self.due[i] = due;
+        self.state[i] = Entry::InFlight;
+        Ok(())
+    }
+
+    /// Earliest due time of the entries in flight; None when none is.
+    fn next_due(&self, n: usize) -> Option<Instant> {
+        (0..n)
+            .filter(|&i| self.state[i] == Entry::InFlight)
+            .map(|i| self.due[i])
+            .min()
+    }
+
+    /// A reply of `node` to the request of rank `rank` was taken. A board answers its requests
+    /// in the order they arrive (the FPGA serves one packet at a time, reference §8.4), so an
+    /// entry of the same node (of any node when one FPGA answers for all, `one_server`) whose
+    /// newest request was sent before that one and is still unanswered lost its request or
+    /// its reply: it is due now, not after the retry wait.
+    fn overtaken(&mut self, n: usize, node: u8, rank: u8, r: QuadletRetry, now: Instant) {
+        let attempts = batch_attempts(r);
+        for j in 0..n {
+            if self.state[j] == Entry::InFlight
+                && (r.one_server || self.node[j] == node)
+                && self.newest[j] < rank
+                && self.sends[j] < attempts
+            {
+                self.lost[j] = true;
+                self.due[j] = self.due[j].min(now);
+            }
+        }
+    }
+
+    /// Another entry of `i`'s node, in flight, past its due time and not known lost, has an
+    /// older request than `i`: that one is asked again first.
+    fn older_past_due(&self, n: usize, i: usize, now: Instant) -> bool {
+        (0..n).any(|j| {
+            j != i
+                && self.state[j] == Entry::InFlight
+                && self.node[j] == self.node[i]
+                && !self.lost[j]
+                && self.due[j] <= now
+                && self.newest[j] < self.newest[i]
+        })
+    }
+
+    /// Entry `i` of a node was just asked again for silence: the node's other requests past
+    /// their due time (not known lost) wait as long as it does.
+    fn wait_with(&mut self, n: usize, i: usize, now: Instant) {
+        if self.lost[i] {
+            return;
+        }
+        for j in 0..n {
+            if j != i
+                && self.state[j] == Entry::InFlight
+                && self.node[j] == self.node[i]
+                && !self.lost[j]
+                && self.due[j] <= now
+            {
+                self.due[j] = self.due[i].min(self.deadline[j]);
+            }
+        }
+    }
 }
 
 #[derive(Clone, Copy)]
@@ -124,8 +273,8 @@ pub struct EthPort<L: Link> {
     crcs_seen: bool,
     /// Requests a batch of quadlet reads keeps outstanding ([`EthPort::set_quadlet_window`]).
     window: u8,
-    /// Longest a batch waits in all ([`EthPort::set_quadlet_batch_budget`]); None: the link's
-    /// reply timeout.
+    /// Longest a batch waits in all ([`EthPort::set_quadlet_batch_budget`]); None: no cap but
+    /// each register's reply timeout.
     batch_budget: Option<Duration>,
     /// Boards (bit = board id) that answered nothing in their last batch: asked once per batch
     /// until they answer, so a stalled board does not pile up requests.
@@ -134,6 +283,14 @@ pub struct EthPort<L: Link> {
     /// None before the first reply of a batch.
     srtt_ns: Option<u64>,
     rttvar_ns: u64,
+    /// Until when each label is not used again: its request got no reply, which may still
+    /// come, late. A quadlet reply carries no address, so a late reply whose label a later
+    /// request to the same node reused would be taken for that request's register.
+    quarantined_until: [Instant; 64],
+    /// Labels not to take: those of the batch under way and of the one before it (whose
+    /// late replies and duplicates may still come).
+    avoid_labels: u64,
+    prev_batch_labels: u64,
     counters: EthCounters,
     tx: Box<[u8; TX_CAP]>,
     rx: Box<[u8; RX_CAP]>,
@@ -167,6 +324,9 @@ impl<L: Link> EthPort<L> {
             silent_boards: 0,
             srtt_ns: None,
             rttvar_ns: 0,
+            quarantined_until: [Instant::now(); 64],
+            avoid_labels: 0,
+            prev_batch_labels: 0,
             counters: EthCounters::default(),
             tx: Box::new([0; TX_CAP]),
             rx: Box::new([0; RX_CAP]),
@@ -231,10 +391,11 @@ impl<L: Link> EthPort<L> {
     pub fn quadlet_window(&self) -> u8 {
         self.window
     }
-    /// Longest one batch waits in all (default and at most: the link's reply timeout, so a
-    /// cycle whose boards do not answer is given up after one reply timeout, whatever number
-    /// of registers it asks). Registers still unanswered then are left unread. A lost datagram
-    /// never waits for it: its register is asked again after the retry wait.
+    /// Longest one batch waits in all (default None: no cap of its own). Each register waits at
+    /// most the link's reply timeout from its first request (as a read on its own would); a
+    /// budget also ends the batch as a whole, leaving the registers still unanswered unread. A
+    /// lost datagram never waits for either: its register is asked again after the retry wait,
+    /// or as soon as a later request to the same board is answered.
     pub fn set_quadlet_batch_budget(&mut self, budget: Option<Duration>) {
         self.batch_budget = budget;
     }
@@ -282,10 +443,43 @@ impl<L: Link> EthPort<L> {
             .ok_or(PortError::BoardOutOfRange { board })
     }
 
+    /// The next label in turn that is neither quarantined nor to be avoided; when every
+    /// label is, the one whose quarantine ends first (of those not in the batch under way).
     fn take_label(&mut self) -> u8 {
-        let l = self.next_label;
+        let now = Instant::now();
+        let mut pick: Option<u8> = None;
+        for k in 0..64u8 {
+            let l = self.next_label.wrapping_add(k) & LABEL_MASK;
+            let bit = 1u64 << l;
+            if self.avoid_labels & bit != 0 {
+                continue;
+            }
+            let until = self.quarantined_until[usize::from(l)];
+            if self.prev_batch_labels & bit == 0 && until <= now {
+                pick = Some(l);
+                break;
+            }
+            if pick.is_none_or(|p| until < self.quarantined_until[usize::from(p)]) {
+                pick = Some(l);
+            }
+        }
+        let l = pick.unwrap_or(self.next_label);
         self.next_label = (l + 1) & LABEL_MASK;
         l
+    }
+
+    /// The labels in `mask` were sent and not answered: they are not used again for the
+    /// link's reply timeout, so that their late replies meet no request of another register.
+    fn quarantine(&mut self, mask: u64) {
+        let Some(r) = self.link.quadlet_retry() else {
+            return;
+        };
+        let until = Instant::now() + r.reply_timeout;
+        for l in 0..64usize {
+            if mask & (1u64 << l) != 0 {
+                self.quarantined_until[l] = until;
+            }
+        }
     }
 
     /// `late`: the reply taken answered an earlier request of the read, so the wait was too
@@ -580,13 +774,11 @@ impl<L: Link> EthPort<L> {
         };
         self.counters.quadlet_batches += 1;
         let start = Instant::now();
-        let budget = self
-            .batch_budget
-            .map_or(retry.reply_timeout, |b| b.min(retry.reply_timeout));
-        let deadline = start + budget;
-        // Twice a single read's attempts: none of them waits the reply timeout, the batch's
-        // deadline bounds them all (at 10% loss each way a register then fails once in 10^6).
-        let attempts = retry.attempts.max(1).saturating_mul(2);
+        // Each register waits at most the reply timeout from its first request, as a read on
+        // its own would; an explicit budget also caps the batch as a whole.
+        let timeout = retry.reply_timeout;
+        let end = self.batch_budget.and_then(|b| start.checked_add(b));
+        let attempts = batch_attempts(retry);
         let window = usize::from(self.window);
         if self.resync {
             // Replies of an earlier cycle may be queued: throw them away before this batch's
@@ -596,156 +788,170 @@ impl<L: Link> EthPort<L> {
             self.counters.resyncs += 1;
             self.counters.drained += self.link.discard_pending(&mut self.rx[..]) as u64;
         }
-        let mut node = [0u8; MAX_BATCH];
-        let mut state = [Entry::Unsent; MAX_BATCH];
-        let mut sends = [0u8; MAX_BATCH];
-        let mut due = [deadline; MAX_BATCH];
-        // Entry asked with each label in this batch, and when.
-        let mut label_entry = [NO_ENTRY; 64];
-        let mut sent_at = [start; 64];
-        let mut accept = 0u64;
+        let mut b = Batch::new(start);
         let mut first_err: Option<PortError> = None;
         let mut last_bad: Option<PortError> = None;
         for (i, (&(board, _), o)) in reqs.iter().zip(out.iter_mut()).enumerate() {
             *o = None;
             match self.node(board) {
-                Ok(nd) => node[i] = nd,
+                Ok(nd) => b.node[i] = nd,
                 Err(e) => {
-                    state[i] = Entry::Skipped;
+                    b.state[i] = Entry::Skipped;
                     first_err.get_or_insert(e);
                 }
             }
         }
-        // Boards (bit = id) asked, answering, and given up in this batch.
-        let (mut asked, mut answered, mut failed) = (0u16, 0u16, 0u16);
-        let (mut labels_used, mut taken) = (0u8, 0u8);
         let mut unexpected = false;
+        let mut received = 0usize;
         let mut rto = self.batch_retry_wait(retry);
+        // Doublings of the wait after a repeat asked for silence (reset by a reply).
+        let mut backoff = 0u32;
         loop {
             let now = Instant::now();
-            // Requests not answered in time: ask again with a new label, or give up.
+            // Registers known lost (a later request to their board was answered) are asked
+            // again now. A request past its due time without that knowledge may be slow
+            // rather than lost (a board or host busy for a while): per board only the oldest
+            // is asked again, the others wait with it, and each such repeat doubles the wait
+            // of the next until a reply comes, so a stall costs a few requests, not a flood.
+            // Labels are kept for the registers not asked yet.
+            let unsent = (0..n)
+                .filter(|&i| b.state[i] == Entry::Unsent && b.failed & board_bit(reqs[i].0) == 0)
+                .count();
             for i in 0..n {
-                if state[i] != Entry::InFlight || now < due[i] {
+                if b.state[i] != Entry::InFlight || now < b.due[i] || now >= b.deadline[i] {
                     continue;
                 }
                 let (board, addr) = reqs[i];
                 let bit = board_bit(board);
-                let silent = self.silent_boards & bit & !answered != 0;
-                if silent || sends[i] >= attempts || labels_used >= MAX_BATCH_LABELS {
-                    state[i] = Entry::GivenUp;
-                    failed |= bit;
+                let silent = self.silent_boards & bit & !b.answered != 0;
+                if silent
+                    || b.failed & bit != 0
+                    || b.sends[i] >= attempts
+                    || usize::from(b.labels_used) + unsent >= usize::from(MAX_BATCH_LABELS)
+                {
+                    // Asked as often as allowed (or its board gave up on another register):
+                    // any of its replies is taken until its deadline.
+                    b.due[i] = b.deadline[i];
                     continue;
                 }
-                match self.send_request(
-                    node[i],
-                    addr,
-                    RequestKind::QuadletRead,
-                    &[],
-                    self.noforward,
-                ) {
-                    Ok(label) => {
-                        let l = usize::from(label & LABEL_MASK);
-                        label_entry[l] = i as u8;
-                        sent_at[l] = now;
-                        accept |= 1 << l;
-                        labels_used += 1;
-                        sends[i] += 1;
-                        due[i] = now + rto;
+                let wait = if b.lost[i] {
+                    rto
+                } else if b.older_past_due(n, i, now) {
+                    continue;
+                } else {
+                    let w = rto.saturating_mul(1 << backoff);
+                    backoff = (backoff + 1).min(MAX_BACKOFF_SHIFT);
+                    w
+                };
+                let due = if b.sends[i] + 1 >= attempts {
+                    b.deadline[i]
+                } else {
+                    now.checked_add(wait)
+                        .map_or(b.deadline[i], |t| t.min(b.deadline[i]))
+                };
+                match b.ask(self, i, addr, now, due) {
+                    Ok(()) => {
                         self.counters.quadlet_retries += 1;
+                        b.wait_with(n, i, now);
                     }
                     Err(e) => {
                         first_err.get_or_insert(e);
-                        state[i] = Entry::GivenUp;
-                        failed |= bit;
+                        b.state[i] = Entry::GivenUp;
+                        b.failed |= bit;
                     }
                 }
             }
             // New requests, in order, while fewer than `window` are outstanding.
-            let mut in_flight = state[..n].iter().filter(|s| **s == Entry::InFlight).count();
-            for i in 0..n {
-                if in_flight >= window || labels_used >= MAX_BATCH_LABELS {
-                    break;
-                }
-                if state[i] != Entry::Unsent {
-                    continue;
-                }
-                let (board, addr) = reqs[i];
-                let bit = board_bit(board);
-                if failed & bit != 0 {
-                    state[i] = Entry::Skipped;
-                    continue;
-                }
-                // A board silent in its last batch gets one request until it answers.
-                let silent = self.silent_boards & bit & !answered != 0;
-                if silent && asked & bit != 0 {
-                    continue;
-                }
-                match self.send_request(
-                    node[i],
-                    addr,
-                    RequestKind::QuadletRead,
-                    &[],
-                    self.noforward,
-                ) {
-                    Ok(label) => {
-                        let l = usize::from(label & LABEL_MASK);
-                        label_entry[l] = i as u8;
-                        sent_at[l] = now;
-                        accept |= 1 << l;
-                        labels_used += 1;
-                        sends[i] = 1;
-                        // The one request to a silent board waits for the whole batch.
-                        due[i] = if silent { deadline } else { now + rto };
-                        state[i] = Entry::InFlight;
-                        asked |= bit;
-                        in_flight += 1;
+            if end.is_none_or(|e| now < e) {
+                let mut in_flight = b.state[..n]
+                    .iter()
+                    .filter(|s| **s == Entry::InFlight)
+                    .count();
+                for i in 0..n {
+                    if in_flight >= window || b.labels_used >= MAX_BATCH_LABELS {
+                        break;
                     }
-                    Err(e) => {
-                        first_err.get_or_insert(e);
-                        state[i] = Entry::Skipped;
-                        failed |= bit;
+                    if b.state[i] != Entry::Unsent {
+                        continue;
+                    }
+                    let (board, addr) = reqs[i];
+                    let bit = board_bit(board);
+                    if b.failed & bit != 0 {
+                        b.state[i] = Entry::Skipped;
+                        continue;
+                    }
+                    // A board silent in its last batch gets one request until it answers.
+                    let silent = self.silent_boards & bit & !b.answered != 0;
+                    if silent && b.asked & bit != 0 {
+                        continue;
+                    }
+                    let deadline = now + timeout;
+                    b.deadline[i] = end.map_or(deadline, |e| deadline.min(e));
+                    // The one request to a silent board waits until its deadline.
+                    let due = if silent || attempts <= 1 {
+                        b.deadline[i]
+                    } else {
+                        (now + rto).min(b.deadline[i])
+                    };
+                    match b.ask(self, i, addr, now, due) {
+                        Ok(()) => {
+                            b.asked |= bit;
+                            in_flight += 1;
+                        }
+                        Err(e) => {
+                            first_err.get_or_insert(e);
+                            b.state[i] = Entry::Skipped;
+                            b.failed |= bit;
+                        }
                     }
                 }
             }
-            let open = state[..n]
-                .iter()
-                .any(|s| matches!(s, Entry::Unsent | Entry::InFlight));
-            if !open || now >= deadline {
+            // Nothing in flight: what is left can not be asked in this batch.
+            let Some(next) = b.next_due(n) else {
                 break;
-            }
-            let mut next = deadline;
-            for i in 0..n {
-                if state[i] == Entry::InFlight && due[i] < next {
-                    next = due[i];
-                }
-            }
+            };
             let wait = next.saturating_duration_since(now);
-            if wait.is_zero() {
-                continue;
-            }
             let got = match self.link.recv_within(&mut self.rx[..], wait) {
                 Ok(len) => len,
-                Err(PortError::Timeout { .. }) => continue,
+                Err(PortError::Timeout { .. }) => {
+                    // Nothing queued, so no reply is waiting to be read (replies that arrived
+                    // while this process was not running, a stall of the host, have been):
+                    // the registers past their deadline are given up.
+                    let now = Instant::now();
+                    for i in 0..n {
+                        if b.state[i] == Entry::InFlight && now >= b.deadline[i] {
+                            b.state[i] = Entry::GivenUp;
+                            b.failed |= board_bit(reqs[i].0);
+                        }
+                    }
+                    continue;
+                }
                 Err(e) => {
                     first_err.get_or_insert(e);
                     unexpected = true;
                     break;
                 }
             };
+            received += 1;
+            if received > MAX_BATCH_DATAGRAMS {
+                // More datagrams than the batch's requests can explain: a flood, not replies.
+                unexpected = true;
+                break;
+            }
             match self.validate(
                 got,
                 UNKNOWN_BOARD,
                 None,
                 0,
-                accept,
+                b.accept,
                 Expect::Quadlet,
                 &mut [],
             ) {
                 Ok((v, src)) => {
                     let l = usize::from(self.last_label & LABEL_MASK);
-                    let i = usize::from(label_entry[l]);
-                    let fresh = matches!(state.get(i), Some(Entry::InFlight | Entry::GivenUp));
-                    if !fresh || node.get(i) != Some(&src) {
+                    let i = usize::from(b.label_entry[l]);
+                    let fresh = matches!(b.state.get(i), Some(Entry::InFlight | Entry::GivenUp));
+                    if !fresh || b.node.get(i) != Some(&src) {
                         // A duplicate, or a reply from a node this label was not sent to.
                         self.counters.stale_replies += 1;
                         unexpected = true;
@@ -754,12 +960,16 @@ impl<L: Link> EthPort<L> {
                     if let Some(o) = out.get_mut(i) {
                         *o = Some(v);
                     }
-                    state[i] = Entry::Done;
-                    taken += 1;
-                    answered |= board_bit(reqs[i].0);
+                    b.state[i] = Entry::Done;
+                    b.answered_by[i] = l as u8;
+                    b.taken += 1;
+                    b.answered |= board_bit(reqs[i].0);
                     self.counters.replies_ok += 1;
-                    self.rtt_sample(Instant::now().saturating_duration_since(sent_at[l]));
+                    let now = Instant::now();
+                    self.rtt_sample(now.saturating_duration_since(b.sent_at[l]));
                     rto = self.batch_retry_wait(retry);
+                    backoff = 0;
+                    b.overtaken(n, src, b.label_rank[l], retry, now);
                 }
                 Err(PortError::WrongLabel { .. } | PortError::WrongSource { .. }) => {
                     // Not of this batch: a late reply of an earlier cycle, skipped.
@@ -782,19 +992,31 @@ impl<L: Link> EthPort<L> {
         }
         // Replies still to come (requests outstanding, lost or late) must not meet the next
         // request unchecked: drain before it.
-        self.resync = unexpected || labels_used > taken;
-        self.silent_boards = (self.silent_boards | asked) & !answered;
-        if asked != 0 {
-            self.link_answers = answered != 0;
+        self.resync = unexpected || b.labels_used > b.taken;
+        let mut answered_labels = 0u64;
+        for l in 0..64usize {
+            let i = usize::from(b.label_entry[l]);
+            if b.accept & (1u64 << l) != 0 && b.answered_by.get(i) == Some(&(l as u8)) {
+                answered_labels |= 1u64 << l;
+            }
+        }
+        self.quarantine(b.accept & !answered_labels);
+        self.avoid_labels = 0;
+        self.prev_batch_labels = b.accept;
+        self.silent_boards = (self.silent_boards | b.asked) & !b.answered;
+        if b.asked != 0 {
+            self.link_answers = b.answered != 0;
         }
         let mut unread = false;
+        let mut given_up = false;
         for (i, &(board, addr)) in reqs.iter().enumerate() {
-            match state[i] {
+            match b.state[i] {
                 Entry::Done => {}
                 Entry::Skipped => unread = true,
                 Entry::Unsent | Entry::InFlight | Entry::GivenUp => {
                     unread = true;
-                    self.counters.timeouts += u64::from(state[i] != Entry::Unsent);
+                    given_up |= b.state[i] == Entry::GivenUp;
+                    self.counters.timeouts += u64::from(b.state[i] != Entry::Unsent);
                     first_err.get_or_insert(match last_bad {
                         Some(e) => e,
                         None => PortError::Timeout { board, addr },
@@ -802,7 +1024,7 @@ impl<L: Link> EthPort<L> {
                 }
             }
         }
-        if unread && Instant::now() >= deadline {
+        if unread && (given_up || end.is_some_and(|e| Instant::now() >= e)) {
             self.counters.batch_deadlines += 1;
         }
         match first_err {
@@ -866,8 +1088,16 @@ impl<L: Link> Port for EthPort<L> {
         let mut accept = 0u64;
         let mut attempt = 1;
         loop {
-            let label =
-                self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward)?;
+            self.avoid_labels = accept;
+            let sent = self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward);
+            self.avoid_labels = 0;
+            let label = match sent {
+                Ok(l) => l,
+                Err(e) => {
+                    self.quarantine(accept);
+                    return Err(e);
+                }
+            };
             accept |= 1 << label;
             let wait = retry.filter(|_| attempt < attempts).map(|r| r.wait);
             let r = self.await_reply_of(
@@ -892,12 +1122,17 @@ impl<L: Link> Port for EthPort<L> {
                 }
                 Err(e @ (PortError::Timeout { .. } | PortError::WrongLabel { .. })) => {
                     self.link_answers = false;
+                    self.quarantine(accept);
                     return Err(e);
                 }
                 r => {
                     if r.is_ok() {
                         self.link_answers = true;
                         self.adapt_retry_wait(retry, self.last_label != label);
+                        // The other requests of the read may still be answered, late.
+                        self.quarantine(accept & !(1u64 << (self.last_label & LABEL_MASK)));
+                    } else {
+                        self.quarantine(accept);
                     }
                     return r.map(|(v, _)| v);
                 }
@@ -909,15 +1144,19 @@ impl<L: Link> Port for EthPort<L> {
     /// ([`EthPort::set_quadlet_window`]): up to `window` requests outstanding at once, each with
     /// its own label. A reply is taken for the register its label was sent for, and only from
     /// the node it was sent to; a reply whose label is not one of this batch's (a late reply of
-    /// an earlier cycle) or that answers a register already read is skipped. A register not
-    /// answered within the retry wait (the measured round trip + 4 deviations, see
-    /// [`EthPort::quadlet_retry_wait`]) is asked again with a new label, up to the link's
-    /// number of attempts; a reply to any of its requests is taken. The batch ends when every
-    /// register is read or given up, or at its deadline ([`EthPort::set_quadlet_batch_budget`]):
-    /// no request waits the whole reply timeout. A board that answered nothing in its last
-    /// batch gets one request per batch until it answers (as [`Port::read_quadlet`] asks once
-    /// after a read without reply), so a stall does not pile up requests at it. Otherwise (a
-    /// window of 1, a link without retry) the reads go one after the other.
+    /// an earlier cycle) or that answers a register already read is skipped. A register whose
+    /// request or reply was lost is asked again with a new label, up to twice the link's number
+    /// of attempts: as soon as a later request to the same node is answered (a board answers in
+    /// order), else after the retry wait (the measured round trip + 4 deviations, see
+    /// [`EthPort::quadlet_retry_wait`]); a reply to any of its requests is taken. Each register
+    /// is given up at its own deadline, the link's reply timeout counted from its first
+    /// request (or the batch's budget, [`EthPort::set_quadlet_batch_budget`]), and only when no
+    /// reply is queued: replies that arrived while this process was not running are read
+    /// first. A board whose register was given up is not asked again in the batch. A board that
+    /// answered nothing in its last batch gets one request per batch until it answers (as
+    /// [`Port::read_quadlet`] asks once after a read without reply), so a stall does not pile
+    /// up requests at it. Otherwise (a window of 1, a link without retry) the reads go one
+    /// after the other.
     fn read_quadlets(
         &mut self,
         reqs: &[(u8, u16)],
@@ -948,8 +1187,11 @@ impl<L: Link> Port for EthPort<L> {
             &[],
             self.noforward,
         )?;
-        self.await_reply(board, addr, Some(node), label, Expect::Block(len), out)
-            .map(|_| ())
+        let r = self.await_reply(board, addr, Some(node), label, Expect::Block(len), out);
+        if r.is_err() {
+            self.quarantine(1u64 << (label & LABEL_MASK));
+        }
+        r.map(|_| ())
     }
 
     /// Writes (seq<<16 | mask) to the query register 0x1800 at node 0x3F, then block-reads the
@@ -981,6 +1223,13 @@ impl<L: Link> Port for EthPort<L> {
         )?;
         self.read_block(hub, HUB_ADDRESS, out)
     }
+}
+
+/// Requests one register of a batch may take: twice a single read's attempts. A register is
+/// asked again as soon as its loss is known, so the attempts are cheap (at 10% loss each way a
+/// register then fails once in 10^6); the last one waits until the register's deadline.
+fn batch_attempts(r: QuadletRetry) -> u8 {
+    r.attempts.max(1).saturating_mul(2)
 }
 
 /// Bit of `board` in a 16-board mask (0 for an id out of range, refused before it is asked).

@@ -165,14 +165,20 @@ pub trait Link {
 /// again, `attempts` requests in all, the last one waiting the link's whole timeout; a reply to
 /// any of them is taken (they read the same register, so each is as fresh as the others). A
 /// datagram lost at 1.5 kHz then costs `wait`, not the whole reply timeout and so the cycle
-/// (issue 22). A batch of quadlet reads ([`Port::read_quadlets`]) waits at most
-/// `reply_timeout` in all, and its retry wait follows the measured round trip.
+/// (issue 22). In a batch of quadlet reads ([`Port::read_quadlets`]) each register waits at
+/// most `reply_timeout` from its first request, and the retry wait follows the measured round
+/// trip.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct QuadletRetry {
     pub wait: std::time::Duration,
     pub attempts: u8,
     /// The link's whole reply timeout.
     pub reply_timeout: std::time::Duration,
+    /// Every reply comes from one FPGA (a single board, or the hub that forwards to the others),
+    /// which serves one packet at a time (reference §8.4): replies come in the order of the
+    /// requests whatever node they name. False when each board answers on its own (Rev 9
+    /// per-board addresses): only one board's replies are in order.
+    pub one_server: bool,
 }
 
 impl<L: Link + ?Sized> Link for &mut L {

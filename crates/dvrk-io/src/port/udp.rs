@@ -257,6 +257,7 @@ impl Link for UdpLink {
             wait,
             attempts: MAX_QUADLET_ATTEMPTS,
             reply_timeout: self.timeout,
+            one_server: matches!(self.target, UdpTarget::Single(_)),
         })
     }
 
