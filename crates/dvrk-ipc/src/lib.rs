@@ -68,6 +68,7 @@ mod publisher;
 mod services;
 mod subscription;
 mod sys;
+pub mod wake;
 
 pub use clock::monotonic_ns;
 pub use error::{IpcError, PublishError, RootProblem, SubscriptionError};
