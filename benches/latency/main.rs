@@ -180,7 +180,10 @@ fn sub_shm<T: Message>(
     let st = sub.stats();
     let on_time = (wait == WaitStrategy::Predictive).then_some((
         st.predicted_on_time_total,
-        st.predicted_on_time_total + st.predicted_late_total + st.predicted_missed_total,
+        st.predicted_on_time_total
+            + st.predicted_late_total
+            + st.predicted_missed_total
+            + st.predicted_skipped_total,
     ));
     println!(
         "{}",

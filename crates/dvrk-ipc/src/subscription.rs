@@ -192,6 +192,9 @@ pub struct SubscriptionStats {
     /// Predictive waits that polled until the spin window closed without a sample and went
     /// back to sleep on the cycle event.
     pub predicted_missed_total: u64,
+    /// Predictive waits that did not poll at all, because most recent ones started polling
+    /// too late (an unpredictable publisher): they slept on the wake-up as `Event` does.
+    pub predicted_skipped_total: u64,
 }
 
 /// A subscriber to one topic of an arm, waiting with the consumer's [`WaitStrategy`].
@@ -489,6 +492,12 @@ where
         }
         if !self.predictor.ready() {
             // Still learning: behave like the event path; arrivals teach the predictor.
+            return self.wait_event(each);
+        }
+        if !self.predictor.poll_this_wait() {
+            // Most recent waits started polling too late to matter: sleep on the wake-up as
+            // the event path does (the arrival still teaches the predictor).
+            self.stats.predicted_skipped_total += 1;
             return self.wait_event(each);
         }
         let arrival = self.predictor.next_arrival_ns();
