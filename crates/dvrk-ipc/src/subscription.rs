@@ -57,7 +57,9 @@ pub enum WaitStrategy {
     /// then poll. Close to `Spin` in latency at a fraction of its CPU, and never later than
     /// `Event`. A cycle event that brings no new sample (the notification of a cycle already
     /// taken by polling) sends it back to sleep. Polling yields the CPU while the cycle event
-    /// has at least as many listeners as the process has CPUs. Sets the calling thread's timer
+    /// has at least as many listeners as the process has CPUs. While fewer than a quarter of
+    /// recent waits start polling in time (a publisher too irregular to predict), only one wait
+    /// in eight polls and the others sleep like `Event`. Sets the calling thread's timer
     /// slack to 1 ns (`PR_SET_TIMERSLACK`).
     Predictive,
 }
