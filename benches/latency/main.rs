@@ -5,7 +5,10 @@
 //! sample's time (host CLOCK_MONOTONIC when the board read completed, `header.sample_t_ns`) to
 //! its receipt. The shared-memory paths are the wait strategies of `dvrk_ipc::Subscription`:
 //! `event`, `predictive`, and `spin` (only while N is below the number of CPUs: a spinning
-//! subscriber needs a core of its own). In the same run, for comparison, the same state (the
+//! subscriber needs a core of its own), each sleeping on the cycle's futex wake-up word
+//! (`dvrk_ipc::wake`); `event_datagram` and `predictive_datagram` are the same strategies
+//! sleeping on iceoryx2's per-listener unix datagrams instead, as they did before the word, so
+//! that both are measured in one run. In the same run, for comparison, the same state (the
 //! compensated tip pose) goes the way the dVRK's existing non-ROS path sends it (`json_udp`): a
 //! sawSocketStreamer-style JSON datagram over UDP loopback to N subscriber processes that parse
 //! it. The JSON streamer runs the same read + compensate + FK pipeline against the same emulator;
@@ -64,15 +67,16 @@ fn main() -> Res<()> {
     match args.first().map(String::as_str) {
         Some("--sub-shm") => {
             let topic = Topic::from_suffix(&args[4]).ok_or("unknown topic")?;
-            let (prefix, seconds, wait) = (&args[1], args[2].parse()?, args[3].parse()?);
+            let (prefix, seconds) = (&args[1], args[2].parse()?);
+            let (wait, datagram) = rust_shm_path(&args[3]).ok_or("unknown wait")?;
             if topic.carries::<PoseV2>() {
-                sub_shm::<PoseV2>(prefix, seconds, wait, topic)
+                sub_shm::<PoseV2>(prefix, seconds, wait, datagram, topic)
             } else if topic.carries::<JointStateV2>() {
-                sub_shm::<JointStateV2>(prefix, seconds, wait, topic)
+                sub_shm::<JointStateV2>(prefix, seconds, wait, datagram, topic)
             } else if topic.carries::<JawStateV1>() {
-                sub_shm::<JawStateV1>(prefix, seconds, wait, topic)
+                sub_shm::<JawStateV1>(prefix, seconds, wait, datagram, topic)
             } else {
-                sub_shm::<CompensationStatusV4>(prefix, seconds, wait, topic)
+                sub_shm::<CompensationStatusV4>(prefix, seconds, wait, datagram, topic)
             }
         }
         Some("--sub-json") => sub_json(args[1].parse()?),
@@ -128,7 +132,13 @@ impl CpuWindow {
     }
 }
 
-fn sub_shm<T: Message>(prefix: &str, seconds: f64, wait: WaitStrategy, topic: Topic) -> Res<()> {
+fn sub_shm<T: Message>(
+    prefix: &str,
+    seconds: f64,
+    wait: WaitStrategy,
+    datagram: bool,
+    topic: Topic,
+) -> Res<()> {
     let node = dvrk_ipc::create_node::<Service>("latency-sub", None)?;
     let names = ServiceNames::new(prefix)?;
     let options = SubscribeOptions {
@@ -137,6 +147,9 @@ fn sub_shm<T: Message>(prefix: &str, seconds: f64, wait: WaitStrategy, topic: To
         deadline: None,
     };
     let mut sub = Subscription::<T, Service>::with_options(&node, &names, topic, options)?;
+    if datagram {
+        sub.use_datagram_wake();
+    }
     let capacity = (seconds * 2000.0) as usize;
     let mut lat = Vec::with_capacity(capacity);
     let mut publisher = Vec::with_capacity(capacity);
@@ -167,7 +180,10 @@ fn sub_shm<T: Message>(prefix: &str, seconds: f64, wait: WaitStrategy, topic: To
     let st = sub.stats();
     let on_time = (wait == WaitStrategy::Predictive).then_some((
         st.predicted_on_time_total,
-        st.predicted_on_time_total + st.predicted_late_total + st.predicted_missed_total,
+        st.predicted_on_time_total
+            + st.predicted_late_total
+            + st.predicted_missed_total
+            + st.predicted_skipped_total,
     ));
     println!(
         "{}",
@@ -382,9 +398,11 @@ struct Options {
 }
 
 /// The default paths: every Rust and Python path (spinning ones only while subscribers < CPUs).
-const DEFAULT_PATHS: [&str; 8] = [
+const DEFAULT_PATHS: [&str; 10] = [
     "event",
+    "event_datagram",
     "predictive",
+    "predictive_datagram",
     "spin",
     "json_udp",
     "python_native_predictive",
@@ -392,6 +410,19 @@ const DEFAULT_PATHS: [&str; 8] = [
     "python_pure_event",
     "python_json_udp",
 ];
+
+/// A Rust shared-memory path: its wait strategy, and whether it sleeps on the iceoryx2
+/// listener's unix datagrams (`event_datagram`, `predictive_datagram`: the wait before the
+/// futex word, `Subscription::use_datagram_wake`) instead of the cycle's wake-up word.
+fn rust_shm_path(p: &str) -> Option<(WaitStrategy, bool)> {
+    match p.strip_suffix("_datagram") {
+        Some(w) => Some((
+            w.parse().ok().filter(|w: &WaitStrategy| w.uses_event())?,
+            true,
+        )),
+        None => Some((p.parse().ok()?, false)),
+    }
+}
 
 /// A Python shared-memory path: (`native`|`pure`, its wait strategy).
 fn python_shm_path(p: &str) -> Option<(&'static str, WaitStrategy)> {
@@ -456,10 +487,11 @@ fn parse_options(args: &[String]) -> Res<Options> {
         let known = p == "json_udp"
             || p == "python_json_udp"
             || python_shm_path(p).is_some()
-            || p.parse::<WaitStrategy>().is_ok();
+            || rust_shm_path(p).is_some();
         if !known {
             return Err(format!(
-                "unknown path {p:?}: expected event, predictive, spin, json_udp, \
+                "unknown path {p:?}: expected event, predictive, spin, event_datagram, \
+                 predictive_datagram, json_udp, \
                  python_native_<wait>, python_pure_<wait> or python_json_udp"
             )
             .into());
@@ -566,11 +598,11 @@ fn orchestrate(args: &[String]) -> Res<()> {
         )?;
         let mut results: Vec<(String, Case)> = Vec::new();
         // Shared memory: one serve, then n subscriber processes per wait strategy in turn.
-        let shm_paths: Vec<WaitStrategy> = o
+        let shm_paths: Vec<(&str, WaitStrategy)> = o
             .paths
             .iter()
-            .filter_map(|p| p.parse::<WaitStrategy>().ok())
-            .filter(|w| *w != WaitStrategy::Spin || n < cores)
+            .filter_map(|p| rust_shm_path(p).map(|(w, _)| (p.as_str(), w)))
+            .filter(|(_, w)| *w != WaitStrategy::Spin || n < cores)
             .collect();
         let py_shm: Vec<(&str, &'static str, WaitStrategy)> = o
             .paths
@@ -586,19 +618,19 @@ fn orchestrate(args: &[String]) -> Res<()> {
                     .env("RUST_LOG", "warn")
                     .spawn()?,
             );
-            for wait in shm_paths {
+            for (path, _) in shm_paths {
                 let subs: Vec<Sub> = (0..n)
                     .map(|_| {
                         sub_process(
                             Command::new(&me)
-                                .args(["--sub-shm", &prefix, &o.seconds.to_string(), wait.name()])
+                                .args(["--sub-shm", &prefix, &o.seconds.to_string(), path])
                                 .arg(o.topic.suffix())
                                 .stdout(Stdio::piped())
                                 .spawn()?,
                         )
                     })
                     .collect::<Res<_>>()?;
-                results.push((wait.name().to_owned(), collect(subs)?));
+                results.push((path.to_owned(), collect(subs)?));
             }
             for &(path, backend, wait) in &py_shm {
                 let subs: Vec<Sub> = (0..n)

@@ -74,7 +74,8 @@ def shm_native(wait, prefix, topic, seconds):
     st = sub.stats()
     on_time = None
     if wait == "predictive":
-        total = st["predicted_on_time_total"] + st["predicted_late_total"] + st["predicted_missed_total"]
+        total = (st["predicted_on_time_total"] + st["predicted_late_total"] + st["predicted_missed_total"]
+                 + st["predicted_skipped_total"])
         on_time = [st["predicted_on_time_total"], total]
     report(lat, publisher, st["seq_gaps_total"] - (first_gaps or 0), window, on_time)
 

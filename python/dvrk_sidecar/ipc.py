@@ -132,6 +132,48 @@ def _user_name(uid: int) -> str:
         return f"uid {uid}"
 
 
+def other_accounts_roots(parent: str = "/tmp") -> list:
+    """The default domain roots of other accounts (`/tmp/dvrk-sidecar-<uid>/` with another uid
+    than this process's), sorted by uid, as (path, uid, owner) - as
+    dvrk_ipc::access::other_accounts_roots."""
+    me = os.geteuid()
+    found = []
+    try:
+        names = os.listdir(parent)
+    except OSError:
+        return found
+    for name in names:
+        rest = name[len("dvrk-sidecar-"):] if name.startswith("dvrk-sidecar-") else ""
+        if not rest.isdigit() or int(rest) == me:
+            continue
+        path = os.path.join(parent, name)
+        try:
+            st = os.lstat(path)
+        except OSError:
+            continue
+        if stat.S_ISDIR(st.st_mode):
+            found.append((path + "/", int(rest), _user_name(st.st_uid)))
+    return sorted(found, key=lambda r: r[1])
+
+
+def no_publisher_hint(root: str, prefix: str, others=None) -> str:
+    """Why no publisher may be found, when the service may run under another account: the
+    other accounts' default roots that exist and what to do; "" when there are none (as
+    dvrk_ipc::access::no_publisher_hint)."""
+    others = other_accounts_roots() if others is None else others
+    if not others:
+        return ""
+    listed = ", ".join(f"{path} (owner {owner})" for path, _, owner in others)
+    me = _user_name(os.geteuid())
+    return (
+        f"; this process ({me}) looks in {root} with the prefix {prefix}; the dVRK sidecar's "
+        f"shared memory of other accounts exists: {listed}. A service running as another "
+        f"account is reachable only from that account: run this program as it (e.g. sudo -u "
+        f"{others[0][2]} ...). {IPC_ROOT_ENV} cannot point at another account's directory (it "
+        f"must be this account's own, and the prefix dvrk_<euid>_ differs as well)"
+    )
+
+
 def ensure_private_root(root: str) -> None:
     """Makes the root directory `root` private to this account or refuses it, as
     dvrk_ipc::access::ensure_private_root (same checks, same words): created 0700 if missing
@@ -386,7 +428,9 @@ class Reader:
     def no_sample(self, waited_s: float) -> NoSample:
         """The error for a wait that ended without a sample."""
         if self.publishers() == 0:
+            g = self.node.config.global_cfg
             why = "no publisher is connected (is `dvrk-sidecar serve` running with this prefix and domain?)"
+            why += no_publisher_hint(g.root_path.to_string(), g.prefix.to_string())
         else:
             why = "a publisher is connected but sent nothing"
         return NoSample(f"no sample on {self.service_name} within {waited_s:g} s: {why}")

@@ -93,6 +93,8 @@ class NativeBackend:
         except _native.NativeError as e:
             raise _open_error(e) from e
         self._arm = arm_name
+        self._prefix = domain or ipc.default_domain_prefix()
+        self._root = root or ipc.default_root()
         self.strategy = wait
         self._period_ns = period_ns
         self._subs = {}
@@ -145,6 +147,7 @@ class NativeBackend:
     def no_sample(self, topic, waited_s):
         if self._sub(topic).publishers() == 0:
             why = "no publisher is connected (is `dvrk-sidecar serve` running with this prefix and domain?)"
+            why += ipc.no_publisher_hint(self._root, self._prefix)
         else:
             why = "a publisher is connected but sent nothing"
         return ipc.NoSample(f"no sample on {self._arm}/{topic} within {waited_s:g} s: {why}")

@@ -195,6 +195,32 @@ class Domain(unittest.TestCase):
             self.assertIn(needle, str(e.exception))
 
 
+class OtherAccounts(unittest.TestCase):
+    """No publisher found: the other accounts' default roots are named (a scratch parent
+    stands in for /tmp)."""
+
+    def setUp(self):
+        self.scratch = f"/tmp/dvrk-py-others-{os.getpid()}"
+        self.addCleanup(subprocess.run, ["rm", "-rf", self.scratch], check=False)
+
+    def test_the_hint_names_other_accounts_roots_not_ours(self):
+        me = os.geteuid()
+        for name in (f"dvrk-sidecar-{me}", "dvrk-sidecar-4242", "dvrk-sidecar-17", "dvrk-sidecar-x"):
+            os.makedirs(os.path.join(self.scratch, name))
+        open(os.path.join(self.scratch, "dvrk-sidecar-99"), "w").close()  # not a directory
+        found = ipc.other_accounts_roots(self.scratch)
+        self.assertEqual([uid for _, uid, _ in found], [u for u in (17, 4242) if u != me])
+        hint = ipc.no_publisher_hint("/tmp/dvrk-sidecar-0/", "dvrk_0_", found)
+        for needle in (
+            f"{self.scratch}/dvrk-sidecar-4242/",
+            "looks in /tmp/dvrk-sidecar-0/ with the prefix dvrk_0_",
+            "sudo -u",
+            f"{ipc.IPC_ROOT_ENV} cannot point at another account's directory",
+        ):
+            self.assertIn(needle, hint)
+        self.assertEqual(ipc.no_publisher_hint("/r/", "p_", []), "")
+
+
 class Poses(unittest.TestCase):
     def test_pose_matrix_is_homogeneous(self):
         p = msg.PoseV2()

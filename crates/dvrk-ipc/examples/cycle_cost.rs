@@ -1,7 +1,10 @@
 //! Per-cycle cost of `ArmPublisher::publish_cycle` (nine loans + writes + sends, one notify),
 //! with 0, 1, 4 and 16 in-process subscriptions of each kind: `spin` (no listener on the cycle
-//! event) and `event` (a listener, drained every cycle as an event or predictive subscriber
-//! drains it before it sleeps: to the publisher both kinds are one listener).
+//! event), `event` (a listener and the cycle's wake-up word, as an event or predictive
+//! subscription has them: the listener held but never drained, so iceoryx2 sends it no
+//! datagram; the word bumped once per cycle, no sleeper here) and `event_datagram` (the listener
+//! drained every cycle, as a subscription sleeping on iceoryx2's datagrams drains it before it
+//! sleeps: what every event and predictive subscriber cost before the wake-up word).
 //!
 //! ```text
 //! cargo run --release -p dvrk-ipc --example cycle_cost -- [cycles per case, default 100000]
@@ -32,17 +35,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let config = domain_config(&domain, Some("/tmp/iox2t/"))?;
     println!("{cycles} cycles per case, subscribers drain every {drain_every} cycle(s)");
     println!("subscribers | kind | mean ns | p50 ns | p99 ns | p99.9 ns | max ns");
-    let cases =
-        [(0usize, WaitStrategy::Event)]
+    let cases = [(0usize, WaitStrategy::Event, false)].into_iter().chain(
+        [1usize, 4, 16].into_iter().flat_map(|n| {
+            [
+                (WaitStrategy::Spin, false),
+                (WaitStrategy::Event, false),
+                (WaitStrategy::Event, true),
+            ]
             .into_iter()
-            .chain([1usize, 4, 16].into_iter().flat_map(|n| {
-                [WaitStrategy::Spin, WaitStrategy::Event]
-                    .into_iter()
-                    .map(move |w| (n, w))
-            }));
-    for (n_subs, wait) in cases {
+            .map(move |(w, d)| (n, w, d))
+        }),
+    );
+    for (n_subs, wait, datagram) in cases {
         let node = create_node::<ipc::Service>("cycle_cost", Some(&config))?;
-        let names = ServiceNames::new(&format!("bench/subs{n_subs}/{wait}"))?;
+        let names = ServiceNames::new(&format!("bench/subs{n_subs}/{wait}{datagram}"))?;
         let options = SubscribeOptions {
             period: Duration::from_micros(667),
             wait,
@@ -75,7 +81,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             if i % drain_every == 0 {
                 for s in &mut subs {
-                    if let Some(l) = s.listener() {
+                    if let Some(l) = s.listener().filter(|_| datagram) {
                         l.try_wait(|_| {})?;
                     }
                     s.try_latest()?;
@@ -85,9 +91,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         samples.sort_unstable();
         let q = |p: f64| samples[((samples.len() - 1) as f64 * p) as usize];
         let mean = samples.iter().sum::<u64>() / samples.len() as u64;
-        let kind = if n_subs == 0 { "-" } else { wait.name() };
+        let kind = match (n_subs, datagram) {
+            (0, _) => "-",
+            (_, true) => "event_datagram",
+            _ => wait.name(),
+        };
         println!(
-            "{n_subs:>11} | {kind:>5} | {mean:>7} | {:>6} | {:>6} | {:>8} | {:>6}",
+            "{n_subs:>11} | {kind:>14} | {mean:>7} | {:>6} | {:>6} | {:>8} | {:>6}",
             q(0.5),
             q(0.99),
             q(0.999),

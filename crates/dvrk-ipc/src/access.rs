@@ -261,6 +261,85 @@ pub fn hint(owner: &str, config: &Config) -> String {
     }
 }
 
+/// Where the default roots of the accounts live: `/tmp/dvrk-sidecar-<euid>/`.
+const DEFAULT_ROOTS_DIR: &str = "/tmp";
+const DEFAULT_ROOT_STEM: &str = "dvrk-sidecar-";
+
+/// The default domain root of another account, found by [`other_accounts_roots`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OtherRoot {
+    /// `/tmp/dvrk-sidecar-<uid>/`.
+    pub path: PathBuf,
+    /// The uid in its name (the account whose processes use it).
+    pub uid: u32,
+    /// Its owner's user name (or `uid N`).
+    pub owner: String,
+}
+
+/// The default domain roots of other accounts than this process's (`/tmp/dvrk-sidecar-<uid>/`
+/// with another uid), sorted by uid. A service running under another account keeps its state
+/// there, out of this process's reach. Setup only (reads a directory).
+pub fn other_accounts_roots() -> Vec<OtherRoot> {
+    other_roots_in(Path::new(DEFAULT_ROOTS_DIR), euid())
+}
+
+fn other_roots_in(dir: &Path, me: u32) -> Vec<OtherRoot> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut found: Vec<OtherRoot> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name();
+            let uid: u32 = name
+                .to_str()?
+                .strip_prefix(DEFAULT_ROOT_STEM)?
+                .parse()
+                .ok()?;
+            let meta = std::fs::symlink_metadata(e.path()).ok()?;
+            (uid != me && meta.is_dir()).then(|| OtherRoot {
+                path: e.path().join(""),
+                uid,
+                owner: user_name(meta.uid()),
+            })
+        })
+        .collect();
+    found.sort_by_key(|r| r.uid);
+    found
+}
+
+/// Why a consumer in `config`'s domain may find no publisher, when the cause may be that the
+/// service runs under another account: names the other accounts' default roots that exist and
+/// what to do (`None` when there are none). For the message of a consumer that waited and
+/// heard nobody (`Update::Stale` before any sample), e.g. `dvrk-sidecar echo`, `watch`, the
+/// Python client's `NoSample`. Setup only (reads a directory).
+pub fn no_publisher_hint(config: &Config) -> Option<String> {
+    no_publisher_hint_for(config, &other_accounts_roots())
+}
+
+fn no_publisher_hint_for(config: &Config, others: &[OtherRoot]) -> Option<String> {
+    if others.is_empty() {
+        return None;
+    }
+    let list = others
+        .iter()
+        .map(|r| format!("{} (owner {})", r.path.display(), r.owner))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let me = user_name(euid());
+    let first = &others[0].owner;
+    Some(format!(
+        "this process ({me}) looks in {root} with the prefix {prefix}; the dVRK sidecar's \
+         shared memory of other accounts exists: {list}. A service running as another account is \
+         reachable only from that account: run this program as it (e.g. sudo -u {first} ...). \
+         {env} cannot point at another account's directory (it must be this account's own, \
+         and the prefix dvrk_<euid>_ differs as well)",
+        root = config.global.root_path(),
+        prefix = config.global.prefix,
+        env = crate::IPC_ROOT_ENV,
+    ))
+}
+
 /// `err` unchanged, or [`IpcError::PermissionDenied`] when a file of the domain is the cause.
 /// `during` says what failed ("creating the iceoryx2 node \"x\"").
 pub(crate) fn explain(err: IpcError, config: &Config, during: String) -> IpcError {
@@ -447,6 +526,45 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn no_publisher_names_the_other_accounts_roots_not_ours() {
+        let dir = scratch("others");
+        let me = euid();
+        for name in [
+            format!("dvrk-sidecar-{me}"),
+            "dvrk-sidecar-4242".to_owned(),
+            "dvrk-sidecar-17".to_owned(),
+            "dvrk-sidecar-notanumber".to_owned(),
+        ] {
+            std::fs::create_dir_all(dir.join(name)).unwrap();
+        }
+        std::fs::write(dir.join("dvrk-sidecar-99"), b"").unwrap(); // not a directory
+        let found = other_roots_in(&dir, me);
+        let cfg = crate::domain_config("dvrk_0_", Some("/tmp/dvrk-sidecar-0/")).unwrap();
+        let hint = no_publisher_hint_for(&cfg, &found);
+        std::fs::remove_dir_all(&dir).unwrap();
+        let uids: Vec<u32> = found.iter().map(|r| r.uid).collect();
+        assert_eq!(
+            uids,
+            [17, 4242]
+                .into_iter()
+                .filter(|u| *u != me)
+                .collect::<Vec<_>>()
+        );
+        let hint = hint.unwrap();
+        for needle in [
+            &format!("{}/dvrk-sidecar-4242/", dir.display()),
+            "/tmp/dvrk-sidecar-0/",
+            "dvrk_0_",
+            "sudo -u",
+            crate::IPC_ROOT_ENV,
+            "cannot point at another account's directory",
+        ] {
+            assert!(hint.contains(needle), "{needle:?} missing from: {hint}");
+        }
+        assert_eq!(no_publisher_hint_for(&cfg, &[]), None);
     }
 
     #[test]

@@ -167,6 +167,15 @@ pub enum IpcError {
         source: std::io::Error,
     },
 
+    /// The wake-up word of a cycle event ([`crate::wake`]) could not be opened or created, or
+    /// was refused (a symbolic link, another account's file, or one others may write).
+    #[error("opening the wake-up word {} failed: {source}", path.display())]
+    Wake {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+
     /// The timer of a predictive subscription could not be set up.
     #[error("{what} failed: {source}")]
     Timer {
@@ -225,6 +234,9 @@ pub enum SubscriptionError {
     /// A wait that needs the cycle event on a subscription without a listener (internal).
     #[error("this subscription has no listener on the cycle event")]
     NoListener,
+    /// Sleeping on the cycle's wake-up word failed; the errno.
+    #[error("waiting for the cycle's wake-up failed: {}", std::io::Error::from_raw_os_error(*.0))]
+    Wake(i32),
     /// A predictive wait on a subscription without a timer (internal).
     #[error("this subscription has no wake-up timer")]
     NoTimer,

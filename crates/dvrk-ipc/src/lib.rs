@@ -34,7 +34,11 @@
 //! - [`ArmPublisher`] (used by the sidecar; also counts subscribers of every topic and reaps dead
 //!   nodes) and [`Subscription`] (for consumers), which waits as the consumer chooses
 //!   ([`WaitStrategy`]): `Event` (sleep until notified), `Spin` (poll, a core of its own, no
-//!   listener) or `Predictive` (sleep until just before the next sample is due, then poll).
+//!   listener) or `Predictive` (sleep until just before the next sample is due, then poll);
+//! - the cycle's wake-up ([`wake`]): beside each cycle event, a futex word in a 0600 file of the
+//!   domain's root (`<root><prefix><event name>.wake`) that the publisher bumps once per cycle,
+//!   waking every sleeping subscription with one system call instead of iceoryx2's one unix
+//!   datagram per listener.
 //!
 //! ```no_run
 //! use dvrk_ipc::{create_node, PoseV2, ServiceNames, Subscription, Topic, Update, NOMINAL_PERIOD};
@@ -68,6 +72,7 @@ mod publisher;
 mod services;
 mod subscription;
 mod sys;
+pub mod wake;
 
 pub use clock::monotonic_ns;
 pub use error::{IpcError, PublishError, RootProblem, SubscriptionError};

@@ -55,6 +55,16 @@ const WINDOW: usize = 16;
 const PERIOD_GAPS: f64 = 1024.0;
 /// The quantile (percent) of recent arrivals that is predicted.
 const PHASE_QUANTILE_PERCENT: usize = 50;
+/// Below this share of predictive waits that started polling in time (a running mean over
+/// about `HIT_RATE_WAITS` graded waits), polling is skipped in all but one wait of
+/// `PROBE_EVERY`: a publisher whose cycles come too irregularly to be predicted (a loaded PC
+/// restarting its grid every few cycles) had each wait poll through its whole window, up to a
+/// quarter period, and find the sample late anyway (13% of a core for the event path's
+/// latency, 2026-11-26, load 4-6). Those waits sleep on the wake-up as the event path does;
+/// the probes keep measuring, and the polling comes back once they are mostly on time.
+const MIN_HIT_RATE: f64 = 0.25;
+const HIT_RATE_WAITS: f64 = 16.0;
+const PROBE_EVERY: u32 = 8;
 
 #[derive(Debug, Clone)]
 pub struct Predictor {
@@ -71,6 +81,10 @@ pub struct Predictor {
     observed: u32,
     guard_ns: f64,
     spin_after_ns: f64,
+    /// Running share of graded waits that were on time.
+    hit_rate: f64,
+    /// Waits since the last one that polled while the hit rate is low.
+    skipped: u32,
 }
 
 impl Predictor {
@@ -87,6 +101,8 @@ impl Predictor {
             observed: 0,
             guard_ns: GUARD_INIT_NS.min(p / MAX_MARGIN_DIVISOR),
             spin_after_ns: SPIN_AFTER_MIN_NS,
+            hit_rate: 1.0,
+            skipped: 0,
         }
     }
 
@@ -176,8 +192,35 @@ impl Predictor {
         (self.filled > 0).then(|| &self.recent[(self.next + WINDOW - 1) % WINDOW])
     }
 
+    /// Whether the coming wait should poll: always while most waits poll in time, else one
+    /// wait in `PROBE_EVERY` (see `MIN_HIT_RATE`).
+    pub fn poll_this_wait(&mut self) -> bool {
+        if self.hit_rate >= MIN_HIT_RATE {
+            self.skipped = 0;
+            return true;
+        }
+        self.skipped += 1;
+        if self.skipped >= PROBE_EVERY {
+            self.skipped = 0;
+            return true;
+        }
+        false
+    }
+
+    /// The running share of graded waits that started polling in time.
+    #[cfg(test)]
+    pub fn hit_rate(&self) -> f64 {
+        self.hit_rate
+    }
+
+    fn score(&mut self, on_time: bool) {
+        let x = if on_time { 1.0 } else { 0.0 };
+        self.hit_rate += (x - self.hit_rate) / HIT_RATE_WAITS;
+    }
+
     /// Whether polling had started before the sample landed.
     pub fn graded(&mut self, on_time: bool) {
+        self.score(on_time);
         let max = (self.period_ns / MAX_MARGIN_DIVISOR).max(GUARD_MIN_NS);
         if on_time {
             self.guard_ns = (self.guard_ns - GUARD_DOWN_NS).max(GUARD_MIN_NS);
@@ -188,6 +231,7 @@ impl Predictor {
 
     /// Polling ended without a sample: allow more time after the prediction.
     pub fn missed(&mut self) {
+        self.score(false);
         self.spin_after_ns =
             (self.spin_after_ns + SPIN_AFTER_UP_NS).min(self.period_ns / MAX_MARGIN_DIVISOR);
     }
@@ -308,6 +352,29 @@ mod tests {
         }
         let frac = f64::from(late) / f64::from(n);
         assert!((0.035..=0.07).contains(&frac), "{:.1} % late", frac * 100.0);
+    }
+
+    #[test]
+    fn polling_pauses_while_waits_are_late_and_comes_back_with_the_probes() {
+        let mut p = Predictor::new(P);
+        assert!((0..100).all(|_| p.poll_this_wait()), "polls while on time");
+        for _ in 0..64 {
+            p.graded(false);
+        }
+        let polled = (0..80).filter(|_| p.poll_this_wait()).count();
+        assert_eq!(
+            polled,
+            80 / PROBE_EVERY as usize,
+            "one probe in {PROBE_EVERY}"
+        );
+        // Probes on time bring the polling back.
+        let mut waits = 0;
+        while !(0..PROBE_EVERY).all(|_| p.poll_this_wait()) {
+            p.graded(true);
+            waits += 1;
+            assert!(waits < 100, "never came back");
+        }
+        assert!(p.hit_rate() >= MIN_HIT_RATE);
     }
 
     #[test]

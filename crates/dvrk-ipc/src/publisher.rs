@@ -15,6 +15,7 @@ use crate::msg::{
 };
 use crate::names::{NUM_TOPICS, ServiceNames, Topic};
 use crate::services::{ArmServices, StateServices};
+use crate::wake::{WakeWord, open_event_word};
 
 /// The four publishers of one arm state (raw or compensated).
 #[derive(Debug)]
@@ -116,6 +117,9 @@ impl<S: Service> CycleStarted<'_, S> {
             Topic::CompensatedStatus,
             &cycle.status,
         )?;
+        // The project's subscriptions first (one futex wake for all), then iceoryx2's
+        // listeners (the pure-Python client, C and C++ consumers, WaitSets of applications).
+        p.cycle_wake.bump();
         p.cycle
             .notify()
             .map_err(|error| PublishError::Notify { error })?;
@@ -153,6 +157,9 @@ pub struct ArmPublisher<S: Service = iceoryx2::service::ipc::Service> {
     compensated_status: Publisher<S, CompensationStatusV4, ()>,
     cycle: Notifier<S>,
     cycle_first: Notifier<S>,
+    /// Wake-up words of the two events ([`crate::wake`]), bumped right before each notify.
+    cycle_wake: WakeWord,
+    cycle_first_wake: WakeWord,
 }
 
 /// The notifier of the event `name` (the only one: a second publisher of the arm is refused).
@@ -215,6 +222,10 @@ impl<S: Service> ArmPublisher<S> {
         let compensated_status = create_publisher(&services.compensated_status, names)?;
         let cycle = create_notifier(&services.cycle, names, names.cycle())?;
         let cycle_first = create_notifier(&services.cycle_first, names, names.cycle_first())?;
+        let cycle_wake = open_event_word(node.config(), names.cycle())?;
+        let cycle_first_wake = open_event_word(node.config(), names.cycle_first())?;
+        cycle_wake.claim();
+        cycle_first_wake.claim();
         Ok(Self {
             services,
             measured,
@@ -222,6 +233,8 @@ impl<S: Service> ArmPublisher<S> {
             compensated_status,
             cycle,
             cycle_first,
+            cycle_wake,
+            cycle_first_wake,
         })
     }
 
@@ -260,6 +273,7 @@ impl<S: Service> ArmPublisher<S> {
         )?;
         // A failed notification of the first event does not cost the cycle its other eight
         // messages: finish sends them and then reports it.
+        self.cycle_first_wake.bump();
         let first_notify = self
             .cycle_first
             .notify()
@@ -354,6 +368,14 @@ impl<S: Service> ArmPublisher<S> {
                 .dynamic_config()
                 .number_of_subscribers(),
         }
+    }
+}
+
+impl<S: Service> Drop for ArmPublisher<S> {
+    fn drop(&mut self) {
+        // Subscriptions go back to their iceoryx2 listeners for whichever publisher comes next.
+        self.cycle_wake.unclaim();
+        self.cycle_first_wake.unclaim();
     }
 }
 

@@ -18,6 +18,7 @@ use crate::names::{ServiceNames, Topic};
 use crate::predict::Predictor;
 use crate::services::{open_event, open_topic};
 use crate::sys::{self, Ready, TimerFd};
+use crate::wake::{WakeWord, Woken, open_event_word};
 
 /// Periods without a sample after which [`Subscription::wait`] reports staleness, unless that is
 /// shorter than [`MIN_DEFAULT_DEADLINE`].
@@ -39,8 +40,9 @@ pub const NOMINAL_PERIOD: Duration = Duration::from_nanos(666_667);
 /// How a [`Subscription`] waits for the next sample.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub enum WaitStrategy {
-    /// Sleep until the publisher's cycle event wakes the process (one unix datagram per cycle
-    /// and listener). Least CPU; latency is one cross-process wake-up. A subscription of the
+    /// Sleep until the publisher's cycle wakes the process (one futex word per cycle event,
+    /// bumped once per cycle, all its sleepers woken by one system call: [`crate::wake`]).
+    /// Least CPU; latency is one cross-process wake-up. A subscription of the
     /// cycle's first message, `compensated/local/measured_cp`, waits on the event notified right
     /// after that message ([`ServiceNames::cycle_first`]); the others on the event notified after
     /// the cycle's last message ([`ServiceNames::cycle`]).
@@ -55,7 +57,9 @@ pub enum WaitStrategy {
     /// then poll. Close to `Spin` in latency at a fraction of its CPU, and never later than
     /// `Event`. A cycle event that brings no new sample (the notification of a cycle already
     /// taken by polling) sends it back to sleep. Polling yields the CPU while the cycle event
-    /// has at least as many listeners as the process has CPUs. Sets the calling thread's timer
+    /// has at least as many listeners as the process has CPUs. While fewer than a quarter of
+    /// recent waits start polling in time (a publisher too irregular to predict), only one wait
+    /// in eight polls and the others sleep like `Event`. Sets the calling thread's timer
     /// slack to 1 ns (`PR_SET_TIMERSLACK`).
     Predictive,
 }
@@ -190,6 +194,9 @@ pub struct SubscriptionStats {
     /// Predictive waits that polled until the spin window closed without a sample and went
     /// back to sleep on the cycle event.
     pub predicted_missed_total: u64,
+    /// Predictive waits that did not poll at all, because most recent ones started polling
+    /// too late (an unpredictable publisher): they slept on the wake-up as `Event` does.
+    pub predicted_skipped_total: u64,
 }
 
 /// A subscriber to one topic of an arm, waiting with the consumer's [`WaitStrategy`].
@@ -210,7 +217,20 @@ pub struct Subscription<T: Message, S: Service = iceoryx2::service::ipc::Service
     service_name: String,
     service: PubSubFactory<S, T, ()>,
     subscriber: Subscriber<S, T, ()>,
+    /// Held, never drained: it counts the subscription as a listener of the cycle event (to
+    /// the publisher, [`Subscription::crowded`], the reaping of dead nodes) and is there for
+    /// applications that run their own WaitSet. The wait sleeps on `wake`.
     listener: Option<Listener<S>>,
+    /// The cycle event's wake-up word (`None` for `Spin`).
+    wake: Option<WakeWord>,
+    /// The word's value before the last look at the buffer.
+    seen: u32,
+    /// Whether the next sleep is on the word (a publisher bumps it), else on the listener:
+    /// decided by [`Subscription::take_pending`].
+    on_word: bool,
+    /// Sleep on the listener's unix datagrams (and a timerfd) as before the wake-up word: only
+    /// for the latency harness's comparison ([`Subscription::use_datagram_wake`]).
+    datagram: bool,
     timer: Option<TimerFd>,
     predictor: Predictor,
     wait: WaitStrategy,
@@ -279,7 +299,7 @@ where
                     service: service_name.clone(),
                     source,
                 })?;
-        let (listener, event) =
+        let (listener, event, wake) =
             if options.wait.uses_event() {
                 // The first message of a cycle has an event of its own, notified right after
                 // it is sent; the other topics wait for the end of the cycle.
@@ -291,9 +311,10 @@ where
                         source,
                     }
                 })?;
-                (Some(listener), Some(event))
+                let wake = open_event_word(node.config(), event_name)?;
+                (Some(listener), Some(event), Some(wake))
             } else {
-                (None, None)
+                (None, None, None)
             };
         let timer = if options.wait == WaitStrategy::Predictive {
             sys::minimise_timer_slack().map_err(|source| IpcError::Timer {
@@ -317,6 +338,10 @@ where
             service,
             subscriber,
             listener,
+            wake,
+            seen: 0,
+            on_word: false,
+            datagram: false,
             timer,
             predictor: Predictor::new(period_ns),
             wait: options.wait,
@@ -401,7 +426,9 @@ where
     }
 
     /// The listener of the cycle event, for applications that run their own WaitSet (`None`
-    /// for a [`WaitStrategy::Spin`] subscription, which has none).
+    /// for a [`WaitStrategy::Spin`] subscription, which has none). The subscription itself
+    /// sleeps on the cycle's wake-up word ([`crate::wake`]) and never drains this listener:
+    /// an application that watches it drains it (`try_wait`) after every wake-up.
     pub fn listener(&self) -> Option<&Listener<S>> {
         self.listener.as_ref()
     }
@@ -409,6 +436,15 @@ where
     /// The subscriber port, for applications that run their own WaitSet.
     pub fn subscriber(&self) -> &Subscriber<S, T, ()> {
         &self.subscriber
+    }
+
+    /// Makes an event or predictive subscription sleep as it did before the wake-up word: on
+    /// its listener's unix datagrams (consumed before every sleep) and, predictive, a timerfd.
+    /// Only for the latency harness, which measures both in one run; call it before the first
+    /// wait.
+    #[doc(hidden)]
+    pub fn use_datagram_wake(&mut self) {
+        self.datagram = self.listener.is_some();
     }
 
     // ---- strategies ------------------------------------------------------------------------
@@ -419,7 +455,7 @@ where
             if let Some(v) = self.take_pending(each)? {
                 return Ok(Update::Fresh(v));
             }
-            match self.sleep_on_event(stale_at)? {
+            match self.sleep(stale_at, None)? {
                 Ready::Interrupted => return Ok(Update::Interrupted),
                 Ready::TimedOut => return Ok(self.stale_or_terminated()),
                 Ready::Event | Ready::Timer => {}
@@ -428,7 +464,7 @@ where
             if let Some(v) = self.drain(each)? {
                 return Ok(Update::Fresh(v));
             }
-            // An event without a sample: a notification of a cycle already drained, or a late
+            // A wake-up without a sample: the bump of a cycle already drained, or a late
             // subscriber whose connection (and history) comes with the publisher's next send.
         }
     }
@@ -460,24 +496,28 @@ where
             // Still learning: behave like the event path; arrivals teach the predictor.
             return self.wait_event(each);
         }
+        if !self.predictor.poll_this_wait() {
+            // Most recent waits started polling too late to matter: sleep on the wake-up as
+            // the event path does (the arrival still teaches the predictor).
+            self.stats.predicted_skipped_total += 1;
+            return self.wait_event(each);
+        }
         let arrival = self.predictor.next_arrival_ns();
         let wake_at = arrival.saturating_sub(self.predictor.guard_ns());
         let spin_until = arrival
             .saturating_add(self.predictor.spin_after_ns())
             .min(stale_at);
         let polling = if wake_at > sys::monotonic_ns() {
-            let timer = self.timer.as_ref().ok_or(SubscriptionError::NoTimer)?;
-            timer.arm_at(wake_at).map_err(SubscriptionError::Timer)?;
             loop {
-                match self.sleep_on_event_or_timer(stale_at)? {
+                match self.sleep(stale_at, Some(wake_at))? {
                     Ready::Interrupted => return Ok(Update::Interrupted),
                     Ready::TimedOut => return Ok(self.stale_or_terminated()),
                     Ready::Timer => break Polling::OnTimer(sys::monotonic_ns()),
                     Ready::Event => {}
                 }
-                // The event came first: the sample is there (the timer was late), or this is the
-                // notification of the cycle already taken by polling, sent after the cycle's
-                // last message. Then consume it and sleep again: the timer stays armed.
+                // The wake-up came first: the sample is there (the timer was late), or this is
+                // the bump of the cycle already taken by polling, which comes after the cycle's
+                // messages. Then sleep again until the same wake-up time.
                 if let Some(v) = self.take_pending(each)? {
                     self.grade(&v, Polling::Late);
                     return Ok(Update::Fresh(v));
@@ -511,11 +551,14 @@ where
             }
         }
         // The sample is later than the spin window allows (a publisher overrun or stall): sleep
-        // on the event for the rest of the deadline. Its arrival still teaches the predictor.
+        // until the wake-up for the rest of the deadline. Its arrival still teaches the predictor.
         self.stats.predicted_missed_total += 1;
         self.predictor.missed();
         loop {
-            match self.sleep_on_event(stale_at)? {
+            if let Some(v) = self.take_pending(each)? {
+                return Ok(Update::Fresh(v));
+            }
+            match self.sleep(stale_at, None)? {
                 Ready::Interrupted => return Ok(Update::Interrupted),
                 Ready::TimedOut => return Ok(self.stale_or_terminated()),
                 Ready::Event | Ready::Timer => {}
@@ -523,16 +566,21 @@ where
             if let Some(v) = self.drain(each)? {
                 return Ok(Update::Fresh(v));
             }
-            if let Some(v) = self.take_pending(each)? {
-                return Ok(Update::Fresh(v));
-            }
         }
     }
 
-    /// Samples already buffered; otherwise consumes the cycle event's pending notifications and
-    /// looks once more (a sample sent between the two looks is found by the second; one sent
-    /// after it notifies again and wakes the next sleep).
+    /// The samples already buffered, taken so that the next [`Subscription::sleep`] returns
+    /// at the next wake-up after them: the wake-up word is read before the buffer is (a sample
+    /// sent after that read comes with a bump, which ends the sleep at once). In datagram mode,
+    /// the buffer, then the listener's pending notifications consumed, then the buffer again.
     fn take_pending(&mut self, each: &mut dyn FnMut(&T)) -> Result<Option<T>, SubscriptionError> {
+        self.on_word = !self.datagram && self.wake.as_ref().is_some_and(|w| w.has_publisher());
+        if self.on_word {
+            if let Some(w) = &self.wake {
+                self.seen = w.load();
+            }
+            return self.drain(each);
+        }
         if let Some(v) = self.drain(each)? {
             return Ok(Some(v));
         }
@@ -543,6 +591,41 @@ where
             return self.drain(each);
         }
         Ok(None)
+    }
+
+    /// Sleeps until the wake-up after the last [`Subscription::take_pending`] (`Event`), until
+    /// `timer_at` if given (`Timer`), until `until_ns` (`TimedOut`), or a signal.
+    fn sleep(&self, until_ns: u64, timer_at: Option<u64>) -> Result<Ready, SubscriptionError> {
+        if !self.on_word {
+            let timer = match timer_at {
+                Some(t) => {
+                    let timer = self.timer.as_ref().ok_or(SubscriptionError::NoTimer)?;
+                    timer.arm_at(t).map_err(SubscriptionError::Timer)?;
+                    Some(timer.fd())
+                }
+                None => None,
+            };
+            return sys::wait_readable(self.listener_fd()?, timer, until_ns)
+                .map_err(SubscriptionError::Poll);
+        }
+        let wake = self.wake.as_ref().ok_or(SubscriptionError::NoListener)?;
+        let timer_first = timer_at.is_some_and(|t| t < until_ns);
+        let deadline = if timer_first {
+            timer_at.unwrap_or(until_ns)
+        } else {
+            until_ns
+        };
+        Ok(
+            match wake
+                .wait(self.seen, deadline)
+                .map_err(SubscriptionError::Wake)?
+            {
+                Woken::Bumped => Ready::Event,
+                Woken::Interrupted => Ready::Interrupted,
+                Woken::TimedOut if timer_first => Ready::Timer,
+                Woken::TimedOut => Ready::TimedOut,
+            },
+        )
     }
 
     /// Whether this subscription's cycle event has at least as many listeners (event and
@@ -562,16 +645,6 @@ where
             // is alive, and never closed or duplicated here.
             .map(|l| unsafe { l.file_descriptor().native_handle() })
             .ok_or(SubscriptionError::NoListener)
-    }
-
-    fn sleep_on_event(&self, until_ns: u64) -> Result<Ready, SubscriptionError> {
-        sys::wait_readable(self.listener_fd()?, None, until_ns).map_err(SubscriptionError::Poll)
-    }
-
-    fn sleep_on_event_or_timer(&self, until_ns: u64) -> Result<Ready, SubscriptionError> {
-        let timer = self.timer.as_ref().ok_or(SubscriptionError::NoTimer)?;
-        sys::wait_readable(self.listener_fd()?, Some(timer.fd()), until_ns)
-            .map_err(SubscriptionError::Poll)
     }
 
     /// Tells the predictor whether it started polling in time for `v`.
@@ -631,6 +704,20 @@ where
         Ok(newest)
     }
 
+    /// Maps the wake-up word again when its file was removed or replaced under this
+    /// subscription (a cleanup of the root directory while it ran): a publisher started since
+    /// bumps the new file. Checked while stale, at most every [`DEAD_PUBLISHER_CHECK_INTERVAL`].
+    fn reopen_wake_if_replaced(&mut self) {
+        let Some(w) = &self.wake else { return };
+        if !w.replaced() {
+            return;
+        }
+        // Best effort: until it can be opened again, the timeouts still report staleness.
+        if let Ok(new) = w.reopen() {
+            self.wake = Some(new);
+        }
+    }
+
     fn stale_or_terminated(&mut self) -> Update<T> {
         // A publisher whose process died still counts until its node is cleaned up.
         let now = sys::monotonic_ns();
@@ -641,6 +728,10 @@ where
         if due {
             self.last_dead_check_ns = Some(now);
             self.service.try_cleanup_dead_nodes();
+            self.reopen_wake_if_replaced();
+            if let Some(w) = &self.wake {
+                w.forget_dead_publisher();
+            }
         }
         if self.service.dynamic_config().number_of_publishers() > 0 {
             self.publisher_seen = true;

@@ -365,6 +365,7 @@ impl NativeSubscription {
         d.set_item("predicted_on_time_total", st.predicted_on_time_total)?;
         d.set_item("predicted_late_total", st.predicted_late_total)?;
         d.set_item("predicted_missed_total", st.predicted_missed_total)?;
+        d.set_item("predicted_skipped_total", st.predicted_skipped_total)?;
         Ok(d)
     }
 
