@@ -354,3 +354,41 @@ fn serve_refuses_a_shared_memory_directory_another_account_owns() {
     assert!(serve_st.success(), "{log}");
     assert!(registered > 0, "nothing of iceoryx2 in {}", root.display());
 }
+
+/// A consumer that hears no publisher says why it may be (issue 22): other accounts' sidecar
+/// roots exist, and a service of another account is invisible from this one. `echo` names them
+/// in its silence line.
+#[test]
+fn a_consumer_that_hears_nobody_names_other_accounts_sidecars() {
+    // SAFETY: geteuid cannot fail.
+    let other = unsafe { libc::geteuid() }.wrapping_add(424_242);
+    let dir = PathBuf::from(format!("/tmp/dvrk-sidecar-{other}"));
+    let created = !dir.exists();
+    std::fs::create_dir_all(&dir).unwrap();
+    let arm = unique_prefix("hint");
+    let service = format!("{arm}/measured_js");
+    let mut p = Proc::spawn("echo", &mut sidecar(&["echo", &service], None));
+    let err = p.child.as_mut().unwrap().stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(err).lines().map_while(Result::ok) {
+            if line.contains("no sample on") || line.contains("no publisher on") {
+                let _ = tx.send(line);
+                return;
+            }
+        }
+    });
+    // echo reports a silence once it lasts a second; 60 s is a liveness bound.
+    let line = rx.recv_timeout(Duration::from_secs(60));
+    p.terminate();
+    if created {
+        let _ = std::fs::remove_dir(&dir);
+    }
+    let line = line.expect("echo said nothing about the silence within 60 s");
+    assert!(line.contains(&service), "{line}");
+    assert!(
+        line.contains(&format!("{}/", dir.display())),
+        "the other account's root is not named: {line}"
+    );
+    assert!(line.contains("run this program as"), "{line}");
+}

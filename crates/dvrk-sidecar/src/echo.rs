@@ -117,7 +117,7 @@ fn echo<T: Message>(
     let mut sub = Subscription::<T, Service>::with_options(node, names, topic, options)
         .with_context(|| format!("subscribing to {}", names.topic(topic).as_str()))?;
     let mut printed = 0u64;
-    let mut silence = crate::watch::SilenceReporter::default();
+    let mut silence = crate::watch::SilenceReporter::for_domain(node.config());
     let mut gone = false;
     let limit = args.count.unwrap_or(u64::MAX);
     let mut out = std::io::stdout().lock();

@@ -3,9 +3,13 @@
 //! A [`dvrk_ipc::Subscription`] reports `Stale` after three missed periods (2 ms at 1500 Hz),
 //! which is right for a controller but far too eager for a terminal: a slow or loaded publisher
 //! would print a line every few milliseconds. This reports a silence once it lasts a second (or
-//! the publisher is gone), and once more when samples flow again.
+//! the publisher is gone), and once more when samples flow again. When other accounts run a
+//! sidecar of their own ([`dvrk_ipc::access::no_publisher_hint`]), the silence's line says so:
+//! a service of another account is invisible from this one, which is the usual reason for a
+//! consumer that never sees a sample.
 
 use dvrk_ipc::Update;
+use dvrk_ipc::iceoryx2::config::Config;
 
 /// How long samples must be missing before a person is told.
 pub const SILENCE_NS: u64 = 1_000_000_000;
@@ -25,9 +29,27 @@ pub enum Notice {
 #[derive(Debug, Default)]
 pub struct SilenceReporter {
     reported: bool,
+    /// The domain the consumer looks in, for the hint about other accounts' sidecars.
+    domain: Option<Config>,
 }
 
 impl SilenceReporter {
+    /// A reporter whose silence line names other accounts' sidecars, if any, beside `domain`.
+    pub fn for_domain(domain: &Config) -> Self {
+        Self {
+            reported: false,
+            domain: Some(domain.clone()),
+        }
+    }
+
+    /// The hint about other accounts' sidecars for this reporter's domain (none without one).
+    fn hint(&self) -> String {
+        self.domain
+            .as_ref()
+            .and_then(dvrk_ipc::access::no_publisher_hint)
+            .map_or_else(String::new, |h| format!(" ({h})"))
+    }
+
     pub fn update<T>(&mut self, update: &Update<T>) -> Notice {
         match update {
             Update::Fresh(_) if self.reported => {
@@ -53,12 +75,16 @@ impl SilenceReporter {
         match self.update(update) {
             Notice::None => {}
             Notice::Silent { since_ns: 0 } => {
-                eprintln!("no publisher on {service}; waiting for one ...")
+                eprintln!(
+                    "no publisher on {service}; waiting for one ...{}",
+                    self.hint()
+                )
             }
             Notice::Silent { since_ns } => {
                 eprintln!(
-                    "no sample on {service} for {:.1} s; waiting ...",
-                    since_ns as f64 * 1e-9
+                    "no sample on {service} for {:.1} s; waiting ...{}",
+                    since_ns as f64 * 1e-9,
+                    self.hint()
                 )
             }
             Notice::Back => eprintln!("samples on {service} flow again"),

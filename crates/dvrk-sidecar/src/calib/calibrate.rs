@@ -488,7 +488,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     };
     let prefix = config_prefix(&a.config)?;
     let offsets = sweep_offsets(&a.torque_offset, &[joint])?;
-    let (mut sub, names, _node) = subscribe_measured_js(&prefix)?;
+    let (mut sub, names, node) = subscribe_measured_js(&prefix)?;
     let mut rec = Recorder::new(RecorderConfig {
         joint,
         settle_s: a.settle_s,
@@ -496,7 +496,7 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
     });
     let mut records: Vec<Record> = Vec::new();
     let limit = a.rows.unwrap_or(usize::MAX);
-    let mut silence = crate::watch::SilenceReporter::default();
+    let mut silence = crate::watch::SilenceReporter::for_domain(node.config());
     eprintln!(
         "recording joint {} from {prefix}/measured_js; move the arm with the dVRK tools, Ctrl-C to stop",
         joint

@@ -201,7 +201,7 @@ pub fn record_live(
         bail!("--seconds {seconds}: must be a positive number of seconds");
     }
     let limit = a.rows.unwrap_or(usize::MAX);
-    let (mut sub, names, _node) = super::calibrate::subscribe_measured_js(prefix)?;
+    let (mut sub, names, node) = super::calibrate::subscribe_measured_js(prefix)?;
     let service = names.topic(Topic::MeasuredJs);
     eprintln!(
         "recording dynamics rows from {}; run the excitation with the dVRK console (free space, \
@@ -213,7 +213,7 @@ pub fn record_live(
     let mut invalid = 0u64;
     let mut last_t = f64::NEG_INFINITY;
     let mut next_report = 5.0;
-    let mut silence = crate::watch::SilenceReporter::default();
+    let mut silence = crate::watch::SilenceReporter::for_domain(node.config());
     let mut done = false;
     while !done && !stop.load(Ordering::Relaxed) {
         let update = sub
