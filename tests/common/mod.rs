@@ -213,8 +213,6 @@ pub fn emulator(port: u16, scenario: &str) -> Proc {
     p
 }
 
-/// Runs `dvrk-sidecar echo SERVICE --json --count N` and returns one JSON value per sample.
-/// Fails the test when it does not finish within `limit` (a liveness bound, not a speed claim).
 /// The flag names of a sample as `echo --json` prints them (`header.flags`).
 pub fn flag_names(sample: &serde_json::Value) -> Vec<String> {
     sample["header"]["flags"]
@@ -225,6 +223,42 @@ pub fn flag_names(sample: &serde_json::Value) -> Vec<String> {
         .collect()
 }
 
+/// Every sample valid, but for a reply lost to a scheduler stall longer than the reply timeout
+/// on a loaded machine (seen once in 3000 at load 4 on 2 cores, and once in 1500 for one of two
+/// shared-mode arms in CI): at most 1% then, each one published invalid with its reason and
+/// the last valid values (HELD).
+pub fn assert_mostly_valid(test: &str, samples: &[serde_json::Value]) {
+    let invalid: Vec<&serde_json::Value> = samples
+        .iter()
+        .filter(|s| s["header"]["valid"] != serde_json::Value::Bool(true))
+        .collect();
+    assert!(
+        invalid.len() <= samples.len() / 100,
+        "{test}: {} of {} samples invalid, e.g. {}",
+        invalid.len(),
+        samples.len(),
+        invalid[0]
+    );
+    for s in &invalid {
+        let f = flag_names(s);
+        let has = |name: &str| f.iter().any(|x| x == name);
+        assert!(
+            has("HELD") && (has("BOARD_TIMEOUT") || has("BOARD_ERROR")),
+            "{test}: an invalid sample without its reason: {s}"
+        );
+    }
+    if !invalid.is_empty() {
+        eprintln!(
+            "{test}: {} of {} samples invalid (load), e.g. {}",
+            invalid.len(),
+            samples.len(),
+            invalid[0]["header"]
+        );
+    }
+}
+
+/// Runs `dvrk-sidecar echo SERVICE --json --count N` and returns one JSON value per sample.
+/// Fails the test when it does not finish within `limit` (a liveness bound, not a speed claim).
 pub fn echo_json(service: &str, count: u64, limit: Duration) -> Vec<serde_json::Value> {
     let mut p = Proc::spawn(
         "echo",

@@ -200,11 +200,25 @@ impl<P: Port> ArmReader<P> {
             }
         }
         self.counters.quadlet_reads += n as u64;
-        let first_err: Option<ReadError> = self
+        let mut first_err: Option<ReadError> = self
             .port
             .read_quadlets(&reqs[..n], &mut vals[..n])
             .err()
             .map(ReadError::from);
+        // A port that leaves a register unread must say why; if it did not, the cycle is a
+        // timeout of that register (an invalid sample always carries its reason).
+        if first_err.is_none()
+            && let Some(&(board, addr)) = reqs[..n]
+                .iter()
+                .zip(&vals[..n])
+                .find(|(_, v)| v.is_none())
+                .map(|(r, _)| r)
+        {
+            first_err = Some(ReadError::from(crate::port::PortError::Timeout {
+                board,
+                addr,
+            }));
+        }
         let mut raw = SharedRaw::default();
         raw.status[..n_boards].copy_from_slice(&vals[..n_boards]);
         for (i, a) in self.cfg.actuators().iter().enumerate() {

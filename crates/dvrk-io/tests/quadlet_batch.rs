@@ -687,3 +687,45 @@ fn the_label_of_an_unanswered_request_is_not_reused_within_the_reply_timeout() {
     assert!(seen.len() > 64, "{}", seen.len());
     assert_eq!(first_again, None, "label {held_label} used again: {seen:?}");
 }
+
+/// A register given up at its deadline makes its board's registers not asked yet unread; if
+/// its reply then comes late (while the batch still waits for another board), the batch still
+/// says why they are unread: an invalid sample always carries its reason. (Before, the late
+/// reply turned the given-up register into a read one and the batch returned Ok with the
+/// skipped registers empty: `serve` published them invalid with no reason but HELD.)
+#[test]
+fn registers_skipped_after_a_give_up_are_reported_even_if_the_late_reply_comes() {
+    let reqs = shared_cycle();
+    let timeout = Duration::from_millis(300);
+    // Two at a time. Board 6's status (reqs[0]) is held past its deadline (1.2 T); board 7's
+    // status for 0.5 T, so board 6's first encoder (reqs[2]) is first asked at 0.5 T and, held
+    // 0.9 T, is still in flight when reqs[0] is given up at T and when its reply comes late.
+    let (addr, h) = holding_board(
+        boards_with(8),
+        vec![
+            (reqs[0], timeout * 6 / 5),
+            (reqs[1], timeout / 2),
+            (reqs[2], timeout * 9 / 10),
+        ],
+    );
+    let mut p = port(addr, 2);
+    p.link_mut().set_timeout(timeout).unwrap();
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(100)));
+    p.set_quadlet_batch_budget(None);
+    let mut out = vec![None; reqs.len()];
+    let r = p.read_quadlets(&reqs, &mut out);
+    let unread: Vec<(u8, u16)> = reqs
+        .iter()
+        .zip(&out)
+        .filter(|(_, v)| v.is_none())
+        .map(|(r, _)| *r)
+        .collect();
+    assert!(!unread.is_empty(), "nothing was left unread: {out:?}");
+    assert!(
+        matches!(r, Err(PortError::Timeout { board: 6, .. })),
+        "{r:?} with {unread:?} unread"
+    );
+    drop(p);
+    h.join().unwrap();
+}

@@ -1012,7 +1012,15 @@ impl<L: Link> EthPort<L> {
         for (i, &(board, addr)) in reqs.iter().enumerate() {
             match b.state[i] {
                 Entry::Done => {}
-                Entry::Skipped => unread = true,
+                Entry::Skipped => {
+                    // Not asked because its board gave up on another register (whose reply
+                    // may still have come late): unread, and the batch says why.
+                    unread = true;
+                    first_err.get_or_insert(match last_bad {
+                        Some(e) => e,
+                        None => PortError::Timeout { board, addr },
+                    });
+                }
                 Entry::Unsent | Entry::InFlight | Entry::GivenUp => {
                     unread = true;
                     given_up |= b.state[i] == Entry::GivenUp;
