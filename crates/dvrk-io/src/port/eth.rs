@@ -20,13 +20,14 @@ const RX_CAP: usize = 4096;
 const MAX_STALE: u8 = 64;
 
 /// Default of [`EthPort::set_quadlet_window`]: quadlet requests a batch keeps outstanding at
-/// once. 4 hides the round trips of a cycle's reads and lets a lost datagram be asked again
-/// within the cycle (RELIABILITY.md, issue 22 item 7). Each register still waits up to the
-/// reply timeout from its own first request, as a read on its own would, so a stall of a
-/// loaded host costs no more than it did with one read at a time. The FPGA serves one packet
-/// at a time (reference §8.4): each request queued there delays the console's own packets by
-/// one quadlet transaction, so a bench beside a console may set 1 (`shared_requests_in_flight`).
-pub const DEFAULT_QUADLET_WINDOW: u8 = 4;
+/// once. 1: one at a time, each read's last attempt waiting the whole reply timeout. A window
+/// of 4 hides the round trips of a cycle's reads and asks a lost datagram again within the
+/// cycle (RELIABILITY.md, issue 22 item 7), but each of its registers waits the reply timeout
+/// from its first request only, so a host stall longer than that costs a sample more often
+/// than one read at a time does (CI, two-arm shared-mode tests on a loaded machine); and the
+/// FPGA serves one packet at a time (reference §8.4), so each request queued there delays the
+/// console's own. A lab with a lossy link sets 4 (`shared_requests_in_flight`).
+pub const DEFAULT_QUADLET_WINDOW: u8 = 1;
 /// Largest window [`EthPort::set_quadlet_window`] takes.
 pub const MAX_QUADLET_WINDOW: u8 = 16;
 /// Floor of the retry wait a batch estimates from the measured round trip (a loopback board
