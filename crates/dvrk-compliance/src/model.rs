@@ -794,12 +794,12 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// the other side more than 5% likely (from the evidence against its noise), `(1 + |m|)` of it.
 /// The random part: the torque noise as far as the correction uses the measured torque (as
 /// measured from the torque's sample-to-sample change over [`NOISE_TIME_S`], between
-/// [`NOISE_FLOOR_SHARE`] and all of the file's residual), the free load's uncertainty, the averaged torque not taken for contact beyond its own noise (a
-/// load below the evidence's floor, at its measured size), the stiffness's scatter as `fit`
-/// measured it (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion
-/// margin) and the backlash's (`backlash_rel_sigma`, at least 1%; 5% in a file without it).
-/// Withheld (`1 - w`): the whole
-/// play plus `K` times what the shaft may carry (the last trusted torque and the free load;
+/// [`NOISE_FLOOR_SHARE`] and all of the file's residual), the free load's uncertainty, the
+/// averaged torque not taken for contact beyond its own noise (a load below the evidence's
+/// floor, at its measured size), the stiffness's scatter as `fit` measured it
+/// (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion margin) and
+/// the backlash's (`backlash_rel_sigma`, at least 1%; 5% in a file without it). Withheld
+/// (`1 - w`): the whole play plus `K` times what the shaft may carry (the last trusted torque and the free load;
 /// before any trusted sample, the effort beyond its offset). The two are mixed by `w`. Each
 /// joint's bound is `bias + 1.96 sigma`; the tip's adds the joints' systematic parts as a vector
 /// and their random parts as a 2-D normal, through the tip's levers
