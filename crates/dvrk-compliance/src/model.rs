@@ -688,8 +688,9 @@ struct JointTrust {
     last_moving_s: f64,
     /// A gap restarted the filter and it has not filled since.
     after_gap: bool,
-    /// The shaft torque (N·m) of the last sample the estimator trusted fully.
-    last_trusted_tau: f64,
+    /// The contact's share of the shaft torque (N·m: the shaft torque less the predicted free
+    /// load) in the last sample the estimator trusted fully.
+    last_trusted_contact: f64,
     /// A sample has been trusted fully since the start (or the last reset).
     has_trusted: bool,
     /// The last [`EFFORT_RATE_SAMPLES`] efforts (ring), for the effort's change over a few ms.
@@ -719,7 +720,7 @@ impl Default for JointTrust {
             last_transient_s: f64::NEG_INFINITY,
             last_moving_s: f64::NEG_INFINITY,
             after_gap: false,
-            last_trusted_tau: 0.0,
+            last_trusted_contact: 0.0,
             has_trusted: false,
             efforts: [0.0; EFFORT_RATE_SAMPLES],
             efforts_head: 0,
@@ -1095,9 +1096,8 @@ impl Compensator {
                         sigma_tau
                     };
                     let contact = tr.tau_average;
-                    let contact_excess = (contact.abs() - PLAY_EVIDENCE_FLOOR * joint.tau_min_nm)
-                        .max(0.0)
-                        .copysign(contact);
+                    let floor = PLAY_EVIDENCE_FLOOR * joint.tau_min_nm;
+                    let contact_excess = (contact.abs() - floor).max(0.0).copysign(contact);
                     // The side of the play: the averaged measured torque (all of it: below the
                     // floor it is model error as likely as contact, but either way the shaft
                     // carries it, and a file whose free load is off shows it there) plus the
@@ -1108,7 +1108,6 @@ impl Compensator {
                     // contact (the shaft then carries the predicted free load alone, and the
                     // torque's noise stays out of the correction), 1 once the averaged torque is
                     // a whole floor past the floor; linear, so the correction stays continuous.
-                    let floor = PLAY_EVIDENCE_FLOOR * joint.tau_min_nm;
                     contact_share = if floor > 0.0 {
                         (contact_excess.abs() / floor).min(1.0)
                     } else {
@@ -1171,14 +1170,16 @@ impl Compensator {
                 None => joint_bound(play, m, k, sigma_tau.hypot(sigma_free), tau_shaft, rel_k),
             };
             // What the shaft may carry while the correction is withheld: the estimate itself
-            // when only the acceleration or the insertion withholds it; after a transient, what
-            // it carried when last trusted (contact does not start with the motion) plus the
-            // free load; before any trusted sample, the effort beyond its offset, motion and all
+            // when only the acceleration or the insertion withholds it; after a transient, the
+            // contact as last trusted (contact does not start with the motion) plus the free
+            // load now; before any trusted sample, the effort beyond its offset, motion and all
             // (nothing else is known yet).
             let shaft_load = if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
                 tau_shaft.abs()
             } else if tr.has_trusted {
-                tr.last_trusted_tau.abs() + distal.abs()
+                // The contact as last trusted plus today's free load (not the free load of then
+                // as well: the shaft carries one).
+                (tr.last_trusted_contact + distal).abs()
             } else if tau_meas.is_finite() {
                 tau_meas.abs()
             } else {
@@ -1194,7 +1195,7 @@ impl Compensator {
             parts[j] = trusted.mix(w, &withheld);
             let bound = parts[j].joint_bound();
             if w >= 1.0 {
-                tr.last_trusted_tau = tau_shaft;
+                tr.last_trusted_contact = tau_shaft - distal;
                 tr.has_trusted = true;
             }
 

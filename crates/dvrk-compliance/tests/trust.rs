@@ -6,7 +6,7 @@
 
 mod common;
 
-use dvrk_compliance::dynamics::{DynamicsParams, WINDOW};
+use dvrk_compliance::dynamics::{DistalGravityParams, DynamicsParams, WINDOW};
 use dvrk_compliance::model::{FADE_S, INSERTION_MARGIN_M, TIP_LEVER_EXTRA_M, TRANSIENT_HOLD_S};
 use dvrk_compliance::{Compensator, ComplianceConfig, trust};
 
@@ -393,4 +393,55 @@ fn a_free_arm_whose_torque_is_its_noise_gets_no_unseen_contact_in_its_bound() {
     // A light contact below the evidence floor is in the bound at its measured size.
     let light = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.01);
     assert!(light.bound_parts[0].sigma > 0.5 * 0.01 / 20.0, "{light:?}");
+}
+
+#[test]
+fn a_withheld_bound_takes_the_free_load_once() {
+    // A still arm whose distal weight loads the shaft (no contact), then one abrupt effort
+    // sample: the correction is withheld for the hold, and the bound says the shaft rests
+    // against its play under the weight's torque, once. The earlier bound added the torque the
+    // shaft carried when last trusted (the weight's) to the weight's again: twice the elastic
+    // part.
+    let gravity = DistalGravityParams {
+        weight_n: [2.0, 0.0, 0.0],
+        weight_sigma_n: [0.0; 3],
+        reference_insertion_m: 0.15,
+    };
+    let mut p = common::params(BASE).unwrap();
+    for j in &mut p.joint {
+        j.dynamics = Some(DynamicsParams {
+            distal_gravity: Some(gravity),
+            ..DYN
+        });
+    }
+    let cfg = ComplianceConfig::from_params(p).unwrap();
+    let (q, l) = ([0.1, -0.1], 0.15);
+    let g = gravity.torque_nm(0, q[0], q[1], l);
+    assert!(g.abs() > 0.2, "the weight's torque on joint 1: {g}");
+    let mut c = Compensator::new();
+    let sample = |c: &mut Compensator, k: usize, extra: f64| {
+        c.correct(
+            &cfg,
+            k as f64 * DT,
+            &[q[0], q[1], l],
+            &[0.1 + extra, 0.1, 0.0],
+        )
+    };
+    let mut last = None;
+    for k in 0..600 {
+        last = Some(sample(&mut c, k, 0.0));
+    }
+    let trusted = last.unwrap();
+    assert_eq!(trusted.weight[0], 1.0, "{trusted:?}");
+    sample(&mut c, 600, 0.3);
+    let withheld = sample(&mut c, 601, 0.0);
+    assert_eq!(withheld.weight[0], 0.0, "{withheld:?}");
+    assert!(withheld.flags & trust::TRANSIENT != 0, "{withheld:?}");
+    // Joint 1: play 2 mrad, K = 1/20 rad/N·m; the stiffness's scatter widens K by a few %.
+    let elastic = withheld.bound_parts[0].bias - 0.002;
+    let once = g.abs() / 20.0;
+    assert!(
+        elastic > 0.9 * once && elastic < 1.2 * once,
+        "elastic part of the withheld bias {elastic} rad, the weight's deflection {once} rad"
+    );
 }
