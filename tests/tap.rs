@@ -253,7 +253,19 @@ fn tap_follows_the_console(test: &str, ethernet: &str, protocol: &str) {
                 last = Some(i);
                 next = i + 1;
             }
-            None => unmatched += 1,
+            None => {
+                if unmatched < 5 {
+                    let near: Vec<String> = (next.saturating_sub(3)..reads.len().min(next + 3))
+                        .map(|i| format!("{i}:{:?}", reads[i]))
+                        .collect();
+                    let any = reads.iter().position(|r| *r == (ts, counts));
+                    eprintln!(
+                        "DBG unmatched seq {} ts {:?} counts {:?} next {next} found_anywhere {any:?} near {near:?}",
+                        m.header.seq, ts, counts
+                    );
+                }
+                unmatched += 1
+            }
         }
     }
     // Tolerance: 0.5 % of the reads. Under a heavily loaded machine the stand-in stalls, its

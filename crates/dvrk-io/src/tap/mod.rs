@@ -8,7 +8,8 @@
 //! from another local port or address is never a board's reply. It decodes the feedback blocks the console read, whichever read protocol it uses
 //! (§3.4):
 //! - `sequential-read-*`: one block read of address 0 per board; a sample is complete when
-//!   every board of the arm has been read once since the previous sample;
+//!   every board of the arm has been read once since the previous sample, by requests between
+//!   the same two writes of the console's (it reads every board, then writes);
 //! - `broadcast-query-read-write` in bridge mode: a query write to 0x1800 at node 0x3F, then a
 //!   block read of the hub memory at 0x1000;
 //! - the Ethernet-only broadcast read (Rev 9, FPGA V3): the same query write, and the hub's
@@ -58,6 +59,8 @@ struct Pending {
     label: u8,
     node: u8,
     asked: Asked,
+    /// The host's writes seen before this request (see [`TapDecoder::writes`]).
+    cycle: u64,
 }
 
 /// Counters for the shell's summaries and the tests.
@@ -111,6 +114,13 @@ pub struct TapDecoder {
     blocks: [[u8; BLOCK_CAP]; MAX_BOARDS],
     layouts: [Option<BlockLayout>; MAX_BOARDS],
     fresh: [bool; MAX_BOARDS],
+    /// Write requests seen so far. The console reads every board, then writes (reference §3.4):
+    /// the reads between two writes are one cycle, so a request is stamped with this count and
+    /// the blocks of a sample must carry the same stamp. The stamp is taken in the requests'
+    /// own order, whenever their replies are decoded.
+    writes: u64,
+    /// The stamp of the blocks marked in `fresh`.
+    fresh_cycle: u64,
     /// Blocks seen per board slot since construction (the shell names boards that stop).
     seen: [u64; MAX_BOARDS],
     /// Actuator-space values of the last sample (pots included).
@@ -129,6 +139,8 @@ impl TapDecoder {
             blocks: [[0; BLOCK_CAP]; MAX_BOARDS],
             layouts: [None; MAX_BOARDS],
             fresh: [false; MAX_BOARDS],
+            writes: 0,
+            fresh_cycle: 0,
             seen: [0; MAX_BOARDS],
             last: ActuatorState::default(),
             counters: TapCounters::default(),
@@ -237,6 +249,14 @@ impl TapDecoder {
             }),
             _ => None,
         };
+        if asked.is_none()
+            && matches!(
+                repr.kind,
+                RequestKind::BlockWrite { .. } | RequestKind::QuadletWrite { .. }
+            )
+        {
+            self.writes = self.writes.wrapping_add(1);
+        }
         // A new request with this label from this host replaces any older one.
         let label = repr.label;
         for p in self.pending.iter_mut() {
@@ -252,6 +272,7 @@ impl TapDecoder {
                     label,
                     node,
                     asked,
+                    cycle: self.writes,
                 });
                 self.next_slot = (self.next_slot + 1) % PENDING;
                 TapEvent::Consumed
@@ -311,11 +332,11 @@ impl TapDecoder {
         let data = p.payload();
         let data = data.get(..usize::from(len)).unwrap_or(data);
         let completed = match pending.asked {
-            Asked::Feedback => self.feedback(data),
-            Asked::Hub => self.hub(data, None),
+            Asked::Feedback => self.feedback(data, pending.cycle),
+            Asked::Hub => self.hub(data, None, pending.cycle),
             Asked::Query { seq } => {
                 self.counters.unsolicited_hub += 1;
-                self.hub(data, Some(seq))
+                self.hub(data, Some(seq), pending.cycle)
             }
         };
         if completed {
@@ -341,9 +362,10 @@ impl TapDecoder {
             .find(|l| l.len_bytes() == len_bytes)
     }
 
-    /// Stores one board's block (identified by the board id in its status quadlet). Returns
-    /// true when every board of the arm has a fresh block.
-    fn store(&mut self, block: &[u8], lay: BlockLayout) -> bool {
+    /// Stores one board's block (identified by the board id in its status quadlet), read by a
+    /// request of the console's cycle `cycle` (its writes before the request). Returns true when
+    /// every board of the arm has a fresh block of that cycle.
+    fn store(&mut self, block: &[u8], lay: BlockLayout, cycle: u64) -> bool {
         let Ok(view) = FeedbackBlock::new_checked(block, lay) else {
             return false;
         };
@@ -359,6 +381,17 @@ impl TapDecoder {
         ) else {
             return false;
         };
+        if cycle != self.fresh_cycle {
+            // A block of another cycle of the console's: the blocks kept are of a cycle that
+            // never completed (a frame the capture dropped, a read the console gave up). Without
+            // this, that cycle's last board would be paired with the next cycle's first, and
+            // every cycle after it the same way.
+            if self.fresh.iter().any(|f| *f) {
+                self.counters.incomplete_cycles += 1;
+            }
+            self.fresh = [false; MAX_BOARDS];
+            self.fresh_cycle = cycle;
+        }
         if self.fresh[slot] {
             // Read again before the others: the previous cycle never completed.
             self.counters.incomplete_cycles += 1;
@@ -372,18 +405,18 @@ impl TapDecoder {
         self.fresh[..n].iter().all(|f| *f)
     }
 
-    fn feedback(&mut self, data: &[u8]) -> bool {
+    fn feedback(&mut self, data: &[u8], cycle: u64) -> bool {
         let Some(lay) = self.layout_for(data.len()) else {
             self.counters.skipped_malformed += 1;
             return false;
         };
         self.counters.feedback_blocks += 1;
-        self.store(data, lay)
+        self.store(data, lay, cycle)
     }
 
     /// Hub memory: per board a header quadlet (size Nq + 1, sequence LSB, mismatch bit) and
     /// the board's block, in any order; a zero header ends it (§3.4).
-    fn hub(&mut self, data: &[u8], seq: Option<u16>) -> bool {
+    fn hub(&mut self, data: &[u8], seq: Option<u16>, cycle: u64) -> bool {
         self.counters.hub_blocks += 1;
         // A hub read is one cycle of its own: it starts from nothing.
         self.fresh = [false; MAX_BOARDS];
@@ -411,7 +444,7 @@ impl TapDecoder {
                 self.counters.bad_hub_slots += 1;
                 continue;
             }
-            complete = self.store(block, lay);
+            complete = self.store(block, lay, cycle);
         }
         if !complete {
             self.fresh = [false; MAX_BOARDS];

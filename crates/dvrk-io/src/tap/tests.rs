@@ -254,6 +254,96 @@ fn hub_slot_with_wrong_sequence_is_not_a_sample() {
     assert_eq!(d.counters().incomplete_cycles, 1);
 }
 
+/// A cycle whose first board's block the tap never saw (the capture dropped the frame, or the
+/// console gave the read up) must not pair the other board's block with the next cycle's first:
+/// the console reads every board, then writes, and a sample's blocks must come from reads
+/// between the same two writes. Before, the phase stayed shifted by one board for the rest of
+/// the run (tests/tap.rs saw hundreds of samples mixing two console reads on a busy host). The
+/// shell feeds the requests it captured before each reply, so a cycle's writes and even the
+/// next cycle's first read may reach the decoder before the cycle's last reply: the requests'
+/// own order decides, not when they are decoded.
+#[test]
+fn a_cycle_missing_a_block_is_not_paired_with_the_next_cycles_read() {
+    let c = cfg();
+    let len = lay().len_bytes() as u16;
+    for requests_first in [false, true] {
+        let mut d = TapDecoder::new(c.clone());
+        let mut out = ArmSample::default();
+        let mut label = 0u8;
+        let mut next_label = || {
+            label = (label + 1) & 0x3F;
+            label
+        };
+        let reply = |board: u8, l: u8, cycle: u32| {
+            let ts = 1000 * cycle + u32::from(board);
+            block_reply(CONSOLE, board, l, &block(board, cycle as i32, ts))
+        };
+        let mut samples = Vec::new();
+        let mut queued: Vec<Vec<u8>> = Vec::new();
+        for cycle in 1..=4u32 {
+            let (l6, l7) = (next_label(), next_label());
+            let reqs = [
+                request(CONSOLE, 6, l6, 0, RequestKind::BlockRead { len }),
+                request(CONSOLE, 7, l7, 0, RequestKind::BlockRead { len }),
+                request(
+                    CONSOLE,
+                    6,
+                    next_label(),
+                    8,
+                    RequestKind::QuadletWrite { data: 0 },
+                ),
+                request(
+                    CONSOLE,
+                    7,
+                    next_label(),
+                    8,
+                    RequestKind::QuadletWrite { data: 0 },
+                ),
+            ];
+            // Cycle 2 loses board 6's block.
+            let replies: Vec<Vec<u8>> = [(6, l6), (7, l7)]
+                .into_iter()
+                .filter(|&(b, _)| !(cycle == 2 && b == 6))
+                .map(|(b, l)| reply(b, l, cycle))
+                .collect();
+            if requests_first {
+                // The decoder gets this cycle's requests, writes included, before its replies.
+                queued.extend(reqs);
+                for r in queued.drain(..) {
+                    push(&mut d, &r, &mut out);
+                }
+                for r in &replies {
+                    if push(&mut d, r, &mut out) == TapEvent::Sample {
+                        samples.push(out.board_timestamp);
+                    }
+                }
+            } else {
+                let mut rep = replies.iter();
+                for (i, r) in reqs.iter().enumerate() {
+                    push(&mut d, r, &mut out);
+                    let lost = cycle == 2 && i == 0;
+                    if i < 2
+                        && !lost
+                        && push(&mut d, rep.next().unwrap(), &mut out) == TapEvent::Sample
+                    {
+                        samples.push(out.board_timestamp);
+                    }
+                }
+            }
+        }
+        let want: Vec<[u32; 2]> = [1u32, 3, 4]
+            .iter()
+            .map(|c| [1000 * c + 6, 1000 * c + 7])
+            .collect();
+        assert_eq!(samples, want, "requests first: {requests_first}");
+        assert_eq!(
+            d.counters().incomplete_cycles,
+            1,
+            "requests first: {requests_first}"
+        );
+    }
+}
+
 #[test]
 fn a_board_missing_from_the_traffic_gives_no_sample_and_is_counted() {
     let mut d = TapDecoder::new(cfg());
