@@ -38,10 +38,7 @@
 //! - the cycle's wake-up ([`wake`]): beside each cycle event, a futex word in a 0600 file of the
 //!   domain's root (`<root><prefix><event name>.wake`) that the publisher bumps once per cycle,
 //!   waking every sleeping subscription with one system call instead of iceoryx2's one unix
-//!   datagram per listener. **Not in use since 2026-11-26**: [`ArmPublisher`] bumps the word
-//!   but does not claim it, so subscriptions sleep on their iceoryx2 listeners (with the word,
-//!   the tap's end-to-end test saw samples that matched no console read in about one run in
-//!   four; not understood yet).
+//!   datagram per listener.
 //!
 //! ```no_run
 //! use dvrk_ipc::{create_node, PoseV2, ServiceNames, Subscription, Topic, Update, NOMINAL_PERIOD};

@@ -224,12 +224,8 @@ impl<S: Service> ArmPublisher<S> {
         let cycle_first = create_notifier(&services.cycle_first, names, names.cycle_first())?;
         let cycle_wake = open_event_word(node.config(), names.cycle())?;
         let cycle_first_wake = open_event_word(node.config(), names.cycle_first())?;
-        // Not claimed: subscriptions sleep on their iceoryx2 listeners, as before issue 23's
-        // wake-up word. With the word claimed, the tap's end-to-end test (tests/tap.rs) saw
-        // published samples that matched no console read in about one run in four, against
-        // none in six runs without it; not understood at the stop, so the word is bumped but
-        // not used until it is (the claim is what makes subscriptions sleep on it).
-        let _ = (&cycle_wake, &cycle_first_wake);
+        cycle_wake.claim();
+        cycle_first_wake.claim();
         Ok(Self {
             services,
             measured,
