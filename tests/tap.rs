@@ -240,6 +240,7 @@ fn tap_follows_the_console(test: &str, ethernet: &str, protocol: &str) {
     let mut next = 0usize;
     let mut last: Option<usize> = None;
     let (mut consecutive, mut matched, mut unmatched) = (0usize, 0usize, 0usize);
+    let mut first_unmatched = Vec::new();
     for m in &valid {
         let ts = m.header.board_timestamps();
         let counts: [i32; 3] =
@@ -254,15 +255,15 @@ fn tap_follows_the_console(test: &str, ethernet: &str, protocol: &str) {
                 next = i + 1;
             }
             None => {
-                if unmatched < 5 {
-                    let near: Vec<String> = (next.saturating_sub(3)..reads.len().min(next + 3))
-                        .map(|i| format!("{i}:{:?}", reads[i]))
-                        .collect();
-                    let any = reads.iter().position(|r| *r == (ts, counts));
-                    eprintln!(
-                        "DBG unmatched seq {} ts {:?} counts {:?} next {next} found_anywhere {any:?} near {near:?}",
-                        m.header.seq, ts, counts
-                    );
+                if first_unmatched.len() < 3 {
+                    // What a failure needs to be read: the sample, and the reads it was sought
+                    // among (a sample mixing two reads shows one board's part in each).
+                    let from = next.saturating_sub(2);
+                    let near = &reads[from..reads.len().min(next + 3)];
+                    first_unmatched.push(format!(
+                        "seq {}: timestamps {ts:?}, counts {counts:?}; reads from {from}: {near:?}",
+                        m.header.seq
+                    ));
                 }
                 unmatched += 1
             }
@@ -274,7 +275,8 @@ fn tap_follows_the_console(test: &str, ethernet: &str, protocol: &str) {
     assert!(
         unmatched <= failed_reads + reads.len() / 200,
         "{unmatched} published samples (board timestamps + encoder counts) are no read of the \
-         stand-in, in order ({failed_reads} reads failed on its side)"
+         stand-in, in order ({failed_reads} reads failed on its side); the first: \
+         {first_unmatched:#?}"
     );
     // Nearly every read is published (the tap keeps up), one after the other.
     assert!(
