@@ -607,14 +607,9 @@ fn an_emulator_restart_is_recovered() {
 /// just before on the same (shared, noisy) machine: a liveness bound, not a speed claim.
 #[test]
 fn shared_mode_keeps_ninety_percent_valid_under_ten_percent_loss() {
-    // The window a lab sets for a lossy link (issue 22 item 7): 4 requests in flight, a lost
-    // datagram asked again within the cycle (the default, 1, rides out host stalls better).
-    let mut rig = Rig::start_with(
-        "shared-loss",
-        Faults::default(),
-        7,
-        "shared_requests_in_flight = 4",
-    );
+    // The default configuration (issue 22 item 7): 4 requests in flight, a lost datagram asked
+    // again within the cycle.
+    let mut rig = Rig::start("shared-loss", Faults::default(), 7);
     rig.wait_first_valid();
     let window = |rig: &Rig, secs: u64| {
         let before_recs = rig.collector.records().len();

@@ -387,6 +387,8 @@ fn decode_mcap(out: &Path) -> Vec<Value> {
 struct Summary {
     cycles: u64,
     written: u64,
+    /// Cycles whose sample was invalid (not written).
+    invalid: u64,
     dropped: u64,
     lost: u64,
 }
@@ -410,6 +412,7 @@ fn summaries(log: &str, what: &str) -> BTreeMap<String, Summary> {
             Summary {
                 cycles: nums[0],
                 written: nums[1],
+                invalid: nums[2],
                 dropped: nums[4],
                 lost: nums[5],
             },
@@ -1221,8 +1224,17 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
     let all = summaries(&log, "ros2-bridge");
     assert_eq!(all.keys().collect::<Vec<_>>(), ["PSM1", "PSM2"], "{log}");
     for (arm, s) in &all {
-        // Decimated to 100 Hz: the seven topics of about 1 in 15 cycles.
-        assert!(s.cycles >= 200 && s.written == 7 * s.cycles, "{arm}: {s:?}");
+        // Decimated to 100 Hz: the seven topics of about 1 in 15 cycles. A cycle whose sample
+        // was invalid (shared mode on a loaded host: a read given up; at most 1%, as
+        // tests/multi_arm.rs allows) has its status written and its poses and joints skipped.
+        assert!(
+            s.cycles >= 200 && s.invalid * 100 <= 7 * s.cycles,
+            "{arm}: {s:?}"
+        );
+        assert!(
+            s.written <= 7 * s.cycles && 7 * s.cycles - s.written <= 7 * s.invalid,
+            "{arm}: {s:?}"
+        );
         assert_eq!(s.dropped, 0, "{arm}: {s:?}");
     }
 }
@@ -1379,18 +1391,20 @@ fn record_config_records_both_arms() {
     for arm in ["PSM1", "PSM2"] {
         let s = all[arm];
         // Every cycle by default (not 100 Hz): the sequence numbers below have no gap but the
-        // cycles lost in shared memory. How many cycles 2 s hold depends on the machine's load
-        // (208 seen at load 5 on 2 cores), so only enough of them to judge is asked here.
+        // cycles lost in shared memory and the invalid samples, which are not recorded (shared
+        // mode on a loaded host: a read given up; at most 1%, as tests/multi_arm.rs allows).
+        // How many cycles 2 s hold depends on the machine's load (208 seen at load 5 on 2
+        // cores), so only enough of them to judge is asked here.
         assert!(s.cycles >= 50, "{arm}: {s:?}");
+        assert!(s.invalid * 100 <= s.cycles, "{arm}: {s:?}");
         for suffix in suffixes {
             let v = &per_topic[&format!("/{arm}/{suffix}")];
             let seqs: Vec<u64> = v.iter().map(|m| m["sequence"].as_u64().unwrap()).collect();
             assert!(seqs.windows(2).all(|w| w[1] > w[0]), "/{arm}/{suffix}");
             assert!(
-                missing_cycles(&seqs) <= s.lost,
-                "/{arm}/{suffix}: {} cycles missing, {} lost",
+                missing_cycles(&seqs) <= s.lost + s.invalid,
+                "/{arm}/{suffix}: {} cycles missing; {s:?}",
                 missing_cycles(&seqs),
-                s.lost
             );
             if suffix.contains("local/measured_cp") {
                 assert_eq!(v[0]["msg"]["header"]["frame_id"], format!("{arm}_base"));

@@ -513,6 +513,50 @@ fn a_register_waits_its_reply_timeout_from_its_own_first_request() {
     assert!(first_of(reqs[3]) > first_of(reqs[1]), "{seen:?}");
 }
 
+/// A board stalled for longer than the reply timeout (1.5 T here; a loaded host stalls the emulator
+/// that way in CI, failing two-arm shared-mode tests with 4 requests in flight) answers the first
+/// request of a register late and its repeats not at all. Each repeat gives the register the whole
+/// timeout again (at most two after its first request), as one read at a time gives its last
+/// attempt: the late reply is taken. With the deadline counted from the first request only, the
+/// register was given up at T.
+#[test]
+fn a_register_asked_again_waits_the_reply_timeout_from_its_newest_request() {
+    let mut truth = boards_with(7);
+    let reqs: Vec<(u8, u16)> = shared_cycle()[..4].to_vec();
+    let want = expected(&mut truth, &reqs);
+    // A slow board (every first reply 20 ms late, so the measured round trip and the repeats'
+    // wait are tens of ms, as they are µs against a board's 5 ms timeout in service): reqs[0]
+    // is asked again at about 20 ms (overtaken), 80 ms and 140 ms, each repeat moving its
+    // deadline to T after it, 2 T = 200 ms at most; its first reply comes at 1.5 T = 150 ms.
+    let timeout = Duration::from_millis(100);
+    let slow = Duration::from_millis(20);
+    let (addr, h) = holding_board(
+        boards_with(7),
+        vec![
+            (reqs[0], timeout * 3 / 2),
+            (reqs[1], slow),
+            (reqs[2], slow),
+            (reqs[3], slow),
+        ],
+    );
+    let mut p = port(addr, 4);
+    p.link_mut().set_timeout(timeout).unwrap();
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(30)));
+    p.set_quadlet_batch_budget(None);
+    let mut out = vec![None; reqs.len()];
+    let r = p.read_quadlets(&reqs, &mut out);
+    let c = p.counters();
+    assert_eq!(r, Ok(()), "{c:?}");
+    assert_eq!(out, want);
+    assert!(
+        c.quadlet_retries >= 1,
+        "the held register was asked again: {c:?}"
+    );
+    drop(p);
+    h.join().unwrap();
+}
+
 /// A register whose reply was lost is asked again as soon as the board answers a request
 /// sent after it (a board answers in order), not after the retry wait: with a retry wait
 /// longer than the whole test could take, the batch still completes, and the lost register's
@@ -695,23 +739,32 @@ fn the_label_of_an_unanswered_request_is_not_reused_within_the_reply_timeout() {
 /// skipped registers empty: `serve` published them invalid with no reason but HELD.)
 #[test]
 fn registers_skipped_after_a_give_up_are_reported_even_if_the_late_reply_comes() {
-    let reqs = shared_cycle();
+    // Board 7's first encoder moved up to third, so that board 7 keeps the window's second
+    // place while board 6 is given up.
+    let mut reqs = shared_cycle();
+    let enc7 = reqs.remove(10);
+    reqs.insert(2, enc7);
     let timeout = Duration::from_millis(300);
-    // Two at a time. Board 6's status (reqs[0]) is held past its deadline (1.2 T); board 7's
-    // status for 0.5 T, so board 6's first encoder (reqs[2]) is first asked at 0.5 T and, held
-    // 0.9 T, is still in flight when reqs[0] is given up at T and when its reply comes late.
+    // Two at a time. Board 6's status (reqs[0]) is held past its last deadline (2 T after its
+    // first request at the latest; its repeats get no reply) and answers at 2.1 T. Board 7's
+    // status answers at 0.5 T; board 7's first encoder (reqs[2]), asked then and held 1.8 T,
+    // answers at 2.3 T, before its own last deadline (2.5 T). So board 6 is given up (by 2 T)
+    // with its other registers not asked yet, they are skipped, and reqs[0]'s late reply comes
+    // while the batch still waits for reqs[2]: every register but the skipped ones is read.
     let (addr, h) = holding_board(
         boards_with(8),
         vec![
-            (reqs[0], timeout * 6 / 5),
+            (reqs[0], timeout * 21 / 10),
             (reqs[1], timeout / 2),
-            (reqs[2], timeout * 9 / 10),
+            (reqs[2], timeout * 9 / 5),
         ],
     );
     let mut p = port(addr, 2);
     p.link_mut().set_timeout(timeout).unwrap();
+    // A retry wait well below T: the held registers are asked again (for silence, with a
+    // doubling wait), which moves their deadlines on.
     p.link_mut()
-        .set_quadlet_retry_wait(Some(Duration::from_millis(100)));
+        .set_quadlet_retry_wait(Some(Duration::from_millis(10)));
     p.set_quadlet_batch_budget(None);
     let mut out = vec![None; reqs.len()];
     let r = p.read_quadlets(&reqs, &mut out);

@@ -20,14 +20,14 @@ const RX_CAP: usize = 4096;
 const MAX_STALE: u8 = 64;
 
 /// Default of [`EthPort::set_quadlet_window`]: quadlet requests a batch keeps outstanding at
-/// once. 1: one at a time, each read's last attempt waiting the whole reply timeout. A window
-/// of 4 hides the round trips of a cycle's reads and asks a lost datagram again within the
-/// cycle (RELIABILITY.md, issue 22 item 7), but each of its registers waits the reply timeout
-/// from its first request only, so a host stall longer than that costs a sample more often
-/// than one read at a time does (CI, two-arm shared-mode tests on a loaded machine); and the
-/// FPGA serves one packet at a time (reference §8.4), so each request queued there delays the
-/// console's own. A lab with a lossy link sets 4 (`shared_requests_in_flight`).
-pub const DEFAULT_QUADLET_WINDOW: u8 = 1;
+/// once. 4 hides the round trips of a cycle's reads and asks a lost datagram again within the
+/// cycle (RELIABILITY.md, issue 22 item 7); each request waits the whole reply timeout (at most
+/// two from a register's first), as the last attempt of a read on its own does, so a host stall
+/// costs no more than one read at a time. The FPGA serves one packet at a time (reference
+/// §8.4), so each request queued there may delay the console's next packet by one quadlet's
+/// service: a bench that wants its reads strictly one after the other sets 1
+/// (`shared_requests_in_flight`).
+pub const DEFAULT_QUADLET_WINDOW: u8 = 4;
 /// Largest window [`EthPort::set_quadlet_window`] takes.
 pub const MAX_QUADLET_WINDOW: u8 = 16;
 /// Floor of the retry wait a batch estimates from the measured round trip (a loopback board
@@ -98,7 +98,7 @@ enum Entry {
 
 /// Bookkeeping of one pipelined batch ([`Port::read_quadlets`] on [`EthPort`]), on the
 /// stack: per entry its node, state, requests sent, when its newest request is presumed lost
-/// (`due`) and when the entry is given up (`deadline`: the reply timeout counted from its first
+/// (`due`) and when the entry is given up (`deadline`: the reply timeout counted from its newest
 /// request); per label the entry it asked for, when, and the request's rank in the batch.
 struct Batch {
     node: [u8; MAX_BATCH],
@@ -106,6 +106,10 @@ struct Batch {
     sends: [u8; MAX_BATCH],
     due: [Instant; MAX_BATCH],
     deadline: [Instant; MAX_BATCH],
+    /// The latest `deadline` may move to: two reply timeouts after the first request (or the
+    /// batch's budget), so that a board that died mid-batch holds the cycle up for a bounded
+    /// time.
+    limit: [Instant; MAX_BATCH],
     /// Rank (0, 1, ... in the order sent) of each entry's newest request.
     newest: [u8; MAX_BATCH],
     /// The entry's newest request is known lost: a later one to its node was answered.
@@ -133,6 +137,7 @@ impl Batch {
             sends: [0; MAX_BATCH],
             due: [start; MAX_BATCH],
             deadline: [start; MAX_BATCH],
+            limit: [start; MAX_BATCH],
             newest: [0; MAX_BATCH],
             lost: [false; MAX_BATCH],
             answered_by: [NO_ENTRY; MAX_BATCH],
@@ -221,7 +226,7 @@ impl Batch {
     }
 
     /// Entry `i` of a node was just asked again for silence: the node's other requests past
-    /// their due time (not known lost) wait as long as it does.
+    /// their due time (not known lost) wait as long as it does, and are given up with it.
     fn wait_with(&mut self, n: usize, i: usize, now: Instant) {
         if self.lost[i] {
             return;
@@ -233,6 +238,8 @@ impl Batch {
                 && !self.lost[j]
                 && self.due[j] <= now
             {
+                // A silent board is silent for all of them: they are given up together.
+                self.deadline[j] = self.deadline[j].max(self.deadline[i].min(self.limit[j]));
                 self.due[j] = self.due[i].min(self.deadline[j]);
             }
         }
@@ -393,10 +400,10 @@ impl<L: Link> EthPort<L> {
         self.window
     }
     /// Longest one batch waits in all (default None: no cap of its own). Each register waits at
-    /// most the link's reply timeout from its first request (as a read on its own would); a
-    /// budget also ends the batch as a whole, leaving the registers still unanswered unread. A
-    /// lost datagram never waits for either: its register is asked again after the retry wait,
-    /// or as soon as a later request to the same board is answered.
+    /// most the link's reply timeout from its newest request (as a read on its own would), and
+    /// two from its first; a budget also ends the batch as a whole, leaving the registers still
+    /// unanswered unread. A lost datagram never waits for either: its register is asked again
+    /// after the retry wait, or as soon as a later request to the same board is answered.
     pub fn set_quadlet_batch_budget(&mut self, budget: Option<Duration>) {
         self.batch_budget = budget;
     }
@@ -775,8 +782,8 @@ impl<L: Link> EthPort<L> {
         };
         self.counters.quadlet_batches += 1;
         let start = Instant::now();
-        // Each register waits at most the reply timeout from its first request, as a read on
-        // its own would; an explicit budget also caps the batch as a whole.
+        // Each register waits at most the reply timeout from its newest request (two from its
+        // first), as a read on its own would; an explicit budget also caps the batch as a whole.
         let timeout = retry.reply_timeout;
         let end = self.batch_budget.and_then(|b| start.checked_add(b));
         let attempts = batch_attempts(retry);
@@ -825,13 +832,20 @@ impl<L: Link> EthPort<L> {
                 let (board, addr) = reqs[i];
                 let bit = board_bit(board);
                 let silent = self.silent_boards & bit & !b.answered != 0;
-                if silent
-                    || b.failed & bit != 0
-                    || b.sends[i] >= attempts
+                if silent || b.failed & bit != 0 {
+                    // A board silent in its last batch (one request, its timeout), or one that
+                    // gave up on another register: any of its replies is taken until its
+                    // deadline.
+                    b.due[i] = b.deadline[i];
+                    continue;
+                }
+                if b.sends[i] >= attempts
                     || usize::from(b.labels_used) + unsent >= usize::from(MAX_BATCH_LABELS)
                 {
-                    // Asked as often as allowed (or its board gave up on another register):
-                    // any of its replies is taken until its deadline.
+                    // Asked as often as allowed: its last request waits a whole reply timeout
+                    // from here, as the last attempt of a read on its own does (within the
+                    // register's limit), and any of its replies is taken until then.
+                    b.deadline[i] = b.deadline[i].max((now + timeout).min(b.limit[i]));
                     b.due[i] = b.deadline[i];
                     continue;
                 }
@@ -844,6 +858,11 @@ impl<L: Link> EthPort<L> {
                     backoff = (backoff + 1).min(MAX_BACKOFF_SHIFT);
                     w
                 };
+                // Each request gets the whole reply timeout: the register's deadline counts
+                // from its newest request (at most two timeouts after its first, within the
+                // batch's budget), so a host or board stall that outlasts the timeout of the
+                // first request costs no more than it did one read at a time.
+                b.deadline[i] = b.deadline[i].max((now + timeout).min(b.limit[i]));
                 let due = if b.sends[i] + 1 >= attempts {
                     b.deadline[i]
                 } else {
@@ -888,6 +907,8 @@ impl<L: Link> EthPort<L> {
                     }
                     let deadline = now + timeout;
                     b.deadline[i] = end.map_or(deadline, |e| deadline.min(e));
+                    let limit = deadline + timeout;
+                    b.limit[i] = end.map_or(limit, |e| limit.min(e));
                     // The one request to a silent board waits until its deadline.
                     let due = if silent || attempts <= 1 {
                         b.deadline[i]
@@ -1158,11 +1179,12 @@ impl<L: Link> Port for EthPort<L> {
     /// of attempts: as soon as a later request to the same node is answered (a board answers in
     /// order), else after the retry wait (the measured round trip + 4 deviations, see
     /// [`EthPort::quadlet_retry_wait`]); a reply to any of its requests is taken. Each register
-    /// is given up at its own deadline, the link's reply timeout counted from its first
-    /// request (or the batch's budget, [`EthPort::set_quadlet_batch_budget`]), and only when no
-    /// reply is queued: replies that arrived while this process was not running are read
-    /// first. A board whose register was given up is not asked again in the batch. A board that
-    /// answered nothing in its last batch gets one request per batch until it answers (as
+    /// is given up at its own deadline, the link's reply timeout counted from its newest
+    /// request but at most two from its first (or the batch's budget,
+    /// [`EthPort::set_quadlet_batch_budget`]), and only when no reply is queued: replies that
+    /// arrived while this process was not running are read first. A board whose register was
+    /// given up is not asked again in the batch. A board that answered nothing in its last
+    /// batch gets one request per batch until it answers (as
     /// [`Port::read_quadlet`] asks once after a read without reply), so a stall does not pile
     /// up requests at it. Otherwise (a window of 1, a link without retry) the reads go one
     /// after the other.
