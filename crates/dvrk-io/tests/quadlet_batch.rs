@@ -128,6 +128,16 @@ fn port(addr: SocketAddr, window: u8) -> UdpPort {
     p
 }
 
+/// A port whose registers are given up by their own deadlines only: reply timeout `timeout`,
+/// retry wait `retry_wait` (until a round trip is measured, and its cap's base), no budget.
+fn timed_port(addr: SocketAddr, window: u8, timeout: Duration, retry_wait: Duration) -> UdpPort {
+    let mut p = port(addr, window);
+    p.link_mut().set_timeout(timeout).unwrap();
+    p.link_mut().set_quadlet_retry_wait(Some(retry_wait));
+    p.set_quadlet_batch_budget(None);
+    p
+}
+
 fn send_all(sock: &UdpSocket, from: SocketAddr, replies: &[Vec<u8>]) {
     for r in replies {
         sock.send_to(r, from).unwrap();
@@ -491,11 +501,7 @@ fn a_register_waits_its_reply_timeout_from_its_own_first_request() {
         boards_with(7),
         vec![(reqs[0], hold), (reqs[1], hold), (reqs[3], hold)],
     );
-    let mut p = port(addr, 2);
-    p.link_mut().set_timeout(timeout).unwrap();
-    p.link_mut()
-        .set_quadlet_retry_wait(Some(Duration::from_millis(100)));
-    p.set_quadlet_batch_budget(None);
+    let mut p = timed_port(addr, 2, timeout, Duration::from_millis(100));
     let mut out = vec![None; reqs.len()];
     let r = p.read_quadlets(&reqs, &mut out);
     assert_eq!(r, Ok(()), "{:?}", p.counters());
@@ -539,11 +545,7 @@ fn a_register_asked_again_waits_the_reply_timeout_from_its_newest_request() {
             (reqs[3], slow),
         ],
     );
-    let mut p = port(addr, 4);
-    p.link_mut().set_timeout(timeout).unwrap();
-    p.link_mut()
-        .set_quadlet_retry_wait(Some(Duration::from_millis(30)));
-    p.set_quadlet_batch_budget(None);
+    let mut p = timed_port(addr, 4, timeout, Duration::from_millis(30));
     let mut out = vec![None; reqs.len()];
     let r = p.read_quadlets(&reqs, &mut out);
     let c = p.counters();
@@ -759,13 +761,9 @@ fn registers_skipped_after_a_give_up_are_reported_even_if_the_late_reply_comes()
             (reqs[2], timeout * 9 / 5),
         ],
     );
-    let mut p = port(addr, 2);
-    p.link_mut().set_timeout(timeout).unwrap();
     // A retry wait well below T: the held registers are asked again (for silence, with a
     // doubling wait), which moves their deadlines on.
-    p.link_mut()
-        .set_quadlet_retry_wait(Some(Duration::from_millis(10)));
-    p.set_quadlet_batch_budget(None);
+    let mut p = timed_port(addr, 2, timeout, Duration::from_millis(10));
     let mut out = vec![None; reqs.len()];
     let r = p.read_quadlets(&reqs, &mut out);
     let unread: Vec<(u8, u16)> = reqs
