@@ -225,6 +225,11 @@ impl Batch {
         })
     }
 
+    /// Entry `i`'s deadline moves on to `until` (never back), within its limit.
+    fn renew(&mut self, i: usize, until: Instant) {
+        self.deadline[i] = self.deadline[i].max(until.min(self.limit[i]));
+    }
+
     /// Entry `i` of a node was just asked again for silence: the node's other requests past
     /// their due time (not known lost) wait as long as it does, and are given up with it.
     fn wait_with(&mut self, n: usize, i: usize, now: Instant) {
@@ -239,7 +244,7 @@ impl Batch {
                 && self.due[j] <= now
             {
                 // A silent board is silent for all of them: they are given up together.
-                self.deadline[j] = self.deadline[j].max(self.deadline[i].min(self.limit[j]));
+                self.renew(j, self.deadline[i]);
                 self.due[j] = self.due[i].min(self.deadline[j]);
             }
         }
@@ -845,7 +850,7 @@ impl<L: Link> EthPort<L> {
                     // Asked as often as allowed: its last request waits a whole reply timeout
                     // from here, as the last attempt of a read on its own does (within the
                     // register's limit), and any of its replies is taken until then.
-                    b.deadline[i] = b.deadline[i].max((now + timeout).min(b.limit[i]));
+                    b.renew(i, now + timeout);
                     b.due[i] = b.deadline[i];
                     continue;
                 }
@@ -862,7 +867,7 @@ impl<L: Link> EthPort<L> {
                 // from its newest request (at most two timeouts after its first, within the
                 // batch's budget), so a host or board stall that outlasts the timeout of the
                 // first request costs no more than it did one read at a time.
-                b.deadline[i] = b.deadline[i].max((now + timeout).min(b.limit[i]));
+                b.renew(i, now + timeout);
                 let due = if b.sends[i] + 1 >= attempts {
                     b.deadline[i]
                 } else {
