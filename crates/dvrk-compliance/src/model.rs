@@ -800,12 +800,12 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// floor, at its measured size), the stiffness's scatter as `fit` measured it
 /// (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion margin) and
 /// the backlash's (`backlash_rel_sigma`, at least 1%; 5% in a file without it). Withheld
-/// (`1 - w`): the whole play plus `K` times what the shaft may carry (the last trusted torque and the free load;
-/// before any trusted sample, the effort beyond its offset). The two are mixed by `w`. Each
-/// joint's bound is `bias + 1.96 sigma`; the tip's adds the joints' systematic parts as a vector
-/// and their random parts as a 2-D normal, through the tip's levers
-/// ([`tip_bound_with_levers`]: the service takes them from the instrument's kinematics,
-/// [`tip_bound_from_parts`] from the insertion).
+/// (`1 - w`): the whole play plus `K` times what the shaft may carry (after a transient, the
+/// contact as last trusted plus the free load now; before any trusted sample, the effort beyond
+/// its offset). The two are mixed by `w`. Each joint's bound is `bias + 1.96 sigma`; the tip's
+/// adds the joints' systematic parts as a vector and their random parts as a 2-D normal,
+/// through the tip's levers ([`tip_bound_with_levers`]: the service takes them from the
+/// instrument's kinematics, [`tip_bound_from_parts`] from the insertion).
 ///
 /// # Why not a state observer (Kalman filter)
 ///
