@@ -138,8 +138,10 @@ fn encoder_and_pot_disagreeing_beyond_tolerance_and_latency_publish_invalid_samp
     let mut serve_agree = serve(&cfg);
     let status = format!("{prefix}/compensated/status");
     let agree = echo_json(&status, 300, LIVENESS);
+    // Shared mode on a loaded host may give a read up (BOARD_TIMEOUT, with its reason; at most
+    // 1%, as in tests/serve.rs and tests/multi_arm.rs); no sample is refused for its pots.
+    assert_mostly_valid("pots_agree", &agree);
     for s in &agree {
-        assert_eq!(s["header"]["valid"], Value::Bool(true), "{s}");
         assert!(!flag_names(s).iter().any(|f| f == "IMPLAUSIBLE"), "{s}");
         assert!(!flag_names(s).iter().any(|f| f == "POT_MISMATCH"), "{s}");
         assert_eq!(u(s, "implausible_total"), 0, "{s}");
