@@ -7,10 +7,12 @@
 //!   cycle made worse than raw;
 //! - contact: compensated mean at most 30% of raw sliding over a surface, 50% in the light
 //!   scanning contact, 10% in the divot push 5 mm below the fitted insertion range;
-//! - the 95% bound covers at least 90% of the cycles, and at most 99.5% in contact (in free
-//!   motion the simulator's remaining error is nearly deterministic and the bound, 1.2-1.7 times
-//!   it, covers 99.9-100%: see the closing note of issue 20); its mean is at most 2.5 times the
-//!   mean compensated error + 0.05 mm (a bound that says something);
+//! - the 95% bound covers at least 90% of the cycles, and at most 99.5% in contact and in the
+//!   free motions of the issue's table (fast, from rest, abrupt starts, still-move-still). Not in
+//!   the project's slow free motion (`free-motion.toml`), where the simulator's remaining error
+//!   is nearly deterministic and the bound covers 99.7-99.9% (see the closing note of issue 20).
+//!   Its mean is at most 2.5 times the mean compensated error + 0.05 mm (a bound that says
+//!   something);
 //! - `--json` keeps the keys of issue 10 and adds `harm_mm`, `bound_mm` and `coverage`; `--plots`
 //!   draws the bound.
 //!
@@ -92,6 +94,12 @@ fn common_goals(name: &str, v: &Value) -> (f64, f64) {
 }
 
 fn free_motion(name: &str, seconds: &str) {
+    let v = free_motion_goals(name, seconds);
+    not_too_wide(name, &v);
+}
+
+/// The free-motion goals; returns the evaluation for more checks.
+fn free_motion_goals(name: &str, seconds: &str) -> Value {
     let v = evaluate(&format!("config/sim/{name}.toml"), seconds, None);
     let (raw, comp) = common_goals(name, &v);
     assert!(
@@ -113,17 +121,20 @@ fn free_motion(name: &str, seconds: &str) {
     );
     let harm_p99 = num(&v, &["harm_mm", "p99"]);
     assert!(harm_p99 <= 0.001, "{name}: harm_mm.p99 {harm_p99}: {v}");
+    v
 }
 
 #[test]
 fn free_motion_of_the_project() {
-    free_motion("free-motion", "10");
+    free_motion_goals("free-motion", "10");
     free_motion("fast-free-motion", "10");
 }
 
 #[test]
 fn free_motion_from_rest_at_full_speed() {
-    free_motion("i20-free-from-rest", "10");
+    // 30 s, as the issue's table: the first 10 s hold the warm-up, whose withheld bound takes
+    // the whole effort (99.6% covered over 10 s, 96.6% over 30 s).
+    free_motion("i20-free-from-rest", "30");
 }
 
 #[test]
