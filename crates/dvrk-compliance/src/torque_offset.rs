@@ -36,6 +36,24 @@ impl TorqueOffsetTable {
         &self.effort_nm
     }
 
+    /// How far (rad) `position_rad` lies outside the table's positions: 0 inside, NaN for a NaN
+    /// position. Beyond the table `tau_0` is held at its end value, which is wrong by the
+    /// counterbalance's slope times this distance. A one-point table is a constant offset by
+    /// intent (no sweep): it has no outside, 0 everywhere.
+    pub fn distance_outside(&self, position_rad: f64) -> f64 {
+        let (first, last) = (
+            self.position_rad[0],
+            self.position_rad[self.position_rad.len() - 1],
+        );
+        if self.position_rad.len() == 1 {
+            0.0
+        } else if position_rad.is_nan() {
+            f64::NAN
+        } else {
+            (first - position_rad).max(position_rad - last).max(0.0)
+        }
+    }
+
     /// `tau_0(q)` in N·m: linear interpolation between the two surrounding points, the first or
     /// last effort outside the table. A NaN position gives the first effort.
     pub fn lookup(&self, position_rad: f64) -> f64 {
@@ -61,6 +79,19 @@ mod tests {
     fn table() -> TorqueOffsetTable {
         // A small sweep: -0.2 rad -> 0.5 N·m, 0 -> 0.1 N·m, 0.4 rad -> -0.3 N·m.
         TorqueOffsetTable::from_validated(vec![-0.2, 0.0, 0.4], vec![0.5, 0.1, -0.3])
+    }
+
+    #[test]
+    fn distance_outside_is_zero_inside_and_grows_beyond_either_end() {
+        let t = table();
+        assert_eq!(t.distance_outside(-0.2), 0.0);
+        assert_eq!(t.distance_outside(0.1), 0.0);
+        assert_eq!(t.distance_outside(0.4), 0.0);
+        assert!((t.distance_outside(-0.25) - 0.05).abs() < 1e-12);
+        assert!((t.distance_outside(0.5) - 0.1).abs() < 1e-12);
+        assert!(t.distance_outside(f64::NAN).is_nan());
+        let constant = TorqueOffsetTable::from_validated(vec![0.0], vec![-0.125]);
+        assert_eq!(constant.distance_outside(2.0), 0.0);
     }
 
     #[test]

@@ -75,7 +75,7 @@ fn without_dynamics_the_compensator_is_the_papers_model_while_still() {
         if moving {
             assert_eq!(c.delta_rad, [0.0, 0.0], "x = {x}");
             assert_ne!(c.flags & dvrk_compliance::trust::STILL_ONLY, 0);
-        } else if x > 2.2 {
+        } else if x > 2.4 {
             assert_eq!(
                 (c.position, c.delta_rad),
                 (p.position, p.delta_rad),

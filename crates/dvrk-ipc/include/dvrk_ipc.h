@@ -125,6 +125,7 @@ extern "C" {
 #define DVRK_IPC_FLAG_STILL_ONLY (1u << 27) /* no dynamics model: only while still */
 #define DVRK_IPC_FLAG_REDUCED (1u << 28) /* correction less than the model's */
 #define DVRK_IPC_FLAG_POT_MISMATCH (1u << 29) /* refused: a pot and its encoder disagree (slipped encoder?) */
+#define DVRK_IPC_FLAG_POSITION_OUT_OF_RANGE (1u << 30) /* joint 1/2 outside its torque-offset table: correction faded, none beyond 0.05 rad */
 #define DVRK_IPC_FLAG_FAULT_MASK (0x3fu)             /* bits 0..5 */
 
 /* ---- messages -------------------------------------------------------------------------------- */

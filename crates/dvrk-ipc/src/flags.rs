@@ -32,9 +32,11 @@
 //! | 26 | `INSERTION_OUT_OF_RANGE` | insertion more than 10 mm outside the fitted range: no correction | — |
 //! | 27 | `STILL_ONLY` | parameters without a dynamics model: corrected only while the arm is still | — |
 //! | 28 | `REDUCED` | the correction applied is less than the model's (evidence weight below 1) | — |
+//! | 29 | `POT_MISMATCH` | refused: a potentiometer and its encoder disagree beyond the dVRK's tolerance (a slipped encoder?) | 0 |
+//! | 30 | `POSITION_OUT_OF_RANGE` | joint 1 or 2 is outside its torque-offset table: correction faded out over 0.05 rad, none beyond | — |
 //!
-//! Bits 29..31 are reserved and 0. Bits 21..28 are the compensation's own trust flags
-//! (`dvrk_compliance::trust`, shifted by [`TRUST_SHIFT`]). "as read" means the bit describes the hardware state and does
+//! Bit 31 is reserved and 0. Bits 21..28 and 30 are the compensation's own trust flags
+//! (`dvrk_compliance::trust`: its bits 0..7 shifted by [`TRUST_SHIFT`], its bit 8 at 30). "as read" means the bit describes the hardware state and does
 //! not by itself invalidate the sample; the publisher decides `valid` (0 when no usable
 //! position could be read). A consumer that needs a safe robot should still check
 //! [`FAULT_MASK`].
@@ -111,15 +113,20 @@ pub const REDUCED: u32 = 1 << 28;
 /// have slipped, the check the dVRK console itself relies on.
 pub const POT_MISMATCH: u32 = 1 << 29;
 
+/// Issue 20: joint 1 or 2 is outside its torque-offset table, where `tau_0` is held at the
+/// table's end: the correction fades out over 0.05 rad and is withheld beyond
+/// (`dvrk_compliance::trust::POSITION_OUT_OF_RANGE`).
+pub const POSITION_OUT_OF_RANGE: u32 = 1 << 30;
+
 /// Every defined bit.
-pub const ALL: u32 = (1 << 30) - 1;
+pub const ALL: u32 = (1 << 31) - 1;
 
 /// Bits that report a hardware or communication fault.
 pub const FAULT_MASK: u32 =
     BOARD_TIMEOUT | BOARD_ERROR | WATCHDOG_TIMEOUT | POWER_OFF | ENCODER_ERROR | AMP_FAULT;
 
 /// `(bit, name)` of every defined flag, in bit order (for printing; no allocation).
-pub const TABLE: [(u32, &str); 30] = [
+pub const TABLE: [(u32, &str); 31] = [
     (BOARD_TIMEOUT, "BOARD_TIMEOUT"),
     (BOARD_ERROR, "BOARD_ERROR"),
     (WATCHDOG_TIMEOUT, "WATCHDOG_TIMEOUT"),
@@ -150,6 +157,7 @@ pub const TABLE: [(u32, &str); 30] = [
     (STILL_ONLY, "STILL_ONLY"),
     (REDUCED, "REDUCED"),
     (POT_MISMATCH, "POT_MISMATCH"),
+    (POSITION_OUT_OF_RANGE, "POSITION_OUT_OF_RANGE"),
 ];
 
 /// Names of the bits set in `flags`, in bit order; reserved bits are skipped.

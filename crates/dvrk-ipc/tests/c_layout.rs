@@ -132,6 +132,7 @@ fn int_constants() -> Vec<(&'static str, u64)> {
         "DVRK_IPC_FLAG_STILL_ONLY",
         "DVRK_IPC_FLAG_REDUCED",
         "DVRK_IPC_FLAG_POT_MISMATCH",
+        "DVRK_IPC_FLAG_POSITION_OUT_OF_RANGE",
     ];
     assert_eq!(flag_macros.len(), flags::TABLE.len(), "a flag is missing");
     for (mac, (bit, name)) in flag_macros.iter().zip(flags::TABLE) {

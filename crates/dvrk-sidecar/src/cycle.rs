@@ -144,8 +144,11 @@ fn finish(
     if correction.insertion_clamped {
         f |= flags::INSERTION_CLAMPED;
     }
-    // the compensation's own trust flags (issue 20), in bits 21..28
+    // the compensation's own trust flags (issue 20): bits 0..7 in 21..28, bit 8 in 30
     f |= (correction.flags & 0xff) << flags::TRUST_SHIFT;
+    if correction.flags & dvrk_compliance::trust::POSITION_OUT_OF_RANGE != 0 {
+        f |= flags::POSITION_OUT_OF_RANGE;
+    }
     if correction.active[0] {
         f |= flags::CORRECTION_ACTIVE_J1;
     }
