@@ -184,7 +184,7 @@ mod tests {
 
     #[test]
     fn names_lists_set_bits() {
-        let v: Vec<_> = names(BOARD_TIMEOUT | CORRECTION_ACTIVE_J2 | (1 << 30)).collect();
+        let v: Vec<_> = names(BOARD_TIMEOUT | CORRECTION_ACTIVE_J2 | (1 << 31)).collect();
         assert_eq!(v, ["BOARD_TIMEOUT", "CORRECTION_ACTIVE_J2"]);
         assert_eq!(names(0).count(), 0);
     }
