@@ -92,7 +92,7 @@ class JsonShape(unittest.TestCase):
         self.assertEqual(j["source"]["console_state"], "UNKNOWN")
 
     def test_reserved_flag_bits_are_skipped_as_in_rust(self):
-        self.assertEqual(msg.flag_names((1 << 0) | (1 << 30) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
+        self.assertEqual(msg.flag_names((1 << 0) | (1 << 31) | (1 << 13)), ["BOARD_TIMEOUT", "HELD"])
 
     def test_source_state_is_spelled_out(self):
         v = 2 | (1 << 4) | (1 << 5) | (2 << 8) | ((3 + 1) << 16)
