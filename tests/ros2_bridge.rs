@@ -1161,10 +1161,9 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
                 "{arm}: seq jumped"
             );
         }
-        assert!(
-            v.iter().all(|s| s["header"]["valid"] == Value::Bool(true)),
-            "{arm}"
-        );
+        // Shared mode on a loaded host: a read given up now and then (at most 1%, each with its
+        // reason), as tests/multi_arm.rs allows.
+        assert_mostly_valid(arm, &v);
         echoed.push(f64s(&v[v.len() - 1]["position"]));
     }
     assert_ne!(

@@ -328,11 +328,8 @@ fn shared_mode_never_writes_and_never_triggers_a_board_sample() {
     );
     let mut serve = serve(&cfg);
     let samples = echo_json(&format!("{prefix}/measured_js"), 300, LIVENESS);
-    assert!(
-        samples
-            .iter()
-            .all(|s| s["header"]["valid"] == Value::Bool(true))
-    );
+    // A read given up under a host stall is published invalid with its reason (at most 1%).
+    assert_mostly_valid("shared_ro", &samples);
     let (st, log) = serve.terminate();
     assert!(st.success(), "{log}");
     stop.store(true, Ordering::Relaxed);
