@@ -1194,9 +1194,9 @@ impl Compensator {
             let delta = w * full;
 
             // The bound: trusted part and withheld part, weighted.
-            let mut trusted_sigma = sigma_tau.hypot(sigma_free);
-            let mut contact_sigma = sigma_tau;
-            let trusted = match &joint.dynamics {
+            // With the trusted part: the standard deviation (N·m) of the load it takes, and of
+            // the contact share of it (kept for the withheld bound after a transient).
+            let (trusted, trusted_sigma, contact_sigma) = match &joint.dynamics {
                 Some(_) => {
                     // Without contact evidence the shaft carries the predicted free load, known
                     // to `sigma_free`; the measured torque's noise enters only through the
@@ -1215,16 +1215,21 @@ impl Compensator {
                     let sigma_side = sigma_free.hypot(contact_share * sigma_noise);
                     let (tau_b, sigma_b) = (tau_shaft, sigma_side.hypot(unseen));
                     let p_other = other_side_probability(evidence_margin, sigma_side);
-                    trusted_sigma = sigma_b;
-                    contact_sigma = (contact_share * sigma_noise).hypot(unseen);
                     let mut b = dynamic_joint_bound(play, m, p_other, k, sigma_b, tau_b, rel_k);
                     b.sigma = b.sigma.hypot(rel_play * play);
-                    b
+                    (b, sigma_b, (contact_share * sigma_noise).hypot(unseen))
                 }
-                None => joint_bound(play, m, k, sigma_tau.hypot(sigma_free), tau_shaft, rel_k),
+                None => {
+                    let sigma = sigma_tau.hypot(sigma_free);
+                    (
+                        joint_bound(play, m, k, sigma, tau_shaft, rel_k),
+                        sigma,
+                        sigma_tau,
+                    )
+                }
             };
             // What the shaft may carry while the correction is withheld: the estimate itself
-            // when only the acceleration or the insertion withholds it; after a transient, the
+            // when only the acceleration, the insertion or the position withholds it; after a transient, the
             // contact as last trusted (contact does not start with the motion) plus the free
             // load now; before any trusted sample, the effort beyond its offset, motion and all
             // (nothing else is known yet). Each load with its own uncertainty: the motion

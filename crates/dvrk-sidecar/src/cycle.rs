@@ -130,6 +130,16 @@ pub fn compute_dynamic(
     finish(kin, s, outcome, correction)
 }
 
+/// The compensation's own trust flags (issue 20, `dvrk_compliance::trust`) as header bits: its
+/// bits 0..7 in 21..28 ([`flags::TRUST_SHIFT`]), its bit 8 in 30 (bit 29 was taken by then).
+fn trust_flags(trust: u32) -> u32 {
+    let mut f = (trust & 0xff) << flags::TRUST_SHIFT;
+    if trust & dvrk_compliance::trust::POSITION_OUT_OF_RANGE != 0 {
+        f |= flags::POSITION_OUT_OF_RANGE;
+    }
+    f
+}
+
 fn finish(
     kin: &PsmKinematics,
     s: &ArmSample,
@@ -144,11 +154,7 @@ fn finish(
     if correction.insertion_clamped {
         f |= flags::INSERTION_CLAMPED;
     }
-    // the compensation's own trust flags (issue 20): bits 0..7 in 21..28, bit 8 in 30
-    f |= (correction.flags & 0xff) << flags::TRUST_SHIFT;
-    if correction.flags & dvrk_compliance::trust::POSITION_OUT_OF_RANGE != 0 {
-        f |= flags::POSITION_OUT_OF_RANGE;
-    }
+    f |= trust_flags(correction.flags);
     if correction.active[0] {
         f |= flags::CORRECTION_ACTIVE_J1;
     }
@@ -462,6 +468,16 @@ mod tests {
             power_enabled: true,
             motor_supply_good: true,
             ..Default::default()
+        }
+    }
+
+    /// Every trust bit lands on the header bit of its own name, and on nothing else: a trust
+    /// bit added without its header bit fails here instead of being dropped.
+    #[test]
+    fn every_trust_flag_is_published_under_its_own_name() {
+        for (bit, name) in dvrk_compliance::trust::TABLE {
+            let published: Vec<_> = flags::names(trust_flags(bit)).collect();
+            assert_eq!(published, [name.to_uppercase()], "trust bit {bit:#x}");
         }
     }
 
