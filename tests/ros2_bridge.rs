@@ -376,8 +376,33 @@ fn decode_mcap(out: &Path) -> Vec<Value> {
     String::from_utf8(dec.stdout)
         .unwrap()
         .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
+        .map(|l| {
+            let m: Value = serde_json::from_str(l).unwrap_or_else(|e| {
+                panic!("the decoder printed a line that is not JSON ({e}): {l}")
+            });
+            // NaN (printed "nan") means "no value": only the status of an invalid cycle (one
+            // without a sample to hold yet) may carry it.
+            if has_non_finite(&m["msg"]) {
+                assert!(
+                    m["topic"].as_str().unwrap().ends_with("/status")
+                        && m["msg"]["valid"] == Value::Bool(false),
+                    "a value that is not finite in a message of a valid cycle: {l}"
+                );
+            }
+            m
+        })
         .collect()
+}
+
+/// Whether any field of a decoded message is a float that is not finite (mcap_check.py prints
+/// those as "nan", "inf", "-inf").
+fn has_non_finite(v: &Value) -> bool {
+    match v {
+        Value::String(s) => ["nan", "inf", "-inf"].contains(&s.as_str()),
+        Value::Array(a) => a.iter().any(has_non_finite),
+        Value::Object(o) => o.values().any(has_non_finite),
+        _ => false,
+    }
 }
 
 /// One arm's counters from a bridge's or recorder's summary line: "<what> stopped: ARM: C

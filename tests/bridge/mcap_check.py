@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Decodes every message of an MCAP file written by `dvrk-sidecar record` with the `mcap` and
 `mcap-ros2-support` packages (the ROS 2 decoder Foxglove's tooling uses), and prints one JSON
-object per message: topic, schema name, sequence, log time and the decoded fields.
+object per message: topic, schema name, sequence, log time and the decoded fields. A float that is
+not finite (the status of a cycle without a sample carries NaN) is printed as the string "nan",
+"inf" or "-inf", so every line is strict JSON.
 
 Usage: mcap_check.py FILE
 """
 
 import json
+import math
 import sys
 
 from mcap.reader import make_reader
@@ -20,6 +23,8 @@ def fields(m):
         return [fields(x) for x in m]
     if isinstance(m, (bytes, bytearray)):
         return list(m)
+    if isinstance(m, float) and not math.isfinite(m):
+        return str(m)
     return m
 
 
@@ -37,7 +42,7 @@ def main():
                 "sequence": message.sequence,
                 "log_time": message.log_time,
                 "msg": fields(decoded),
-            }))
+            }, allow_nan=False))
     return 0
 
 

@@ -528,3 +528,64 @@ fn a_withheld_bound_takes_the_free_load_once() {
         "elastic part of the withheld bias {elastic} rad, the weight's deflection {once} rad"
     );
 }
+
+mod every_output_finite {
+    //! Whatever the samples' timing and values (repeated or backward time stamps, gaps of any
+    //! length, nanosecond steps, positions at the joint limits, efforts at the amplifier's
+    //! limit), every finite input gives a finite correction, weight and bound: a NaN in a valid
+    //! sample would reach a virtual fixture as a pose.
+    use super::*;
+    use proptest::prelude::*;
+
+    fn default_file() -> ComplianceConfig {
+        common::config(include_str!("../../../config/compliance/sim-psm.toml")).unwrap()
+    }
+
+    /// One step: a time increment (s; 0, negative, tiny or a gap), the joint 1-3 positions and
+    /// joint 1-2 efforts.
+    fn step() -> impl Strategy<Value = (f64, [f64; 3], [f64; 3])> {
+        let dt = prop_oneof![
+            8 => Just(DT),
+            1 => Just(0.0),
+            1 => Just(-DT),
+            1 => Just(1e-9),
+            1 => 0.0f64..0.2,
+        ];
+        let q = prop_oneof![
+            6 => (-0.01f64..0.01, -0.01f64..0.01, -0.001f64..0.001),
+            1 => (-1.6f64..1.6, -0.8f64..0.8, -0.05f64..0.3),
+        ];
+        let e = prop_oneof![
+            6 => (-0.05f64..0.05, -0.05f64..0.05),
+            1 => (-3.0f64..3.0, -3.0f64..3.0),
+        ];
+        (dt, q, e).prop_map(|(dt, (a, b, c), (e1, e2))| (dt, [a, b, c], [e1, e2, 0.0]))
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+        #[test]
+        fn any_timing_gives_finite_outputs(steps in proptest::collection::vec(step(), 1..400)) {
+            let cfg = default_file();
+            let mut c = Compensator::new();
+            let (mut t, mut q) = (100.0, [0.0, 0.0, 0.12]);
+            for (k, (dt, dq, e)) in steps.iter().enumerate() {
+                t += dt;
+                // Small steps walk; large ones jump.
+                for j in 0..3 {
+                    q[j] = if dq[j].abs() > 0.01 { dq[j] } else { q[j] + dq[j] };
+                }
+                let out = c.correct(&cfg, t, &q, e);
+                let all = [
+                    out.delta_rad[0], out.delta_rad[1], out.weight[0], out.weight[1],
+                    out.bound_rad[0], out.bound_rad[1], out.tip_bound_m, out.position[0],
+                    out.position[1], out.tau_ext_nm[0], out.tau_ext_nm[1],
+                ];
+                prop_assert!(
+                    all.iter().all(|v| v.is_finite()),
+                    "step {k}: t {t}, q {q:?}, effort {e:?}: {out:?}"
+                );
+            }
+        }
+    }
+}
