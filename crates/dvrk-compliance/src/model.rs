@@ -1157,12 +1157,17 @@ impl Compensator {
                     // How far that evidence is known: the noise of the torque the side rests on
                     // (the average's own while no contact is seen, the sample's once it is, as
                     // the correction then uses the sample), the free load's uncertainty, and a
-                    // torque below the floor at its size (it may be model error, not load).
+                    // torque below the floor at its size (it may be model error, not load). The
+                    // measured size holds the average's noise already, so the larger of the two
+                    // is taken, not both: adding them counted the noise twice and left a free
+                    // arm whose side the predicted weight names clearly corrected by little more
+                    // than half its play. The larger of the two keeps the correction monotonic
+                    // in the torque.
                     let free_share = 1.0 - contact_share;
                     let scale = (PLAY_EVIDENCE_SIGMAS
-                        * (contact_share * sigma_tau + free_share * average_sigma))
-                        .hypot(sigma_free)
-                        .hypot(PLAY_EVIDENCE_SIGMAS * free_share * contact.abs());
+                        * (contact_share * sigma_tau
+                            + free_share * average_sigma.max(contact.abs())))
+                    .hypot(sigma_free);
                     let m = erf(evidence.abs() / (scale * core::f64::consts::SQRT_2))
                         .copysign(evidence);
                     (m * (play + k * tau_shaft.abs()), tau_shaft, m)

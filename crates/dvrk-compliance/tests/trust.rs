@@ -242,8 +242,9 @@ fn light_contact_grows_smoothly_from_zero() {
     }
     assert_eq!(at_zero, 0.0);
     // The paper's gate would jump by backlash + K tau_min = 0.002 + 0.0025 rad at once; here the
-    // play and the spring come in over the floor's width (0.39 mrad per mN·m at the steepest).
-    assert!(max_jump < 5e-4, "largest step {max_jump} rad per mN·m");
+    // play comes in over a few times the averaged torque's noise (0.52 mrad per mN·m at the
+    // steepest, near zero) and the spring over the floor's width.
+    assert!(max_jump < 6e-4, "largest step {max_jump} rad per mN·m");
     // At 0.2 N·m: the paper's 0.002 + 0.2 / 20 = 0.012 rad.
     assert!((last - 0.012).abs() < 1e-5, "{last}");
 }
