@@ -327,15 +327,11 @@ fn runner_config(sc: &Scenario, args: &SimArgs) -> RunnerConfig {
     }
 }
 
-/// tau_0(q) by linear interpolation in a fitted table, constant beyond its ends.
+/// tau_0(q) in a fitted table, read as the parameter file's table is
+/// ([`dvrk_compliance::torque_offset::interpolate`]), so that the clamp rows are fitted under the
+/// tau_0 the compensator will subtract.
 pub(crate) fn lookup(table: &fit::TorqueOffsetFit, q: f64) -> f64 {
-    let (xs, ys) = (&table.position_rad, &table.effort_nm);
-    let i = xs.partition_point(|&x| x <= q);
-    match (i.checked_sub(1), xs.get(i)) {
-        (Some(lo), Some(&x1)) => ys[lo] + (ys[i] - ys[lo]) * (q - xs[lo]) / (x1 - xs[lo]),
-        (Some(_), None) => ys[ys.len() - 1],
-        (None, _) => ys.first().copied().unwrap_or(0.0),
-    }
+    dvrk_compliance::torque_offset::interpolate(&table.position_rad, &table.effort_nm, q)
 }
 
 /// Clamp or sweep records as calibration rows; `offsets` fill the torque-offset column.
