@@ -212,13 +212,16 @@ pub const NOISE_TIME_S: f64 = 0.05;
 pub const NOISE_FLOOR_SHARE: f64 = 0.5;
 /// Relative uncertainty (1 sigma) of a file's backlash when the file does not state its own
 /// (`backlash_rel_sigma`, which `fit` writes): `fit` takes the mean of the clamp test's
-/// per-depth backlashes, which scatter by 1-3% on the simulator, around a mean that came out
-/// 3.7% below its truth (2.888 against 3.0 mrad) for joint 1.
+/// per-depth backlashes, which scatter by 1-2% on the simulator, around a mean that came out
+/// 3.4% below its truth (2.899 against 3.0 mrad) for joint 1.
 pub const BACKLASH_REL_SIGMA: f64 = 0.05;
 /// The least relative uncertainty a file's `backlash_rel_sigma` is taken for: the clamp test
 /// reads the play from two hysteresis branches whose gap depends on the settle and the torque
-/// offset, which the depths' scatter does not show.
-pub const BACKLASH_REL_SIGMA_FLOOR: f64 = 0.01;
+/// offset, which the depths' scatter does not show. On the simulator joint 1's mean came out
+/// 3.4% low while its depths scattered by 1.7%: with 2.5% that bias is 1.4 sigma, and a withheld
+/// sample (the whole play uncorrected) is covered by its bound after an abrupt start (91% of
+/// the cycles of `i20-abrupt-start`; 85% with 1%).
+pub const BACKLASH_REL_SIGMA_FLOOR: f64 = 0.025;
 /// The 95% two-sided quantile of a normal distribution.
 const Z95: f64 = 1.959_964;
 

@@ -437,8 +437,8 @@ fn the_fitted_backlash_scatter_sets_the_bound() {
         }
         ComplianceConfig::from_params(p).unwrap()
     };
-    let (tight, loose, absent) = (with(Some(0.01)), with(Some(0.2)), with(None));
-    assert!((tight.joint(0).unwrap().backlash_rel_sigma() - 0.01).abs() < 1e-15);
+    let (tight, loose, absent) = (with(Some(0.04)), with(Some(0.2)), with(None));
+    assert!((tight.joint(0).unwrap().backlash_rel_sigma() - 0.04).abs() < 1e-15);
     assert_eq!(
         absent.joint(0).unwrap().backlash_rel_sigma(),
         dvrk_compliance::model::BACKLASH_REL_SIGMA
@@ -472,8 +472,9 @@ fn a_free_arm_whose_torque_is_its_noise_gets_no_unseen_contact_in_its_bound() {
     let cfg = ComplianceConfig::from_params(p).unwrap();
     let r = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.0);
     assert_eq!(r.weight, [1.0, 1.0], "{r:?}");
-    // joint 1: play 2 mrad, 1% of it is 2e-5 rad; K = 1/20 rad/N·m.
-    assert!(r.bound_parts[0].sigma < 3e-5, "{r:?}");
+    // joint 1: play 2 mrad, its scatter taken at the floor (2.5%: 5e-5 rad); K = 1/20 rad/N·m.
+    let backlash_part = dvrk_compliance::model::BACKLASH_REL_SIGMA_FLOOR * 0.002;
+    assert!(r.bound_parts[0].sigma < 1.2 * backlash_part, "{r:?}");
     // A light contact below the evidence floor is in the bound at its measured size.
     let light = still(&mut Compensator::new(), &cfg, 0, 400, 0.15, 0.01);
     assert!(light.bound_parts[0].sigma > 0.5 * 0.01 / 20.0, "{light:?}");
