@@ -1162,10 +1162,10 @@ impl Compensator {
                     // the correction then uses the sample), the free load's uncertainty, and a
                     // torque below the floor at its size (it may be model error, not load). The
                     // measured size holds the average's noise already, so the larger of the two
-                    // is taken, not both: adding them counted the noise twice and left a free
+                    // is taken, not their sum: the sum counted the noise twice and left a free
                     // arm whose side the predicted weight names clearly corrected by little more
-                    // than half its play. The larger of the two keeps the correction monotonic
-                    // in the torque.
+                    // than half its play. Subtracting the noise from the size instead would have
+                    // made the correction fall as the torque grows past the noise.
                     let free_share = 1.0 - contact_share;
                     let scale = (PLAY_EVIDENCE_SIGMAS
                         * (contact_share * sigma_tau
