@@ -9,8 +9,8 @@
 //! Why not straight lines: the counterbalance's torque bends sharply near the middle of joint 1's
 //! range (the 2017 sweep rises from 0.06 to 0.17 N·m between -0.1 and 0 rad, and the simulator's
 //! `0.175 + 0.125 tanh(10 q)` models that). Between 5-degree points a chord misses such a curve
-//! by up to 7.5 mN·m (the cubic by 2.9), and the error changes sign across the bend: as much as the light contact the
-//! compensator is asked to see, and a slope error that biased the clamp fit's backlash by 4%.
+//! by up to 7.5 mN·m (the cubic by 2.9), and the error changes sign across the bend: as much as
+//! the light contact the compensator is asked to see, taken for contact where it is not.
 
 /// `tau_0(q)` from a table of strictly increasing `xs` and their `ys`: the monotone piecewise
 /// cubic of Fritsch and Carlson (as MATLAB's `pchip`: node slopes the weighted harmonic mean of
@@ -32,9 +32,9 @@ pub fn interpolate(xs: &[f64], ys: &[f64], q: f64) -> f64 {
         return last;
     }
     let k = i - 1;
-    let h = xs[k + 1] - xs[k];
-    let chord = |j: usize| (ys[j + 1] - ys[j]) / (xs[j + 1] - xs[j]);
     let width = |j: usize| xs[j + 1] - xs[j];
+    let chord = |j: usize| (ys[j + 1] - ys[j]) / width(j);
+    let h = width(k);
     // The slope at node j (0..n) for a table of n points.
     let slope = |j: usize| -> f64 {
         if n == 2 {
