@@ -265,6 +265,12 @@ impl<S: Service> ArmPublisher<S> {
     /// and wakes them, before it does. [`CycleStarted::finish`] sends the rest and notifies the
     /// cycle event ([`ServiceNames::cycle`]); a cycle that is never finished delivers only this
     /// message.
+    ///
+    /// It does not yield the CPU to the subscribers it woke. A woken subscriber that the
+    /// scheduler puts on the publisher's CPU waits for the rest of the cycle (about 20 µs of the
+    /// one-subscriber hand-off on the development VM), and a `sched_yield` here halved that, but
+    /// a consumer busy for 2 ms per sample on the same CPU then took the service from 1.49 to
+    /// 0.64 kHz (benches/README.md, latency section).
     pub fn start_cycle(&self, first: &PoseV2) -> Result<CycleStarted<'_, S>, PublishError> {
         send(
             &self.compensated.local_measured_cp,
