@@ -33,8 +33,9 @@
 //! at p50 and 91-106 µs at p95 on a quiet machine (35 and 126-138 µs under load), and the
 //! arrivals spread from 37 µs before the prediction to 99 µs after it (p5, p95), so a guard held
 //! at 83 µs was late in most waits: 14-15% of them started polling in time at one subscriber,
-//! and the wait's p50 was the event path's (24-31 µs). With a quarter period: 86-89% in time,
-//! p50 5.7 µs against 5.4-5.7 µs spinning, at 13-16% of a core (5.5-6.0% before).
+//! and the wait's p50 was the event path's (24-31 µs). With a quarter period (three runs of the
+//! latency harness): 75-89% in time, p50 5.7-6.5 µs against 5.4-5.7 µs spinning, at 13-16% of a
+//! core (5.5-6.0% before).
 
 /// Samples learnt before the prediction is used.
 pub const LEARN_SAMPLES: u32 = 16;
