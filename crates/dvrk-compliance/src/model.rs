@@ -1239,10 +1239,10 @@ impl Compensator {
             // What the shaft may carry while the correction is withheld: the estimate itself
             // when only the acceleration, the insertion or the position withholds it; after a
             // transient, the contact as last trusted (contact does not start with the motion)
-            // plus the free load now; before any trusted sample, the effort beyond its offset, motion and all
-            // (nothing else is known yet). Each load with its own uncertainty: the motion
-            // model's residual only where the motion is in the load (it made the withheld bound
-            // 1.4 times the error in fast free motion).
+            // plus the free load now; before any trusted sample, the effort beyond its offset,
+            // motion and all (nothing else is known yet). Each load with its own uncertainty:
+            // the motion model's residual only where the motion is in the load (it made the
+            // withheld bound 1.4 times the error in fast free motion).
             let (shaft_load, load_sigma) =
                 if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
                     (tau_shaft.abs(), trusted_sigma)
