@@ -20,50 +20,47 @@
 /// and for a NaN `q`, the end value (the first one for NaN). Allocates nothing.
 pub fn interpolate(xs: &[f64], ys: &[f64], q: f64) -> f64 {
     let n = xs.len().min(ys.len());
-    let (Some(&first), Some(&last)) = (ys.first(), ys.get(n.wrapping_sub(1))) else {
-        return 0.0;
+    let (xs, ys) = (&xs[..n], &ys[..n]);
+    match segment(xs, ys, q) {
+        Segment::Value(v) => v,
+        Segment::Between(k) => hermite(
+            xs,
+            ys,
+            k,
+            node_slope(xs, ys, k),
+            node_slope(xs, ys, k + 1),
+            q,
+        ),
+    }
+}
+
+/// Where `q` falls in a table of `xs` (strictly increasing) and `ys` of one length.
+enum Segment {
+    /// Outside the table, a NaN `q` or an empty table: this value.
+    Value(f64),
+    /// Between points `k` and `k + 1`.
+    Between(usize),
+}
+
+fn segment(xs: &[f64], ys: &[f64], q: f64) -> Segment {
+    let (Some(&first), Some(&last)) = (ys.first(), ys.last()) else {
+        return Segment::Value(0.0);
     };
-    // Number of points at or below q: 0 = before the table (or NaN), n = after it.
-    let i = xs[..n].partition_point(|&x| x <= q);
+    // Number of points at or below q: 0 = before the table (or NaN), len = after it.
+    let i = xs.partition_point(|&x| x <= q);
     if i == 0 {
-        return first;
+        Segment::Value(first)
+    } else if i >= xs.len() {
+        Segment::Value(last)
+    } else {
+        Segment::Between(i - 1)
     }
-    if i >= n {
-        return last;
-    }
-    let k = i - 1;
-    let width = |j: usize| xs[j + 1] - xs[j];
-    let chord = |j: usize| (ys[j + 1] - ys[j]) / width(j);
-    let h = width(k);
-    // The slope at node j (0..n) for a table of n points.
-    let slope = |j: usize| -> f64 {
-        if n == 2 {
-            return chord(0);
-        }
-        if j == 0 || j == n - 1 {
-            // One-sided: the end chord and its neighbour, kept from turning or overshooting.
-            let (a, b) = if j == 0 { (0, 1) } else { (n - 2, n - 3) };
-            let (d0, d1, h0, h1) = (chord(a), chord(b), width(a), width(b));
-            let m = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
-            if m.signum() != d0.signum() || d0 == 0.0 {
-                0.0
-            } else if d0.signum() != d1.signum() && m.abs() > 3.0 * d0.abs() {
-                3.0 * d0
-            } else {
-                m
-            }
-        } else {
-            let (d0, d1) = (chord(j - 1), chord(j));
-            if d0 * d1 <= 0.0 {
-                0.0
-            } else {
-                let (h0, h1) = (width(j - 1), width(j));
-                let (w0, w1) = (2.0 * h1 + h0, h1 + 2.0 * h0);
-                (w0 + w1) / (w0 / d0 + w1 / d1)
-            }
-        }
-    };
-    let (m0, m1) = (slope(k), slope(k + 1));
+}
+
+/// The cubic between points `k` and `k + 1` with node slopes `m0` and `m1`, at `q`.
+#[inline]
+fn hermite(xs: &[f64], ys: &[f64], k: usize, m0: f64, m1: f64, q: f64) -> f64 {
+    let h = xs[k + 1] - xs[k];
     let t = (q - xs[k]) / h;
     let (t2, t3) = (t * t, t * t * t);
     (2.0 * t3 - 3.0 * t2 + 1.0) * ys[k]
@@ -72,7 +69,42 @@ pub fn interpolate(xs: &[f64], ys: &[f64], q: f64) -> f64 {
         + (t3 - t2) * h * m1
 }
 
-/// A validated table `tau_0(q)`, read by [`interpolate`].
+/// The shape-preserving cubic's slope at node `j` of a table of at least two points
+/// ([`interpolate`]); it depends on the table only, so [`TorqueOffsetTable`] keeps them.
+fn node_slope(xs: &[f64], ys: &[f64], j: usize) -> f64 {
+    let n = xs.len();
+    let width = |j: usize| xs[j + 1] - xs[j];
+    let chord = |j: usize| (ys[j + 1] - ys[j]) / width(j);
+    if n == 2 {
+        return chord(0);
+    }
+    if j == 0 || j == n - 1 {
+        // One-sided: the end chord and its neighbour, kept from turning or overshooting.
+        let (a, b) = if j == 0 { (0, 1) } else { (n - 2, n - 3) };
+        let (d0, d1, h0, h1) = (chord(a), chord(b), width(a), width(b));
+        let m = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
+        if m.signum() != d0.signum() || d0 == 0.0 {
+            0.0
+        } else if d0.signum() != d1.signum() && m.abs() > 3.0 * d0.abs() {
+            3.0 * d0
+        } else {
+            m
+        }
+    } else {
+        let (d0, d1) = (chord(j - 1), chord(j));
+        if d0 * d1 <= 0.0 {
+            0.0
+        } else {
+            let (h0, h1) = (width(j - 1), width(j));
+            let (w0, w1) = (2.0 * h1 + h0, h1 + 2.0 * h0);
+            (w0 + w1) / (w0 / d0 + w1 / d1)
+        }
+    }
+}
+
+/// A validated table `tau_0(q)`, read as [`interpolate`] reads it, with the cubic's node
+/// slopes computed once when it is built (per lookup they cost 13 ns of each correction's 74,
+/// benches/README.md).
 ///
 /// Built by [`crate::ComplianceConfig::from_params`], which guarantees at least one point, equal
 /// lengths, finite values and strictly increasing positions. Looking a value up allocates nothing.
@@ -80,6 +112,8 @@ pub fn interpolate(xs: &[f64], ys: &[f64], q: f64) -> f64 {
 pub struct TorqueOffsetTable {
     position_rad: Box<[f64]>,
     effort_nm: Box<[f64]>,
+    /// The cubic's slope (N·m/rad) at each point; empty for a one-point table.
+    slope: Box<[f64]>,
 }
 
 impl TorqueOffsetTable {
@@ -87,9 +121,17 @@ impl TorqueOffsetTable {
     pub(crate) fn from_validated(position_rad: Vec<f64>, effort_nm: Vec<f64>) -> Self {
         debug_assert!(!position_rad.is_empty() && position_rad.len() == effort_nm.len());
         debug_assert!(position_rad.windows(2).all(|w| w[0] < w[1]));
+        let slope = if position_rad.len() >= 2 {
+            (0..position_rad.len())
+                .map(|j| node_slope(&position_rad, &effort_nm, j))
+                .collect()
+        } else {
+            Vec::new()
+        };
         Self {
             position_rad: position_rad.into_boxed_slice(),
             effort_nm: effort_nm.into_boxed_slice(),
+            slope: slope.into_boxed_slice(),
         }
     }
 
@@ -124,7 +166,13 @@ impl TorqueOffsetTable {
     /// `tau_0(q)` in N·m: [`interpolate`] between the table's points, the first or last effort
     /// outside the table. A NaN position gives the first effort.
     pub fn lookup(&self, position_rad: f64) -> f64 {
-        interpolate(&self.position_rad, &self.effort_nm, position_rad)
+        let (xs, ys) = (&self.position_rad[..], &self.effort_nm[..]);
+        match segment(xs, ys, position_rad) {
+            Segment::Value(v) => v,
+            Segment::Between(k) => {
+                hermite(xs, ys, k, self.slope[k], self.slope[k + 1], position_rad)
+            }
+        }
     }
 }
 
@@ -197,6 +245,35 @@ mod tests {
             "cubic misses by {worst} N·m (chords: {worst_chord})"
         );
         assert!(worst < 3e-3, "cubic misses by {worst} N·m");
+    }
+
+    #[test]
+    fn the_table_reads_as_interpolate_does_with_its_slopes_kept() {
+        // Uneven steps, a turn, a flat stretch, two-point and one-point tables: the kept node
+        // slopes must give exactly the per-call cubic everywhere, outside and NaN included.
+        let cases: [(Vec<f64>, Vec<f64>); 4] = [
+            (
+                vec![-1.0, -0.7, -0.1, 0.0, 0.05, 0.4, 0.9],
+                vec![0.3, 0.31, 0.2, 0.2, 0.25, -0.1, 0.6],
+            ),
+            (vec![-0.2, 0.0, 0.4], vec![0.5, 0.1, -0.3]),
+            (vec![0.0, 0.4], vec![0.1, -0.3]),
+            (vec![0.3], vec![0.25]),
+        ];
+        for (xs, ys) in cases {
+            let t = TorqueOffsetTable::from_validated(xs.clone(), ys.clone());
+            for i in 0..=2400 {
+                let q = -1.2 + 2.4 * f64::from(i) / 2400.0;
+                assert_eq!(
+                    t.lookup(q).to_bits(),
+                    interpolate(&xs, &ys, q).to_bits(),
+                    "q = {q}, table {xs:?}"
+                );
+            }
+            for q in xs.iter().copied().chain([f64::NAN]) {
+                assert_eq!(t.lookup(q).to_bits(), interpolate(&xs, &ys, q).to_bits());
+            }
+        }
     }
 
     #[test]
