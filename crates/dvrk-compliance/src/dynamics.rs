@@ -38,6 +38,7 @@
 //!
 //! [`InternalTorque`] is the stateful estimator: fixed-size ring buffers, no allocation per step.
 
+use crate::model::Quadrature;
 use serde::{Deserialize, Serialize};
 
 /// Samples in the filter's window.
@@ -136,7 +137,7 @@ impl DistalGravityParams {
     pub fn sigma_nm(&self, j0: usize, q1: f64, q2: f64, insertion_m: f64) -> f64 {
         let du = shaft_direction_derivatives(q1, q2)[j0.min(1)];
         let s = self.weight_sigma_n;
-        insertion_m.max(0.0) * (s[0] * du[0]).hypot(s[1] * du[1]).hypot(s[2] * du[2])
+        insertion_m.max(0.0) * (s[0] * du[0]).quad(s[1] * du[1]).quad(s[2] * du[2])
     }
 
     /// What the effort holds beyond `tau_0(q)` for the weight (N·m): the reaction of
