@@ -254,6 +254,83 @@ fn at_most_the_window_is_outstanding() {
     }
 }
 
+/// After a batch in which a datagram was shown lost, the next batch keeps twice the window
+/// outstanding (issue 22 item 7: the re-asks of a lossy link fit the cycle); after a clean
+/// batch, the window again. Counted by a board that, in its counting phase, answers the oldest
+/// pending request only after a pause in which it collects whatever else the port sends.
+#[test]
+fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
+    use std::sync::{Arc, Mutex};
+    let reqs = shared_cycle();
+    // Phase 0: drop the first request of register 5, answer everything else at once.
+    // Phase 1: count the outstanding registers, answer none before a pause.
+    let phase = Arc::new(Mutex::new(0u8));
+    let max = Arc::new(Mutex::new(0usize));
+    let (ph, mx) = (phase.clone(), max.clone());
+    let drop_once = reqs[5];
+    let mut dropped = false;
+    let mut pending: Vec<(Req, Vec<Vec<u8>>)> = Vec::new();
+    let (addr, h) = board(boards_with(4), move |boards, req, replies, sock, from| {
+        if *ph.lock().unwrap() == 0 {
+            if (req.node, req.addr) == drop_once && !dropped {
+                dropped = true;
+            } else {
+                send_all(sock, from, &replies);
+            }
+            return false;
+        }
+        let add = |pending: &mut Vec<(Req, Vec<Vec<u8>>)>, q: Req, r| {
+            if !pending
+                .iter()
+                .any(|(p, _)| (p.node, p.addr) == (q.node, q.addr))
+            {
+                pending.push((q, r));
+            }
+            let mut m = mx.lock().unwrap();
+            *m = (*m).max(pending.len());
+        };
+        add(&mut pending, req, replies);
+        for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
+            add(&mut pending, q, r);
+        }
+        while !pending.is_empty() {
+            let (_, r) = pending.remove(0);
+            send_all(sock, from, &r);
+            // The port sends the next request when a reply comes: count it before answering on.
+            for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
+                add(&mut pending, q, r);
+            }
+        }
+        false
+    });
+    let mut p = port(addr, 4);
+    // Longer than a batch: the lost register is asked again because a later reply came.
+    p.link_mut()
+        .set_quadlet_retry_wait(Some(Duration::from_millis(400)));
+    let mut out = vec![None; reqs.len()];
+    assert_eq!(p.quadlet_window_now(), 4);
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert!(p.counters().quadlet_retries >= 1, "{:?}", p.counters());
+    assert_eq!(p.quadlet_window_now(), 8, "after a loss");
+    *phase.lock().unwrap() = 1;
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(
+        *max.lock().unwrap(),
+        8,
+        "outstanding in the batch after a loss"
+    );
+    assert_eq!(p.quadlet_window_now(), 4, "after a clean batch");
+    *max.lock().unwrap() = 0;
+    p.read_quadlets(&reqs, &mut out).unwrap();
+    assert_eq!(
+        *max.lock().unwrap(),
+        4,
+        "outstanding in the batch after a clean one"
+    );
+    drop(p);
+    h.join().unwrap();
+}
+
 /// A lost request and a lost reply: both registers are asked again with new labels and
 /// answered within the batch, every value right.
 #[test]

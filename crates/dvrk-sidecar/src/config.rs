@@ -68,12 +68,13 @@ pub struct SidecarParams {
     #[serde(default = "default_reply_timeout_ms")]
     pub reply_timeout_ms: f64,
     /// Shared mode over UDP: how many quadlet requests the sidecar keeps outstanding at the
-    /// boards at once (1 to 16, default 1). More hides more round trips and lost datagrams
-    /// within a cycle (each register then waits up to `reply_timeout_ms` from its own first
-    /// request only, so a host stall longer than that costs a sample), but the FPGA serves one packet at a time, so each request queued there delays
-    /// the console's own packets behind it (reference section 8.4; RELIABILITY.md). 1: one
-    /// request at a time (a lost datagram asked again after 150 µs, the last attempt waiting
-    /// `reply_timeout_ms`).
+    /// boards at once (1 to 16, default 4), and twice that (at most 16) in the cycle after one
+    /// that lost a datagram. More hides more round trips and lost datagrams within a cycle
+    /// (each register waits up to `reply_timeout_ms` from its newest request, at most twice
+    /// that from its first), but the FPGA serves one packet at a time, so each request queued
+    /// there delays the console's own packets behind it (reference section 8.4;
+    /// RELIABILITY.md). 1: one request at a time, never widened (a lost datagram asked again
+    /// after 150 µs, the last attempt waiting `reply_timeout_ms`).
     #[serde(default = "default_requests_in_flight")]
     pub shared_requests_in_flight: u8,
     /// The arm's board ids, in the order of the io file's boards (default: the io file's). The
