@@ -187,24 +187,158 @@ fn a_fifo_as_configuration_or_parameter_file_is_refused_without_hanging() {
             &format!("compliance = \"{}\"", fifo.display()),
         )],
     );
-    for (what, cfg) in [("--config", fifo.clone()), ("compliance", comp_cfg)] {
+    let out = d.join("rows.csv");
+    let check = |cfg: &Path| -> Vec<String> {
+        ["check-config", "--config", cfg.to_str().unwrap()]
+            .map(String::from)
+            .to_vec()
+    };
+    // `calibrate record` reads the service's configuration for its prefix: it blocked on a
+    // FIFO too (and read /dev/zero until memory ran out) before it used the bounded reader.
+    let record: Vec<String> = [
+        "calibrate",
+        "record",
+        "--config",
+        fifo.to_str().unwrap(),
+        "--joint",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    for (what, args) in [
+        ("--config", check(&fifo)),
+        ("compliance", check(&comp_cfg)),
+        ("calibrate record --config", record),
+    ] {
         let mut p = Proc::spawn(
             what,
             Command::new(sidecar_bin())
-                .args(["check-config", "--config", cfg.to_str().unwrap()])
+                .args(&args)
                 .stdout(Stdio::null())
                 .stderr(Stdio::piped()),
         );
-        // Before the fix, check-config blocked in open(2) for ever: the guard kills it (Proc's
+        // Before the fix, the command blocked in open(2) for ever: the guard kills it (Proc's
         // drop) and fails the test instead of hanging the suite.
         let st = p
             .wait_timeout(Duration::from_secs(30))
-            .unwrap_or_else(|| panic!("{what}: check-config hangs on a FIFO"));
+            .unwrap_or_else(|| panic!("{what}: hangs on a FIFO"));
         let err = p.stderr_text();
         assert_eq!(st.code(), Some(1), "{what}: {st:?} {err}");
         assert!(
             err.contains("fifo.toml") && err.contains("named pipe"),
             "{what}: {err}"
+        );
+    }
+    assert!(!out.exists(), "calibrate record wrote {}", out.display());
+}
+
+/// Numbers no arm can give, in the data files `evaluate` and `fit` read: each refused, naming
+/// the file, the line, the column and the value (issue 22 item 4). A divot file whose true tip
+/// was 1e308 m gave all-`null` statistics with exit 0 before the tip's bound.
+#[test]
+fn unphysical_numbers_in_data_files_are_refused_through_the_binary() {
+    let d = scratch("bad_data_numbers");
+    let params = repo().join("config/compliance/paper-psm.toml");
+    let divot_header = "push_index,joint,direction,t_s,position_1_rad,position_2_rad,insertion_m,\
+                        position_4_rad,position_5_rad,position_6_rad,effort_1_nm,effort_2_nm,\
+                        effort_3_n,true_position_1_rad,true_position_2_rad,true_tip_x_m,\
+                        true_tip_y_m,true_tip_z_m";
+    let divot_row = |t: &str, tip_x: &str| {
+        format!("0,1,1,{t},0.1,-0.2,0.12,0.0,0.1,-0.1,0.2,-0.9,1.0,0.1,-0.19,{tip_x},0.02,-0.12")
+    };
+    let dynamics_header = "t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm";
+    let mut cases: Vec<(String, Vec<String>, &str)> = Vec::new();
+    for (name, row, want) in [
+        (
+            "divot-tip.csv",
+            divot_row("0.5", "1e308"),
+            "true_tip_x_m` = 1e308 m",
+        ),
+        (
+            "divot-time.csv",
+            divot_row("-1e300", "0.01"),
+            "t_s` = -1e300 s",
+        ),
+    ] {
+        let p = d.join(name);
+        std::fs::write(&p, format!("{divot_header}\n{row}\n")).unwrap();
+        let args = ["evaluate", "--params", params.to_str().unwrap(), "--data"]
+            .map(String::from)
+            .into_iter()
+            .chain([p.display().to_string(), "--json".into()])
+            .collect();
+        cases.push((name.to_owned(), args, want));
+    }
+    for (name, row, want) in [
+        (
+            "dynamics-q1.csv",
+            "0.001,1e308,0.1,0.12,0.1,0.2",
+            "q1_rad = 1e308 rad",
+        ),
+        (
+            "dynamics-q3.csv",
+            "0.001,0.1,0.1,-2,0.1,0.2",
+            "q3_m = -2.0 m",
+        ),
+        (
+            "dynamics-effort.csv",
+            "0.001,0.1,0.1,0.12,0.1,1e9",
+            "effort2_nm = 1000000000.0 N·m",
+        ),
+    ] {
+        let p = d.join(name);
+        std::fs::write(&p, format!("{dynamics_header}\n{row}\n")).unwrap();
+        let clamp = repo().join("data/2017/dvrk2017-clamp-joint1.csv");
+        let args = ["fit", "--joint", "1", "--clamp"]
+            .map(String::from)
+            .into_iter()
+            .chain([
+                clamp.display().to_string(),
+                "--dynamics".into(),
+                p.display().to_string(),
+                "--out".into(),
+                d.join(format!("{name}.toml")).display().to_string(),
+            ])
+            .collect();
+        cases.push((name.to_owned(), args, want));
+    }
+    // A torque-offset sweep at 1e308 rad, in the project's layout.
+    let sweep = d.join("sweep.csv");
+    std::fs::write(
+        &sweep,
+        "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n\
+         1,0,0.12,1e308,0.1,0,1\n",
+    )
+    .unwrap();
+    let clamp = repo().join("data/2017/dvrk2017-clamp-joint1.csv");
+    cases.push((
+        "sweep.csv".into(),
+        ["fit", "--joint", "1", "--clamp"]
+            .map(String::from)
+            .into_iter()
+            .chain([
+                clamp.display().to_string(),
+                "--torque-offset".into(),
+                sweep.display().to_string(),
+                "--out".into(),
+                d.join("sweep.toml").display().to_string(),
+            ])
+            .collect(),
+        "position_rad` = 1e308 rad",
+    ));
+    for (name, args, want) in cases {
+        let o = Command::new(sidecar_bin()).args(&args).output().unwrap();
+        let err = assert_refused(&o, &name);
+        assert!(
+            err.contains(&name) && err.contains("line 2") && err.contains(want),
+            "{name}: {err}"
+        );
+        assert!(
+            o.stdout.is_empty(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stdout)
         );
     }
 }
@@ -270,6 +404,31 @@ fn a_closed_stdout_pipe_ends_the_command_cleanly() {
         ],
     ] {
         let (st, err) = with_closed_stdout(args);
+        assert_eq!(st.code(), Some(0), "{args:?}: {st:?} {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}
+
+/// The issue's own example, `dvrk-sidecar echo PSM1/measured_js --json | head -1`: `echo` of a
+/// live service whose reader has gone ends cleanly at its first write, text and JSON.
+#[test]
+fn echo_into_a_closed_pipe_ends_cleanly() {
+    let prefix = unique_prefix("bad_echo_pipe");
+    let cfg = write_config("bad_echo_pipe", "sim", "exclusive", &prefix, "idle.toml");
+    let _serve = serve(&cfg);
+    let service = format!("{prefix}/measured_js");
+    // A liveness bound for the service's start, not a speed claim.
+    assert_eq!(
+        echo_json(&service, 1, Duration::from_secs(60)).len(),
+        1,
+        "serve publishes"
+    );
+    for json in [true, false] {
+        let mut args = vec!["echo", service.as_str(), "--count", "100"];
+        if json {
+            args.push("--json");
+        }
+        let (st, err) = with_closed_stdout(&args);
         assert_eq!(st.code(), Some(0), "{args:?}: {st:?} {err}");
         assert!(!err.contains("panicked"), "{args:?}: {err}");
     }

@@ -39,6 +39,15 @@ pub const PSM_JOINT_RANGE: [[f64; 2]; 3] = [[-2.964, 2.964], [-1.265, 1.301], [0
 /// motors saturate far below it (joint torques of a few N·m, insertion forces of tens of N).
 pub const MAX_ABS_EFFORT: f64 = 50.0;
 
+/// The largest plausible |coordinate| (m) of an instrument tip in the RCM frame, as a data
+/// file's ground truth gives it: the insertion reaches 0.29 m at most (`PSM_JOINT_RANGE`) and
+/// the wrist and jaw add a few cm; 1 m is room for any instrument, not a place a tip can be.
+pub const MAX_TIP_COORDINATE_M: f64 = 1.0;
+
+/// The largest plausible |time| (s) of a data file's row: a run's elapsed time or a Unix time
+/// (1e10 s is the year 2286). Beyond it a time is a corrupt number, not a clock.
+pub const MAX_ABS_TIME_S: f64 = 1e10;
+
 /// The largest plausible |component| of the distal part's weight in `[joint.dynamics]`, and of
 /// its uncertainty (N): an instrument's shaft and wrist beyond the compliant element weigh tens
 /// of grams (0.2 N); 10 N is a kilogram.

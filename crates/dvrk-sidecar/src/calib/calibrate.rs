@@ -411,8 +411,9 @@ pub fn run_calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
 
 /// The `prefix` of a sidecar configuration file (default `PSM1` when absent).
 fn config_prefix(path: &Path) -> anyhow::Result<String> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    // Bounded and never blocking, as every configuration read (a FIFO without a writer hung
+    // here, and /dev/zero read until memory ran out).
+    let text = crate::config::read_file(path)?;
     let table: toml::Table = text
         .parse()
         .with_context(|| format!("parsing {}", path.display()))?;

@@ -763,7 +763,6 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
     for rec in rdr.records() {
         let rec = rec.with_context(|| format!("reading {}", path.display()))?;
         let line = rec.position().map_or(0, |p| p.line());
-        let n = |i: usize| number(&rec, i, with_truth[i], path, line);
         let joint: u8 = integer(&rec, 1, "joint", path, line)?;
         if joint != 1 && joint != 2 {
             bail!(
@@ -786,11 +785,13 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
         let b = |i: usize, range: [f64; 2], unit: &str| {
             bounded(&rec, i, with_truth[i], path, line, range, unit)
         };
+        let time = dvrk_compliance::bounds::MAX_ABS_TIME_S;
+        let tip = dvrk_compliance::bounds::MAX_TIP_COORDINATE_M;
         rows.push(DivotRow {
             push_index: integer(&rec, 0, "push_index", path, line)?,
             joint,
             direction,
-            t_s: n(3)?,
+            t_s: b(3, [-time, time], "s")?,
             position: [
                 b(4, q1, "rad")?,
                 b(5, q2, "rad")?,
@@ -803,7 +804,11 @@ pub fn read_divot(path: &Path) -> anyhow::Result<Vec<DivotRow>> {
             truth: if truth {
                 Some(DivotTruth {
                     position_rad: [b(13, q1, "rad")?, b(14, q2, "rad")?],
-                    tip_m: [n(15)?, n(16)?, n(17)?],
+                    tip_m: [
+                        b(15, [-tip, tip], "m")?,
+                        b(16, [-tip, tip], "m")?,
+                        b(17, [-tip, tip], "m")?,
+                    ],
                 })
             } else {
                 None

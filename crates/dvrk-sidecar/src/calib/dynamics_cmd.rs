@@ -477,6 +477,32 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
                     )
                 })?;
         }
+        // Physical bounds (issue 22: one rule for every number read): a time, joints 1-2 and
+        // the insertion within any PSM's range, efforts within what a PSM's motors can give.
+        let range = dvrk_compliance::bounds::PSM_JOINT_RANGE;
+        let (t, e) = (
+            dvrk_compliance::bounds::MAX_ABS_TIME_S,
+            dvrk_compliance::bounds::MAX_ABS_EFFORT,
+        );
+        let bounds = [
+            ([-t, t], "s"),
+            (range[0], "rad"),
+            (range[1], "rad"),
+            (range[2], "m"),
+            ([-e, e], "N·m"),
+            ([-e, e], "N·m"),
+        ];
+        for (k, ([lo, hi], unit)) in bounds.into_iter().enumerate() {
+            if !(lo..=hi).contains(&v[k]) {
+                bail!(
+                    "{} line {}: {} = {:?} {unit} is outside the physical range [{lo}, {hi}] {unit}",
+                    path.display(),
+                    i + 1,
+                    names[k],
+                    v[k]
+                );
+            }
+        }
         rows.push(DynamicsSample {
             t_s: v[0],
             position: [v[1], v[2], v[3]],
