@@ -24,7 +24,7 @@
 //! source address in /proc/net/udp. An unprivileged local user's forged requests and replies
 //! are dropped and counted.
 
-use std::io::{self, Read};
+use std::io::{self, Read, Seek};
 use std::net::{Ipv4Addr, SocketAddrV4};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 
@@ -251,13 +251,21 @@ const OWNER_CACHE: usize = 32;
 const OWNER_LOOKUP_EVERY_NS: u64 = 5_000_000;
 /// /proc/net/udp read at most this far (about 2000 sockets).
 const PROC_UDP_CAP: usize = 256 * 1024;
+/// A cached verdict is looked up again after this many ns: a port the console (or a board's
+/// local stand-in) released may be bound by another user, whose datagrams must not inherit the
+/// verdict (issue 22). Each address costs one /proc read a second at most.
+const OWNER_RECHECK_NS: u64 = 1_000_000_000;
 
 /// Who owns the local sockets that send the console's and the boards' datagrams.
 struct Owners {
-    cache: [Option<(SocketAddrV4, bool)>; OWNER_CACHE],
+    /// Address, verdict, and when the verdict was looked up (ns).
+    cache: [Option<(SocketAddrV4, bool, u64)>; OWNER_CACHE],
     next: usize,
     euid: u32,
     last_lookup_ns: Option<u64>,
+    /// /proc/net/udp, opened once and read again from its start at each lookup (no path, no
+    /// allocation per lookup); None where it cannot be opened (no socket is then allowed).
+    proc_udp: Option<std::fs::File>,
     buf: Box<[u8]>,
     /// Datagrams dropped: another user's socket, or a reply sent by this host on a real
     /// interface.
@@ -272,6 +280,7 @@ impl Owners {
             // SAFETY: geteuid has no preconditions.
             euid: unsafe { libc::geteuid() },
             last_lookup_ns: None,
+            proc_udp: std::fs::File::open("/proc/net/udp").ok(),
             buf: vec![0u8; PROC_UDP_CAP].into_boxed_slice(),
             refused: 0,
         }
@@ -279,28 +288,43 @@ impl Owners {
 
     /// Whether the local socket `src` belongs to root or to this service's user. No allocation:
     /// a cached answer, or one bounded read of /proc/net/udp into the buffer of [`Owners::new`].
+    /// A cached answer older than [`OWNER_RECHECK_NS`] is looked up again when the lookup
+    /// budget allows (until then it stands, so the console's datagrams are not dropped while
+    /// another address's lookup holds the budget).
     fn allowed(&mut self, src: SocketAddrV4, now_ns: u64) -> bool {
-        if let Some((_, ok)) = self.cache.iter().flatten().find(|(a, _)| *a == src) {
-            return *ok;
-        }
-        if self
+        let cached = self
+            .cache
+            .iter()
+            .position(|e| e.is_some_and(|(a, _, _)| a == src));
+        let throttled = self
             .last_lookup_ns
-            .is_some_and(|t| now_ns.saturating_sub(t) < OWNER_LOOKUP_EVERY_NS)
-        {
-            return false;
-        }
+            .is_some_and(|t| now_ns.saturating_sub(t) < OWNER_LOOKUP_EVERY_NS);
+        let slot = match cached.and_then(|i| self.cache[i].map(|e| (i, e))) {
+            Some((i, (_, ok, at))) => {
+                if throttled || now_ns.saturating_sub(at) < OWNER_RECHECK_NS {
+                    return ok;
+                }
+                i
+            }
+            None if throttled => return false,
+            None => {
+                let i = self.next;
+                self.next = (self.next + 1) % OWNER_CACHE;
+                i
+            }
+        };
         self.last_lookup_ns = Some(now_ns);
         let ok = self
             .owner_uid(src)
             .is_some_and(|uid| uid == 0 || uid == self.euid);
-        self.cache[self.next] = Some((src, ok));
-        self.next = (self.next + 1) % OWNER_CACHE;
+        self.cache[slot] = Some((src, ok, now_ns));
         ok
     }
 
     /// The uid of the socket bound to `src` (or to its port on 0.0.0.0), from /proc/net/udp.
     fn owner_uid(&mut self, src: SocketAddrV4) -> Option<u32> {
-        let mut f = std::fs::File::open("/proc/net/udp").ok()?;
+        let f = self.proc_udp.as_mut()?;
+        f.rewind().ok()?;
         let mut n = 0;
         while n < self.buf.len() {
             match f.read(&mut self.buf[n..]) {
@@ -647,6 +671,43 @@ mod tests {
         let mut o = Owners::new();
         assert_eq!(o.owner_uid(me), Some(o.euid));
         assert!(o.allowed(me, 0));
+        // Read again from its start: the same answer.
+        assert_eq!(o.owner_uid(me), Some(o.euid));
+    }
+
+    #[test]
+    fn a_cached_verdict_is_looked_up_again_after_a_second() {
+        // /proc/net/udp opened before the socket exists: each lookup reads it afresh.
+        let mut o = Owners::new();
+        let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let std::net::SocketAddr::V4(me) = s.local_addr().unwrap() else {
+            unreachable!()
+        };
+        // A verdict from when the port was someone else's (here: put in by hand).
+        o.cache[0] = Some((me, false, 0));
+        assert!(!o.allowed(me, 1), "a fresh verdict stands");
+        assert!(
+            !o.allowed(me, OWNER_RECHECK_NS - 1),
+            "until the recheck is due"
+        );
+        assert!(
+            o.allowed(me, OWNER_RECHECK_NS),
+            "looked up again: this user's socket"
+        );
+        // Within the lookup budget of that lookup, another stale verdict stands for now.
+        let other = SocketAddrV4::new(Ipv4Addr::LOCALHOST, 9);
+        o.cache[1] = Some((other, true, 0));
+        assert!(o.allowed(other, OWNER_RECHECK_NS + 1));
+        // Once the budget allows, it is looked up: no socket on port 9 here, refused.
+        assert!(!o.allowed(other, OWNER_RECHECK_NS + OWNER_LOOKUP_EVERY_NS));
+        // The cache held one entry per address.
+        let n = o
+            .cache
+            .iter()
+            .flatten()
+            .filter(|(a, _, _)| *a == me)
+            .count();
+        assert_eq!(n, 1);
     }
 
     #[test]
