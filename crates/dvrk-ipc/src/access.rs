@@ -7,7 +7,9 @@
 //! iceoryx2 0.10 gives every file it creates owner-only modes, applied with `fchmod` after
 //! creation (so neither the umask nor a setgid directory changes them): the root path
 //! (0750 when iceoryx2 creates it) and its `nodes/` and `services/` directories, the service
-//! descriptions (0400), the segments in `/dev/shm` (0600) and the event sockets. A consumer
+//! descriptions (0400), the segments in `/dev/shm` (0600) and the event sockets; all but the
+//! domain's global management segment, created 0666, which [`restrict_global_segment`] makes
+//! 0600 once a node exists. A consumer
 //! running as another user than the sidecar therefore fails inside iceoryx2, which reports
 //! `NodeCreationFailure::InternalError` or a service error without the cause. When such a setup
 //! step fails, [`find_inaccessible`] looks at the files of the domain for one this process may
@@ -60,6 +62,44 @@ pub fn find_inaccessible(config: &Config) -> Option<Inaccessible> {
         return Some(found);
     }
     first_in(Path::new(SHM_DIR), &prefix, libc::R_OK | libc::W_OK)
+}
+
+/// Takes from other accounts the write access iceoryx2 0.10 leaves on the domain's global
+/// management segment (`/dev/shm/<prefix><hash>_node.0_10_0.global_mgmt`, created 0666): any
+/// local user could write 16 bytes into it and stop every new node of the account (issue 22).
+/// Every segment of the domain whose name ends in `.global_mgmt`, is a regular file and belongs
+/// to this account is set to 0600; the account's own processes are the only ones that open it
+/// (another account, root included, has a domain of its own). A segment another account created
+/// first is left alone: it cannot be changed from here (README.md says what then to do).
+/// Returns the segments it restricted. Setup only.
+pub fn restrict_global_segment(config: &Config) -> Vec<PathBuf> {
+    use std::os::unix::fs::PermissionsExt;
+    let prefix = config.global.prefix.to_string();
+    let Ok(entries) = std::fs::read_dir(SHM_DIR) else {
+        return Vec::new();
+    };
+    let me = euid();
+    let mut done = Vec::new();
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let name = name.as_bytes();
+        if !name.starts_with(prefix.as_bytes()) || !name.ends_with(b".global_mgmt") {
+            continue;
+        }
+        let path = e.path();
+        // Not followed: a segment is a plain file, and /dev/shm's sticky bit keeps others from
+        // putting anything else in place of ours.
+        let Ok(meta) = std::fs::symlink_metadata(&path) else {
+            continue;
+        };
+        if !meta.file_type().is_file() || meta.uid() != me || meta.mode() & 0o077 == 0 {
+            continue;
+        }
+        if std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).is_ok() {
+            done.push(path);
+        }
+    }
+    done
 }
 
 /// The first entry of `dir` whose name starts with `prefix` that fails `access(mode)`.

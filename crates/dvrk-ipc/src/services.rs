@@ -192,7 +192,9 @@ pub const ICEORYX2_LOG_LEVEL: iceoryx2::prelude::LogLevel = iceoryx2::prelude::L
 /// In a domain whose root path is the project's default one, the root directory is created
 /// 0700 if missing, and refused ([`IpcError::RootNotPrivate`]) when it is a symbolic link, not
 /// a directory, another account's, or writable by others
-/// ([`access::ensure_private_root`](crate::access::ensure_private_root)).
+/// ([`access::ensure_private_root`](crate::access::ensure_private_root)). Once the node exists,
+/// the domain's global management segment, which iceoryx2 0.10 leaves world-writable, is made
+/// owner-only ([`access::restrict_global_segment`](crate::access::restrict_global_segment)).
 pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<Node<S>, IpcError> {
     let node_name = NodeName::new(name).map_err(|_| IpcError::InvalidNodeName {
         name: name.to_owned(),
@@ -210,7 +212,7 @@ pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<No
         crate::access::ensure_private_root(config)?;
     }
     crate::access::refuse_root_in_anothers_domain(config)?;
-    NodeBuilder::new()
+    let node = NodeBuilder::new()
         .name(&node_name)
         .config(config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
@@ -219,7 +221,11 @@ pub fn create_node<S: Service>(name: &str, config: Option<&Config>) -> Result<No
             name: name.to_owned(),
             source,
         })
-        .map_err(|e| crate::access::explain(e, config, format!("creating the node {name:?}")))
+        .map_err(|e| crate::access::explain(e, config, format!("creating the node {name:?}")))?;
+    // The node's creation made the domain's management segment, world-writable in iceoryx2
+    // 0.10: only this account may write it from now on.
+    crate::access::restrict_global_segment(config);
+    Ok(node)
 }
 
 /// Opens or creates the pub-sub service of `topic` with the project's QoS.

@@ -625,3 +625,23 @@ fn in_process_local_service_variant_works() {
     assert_eq!(*subscriber.receive().unwrap().expect("a sample"), ccp);
     assert_eq!(expect_fresh(sub.wait().unwrap()), ccp);
 }
+
+/// iceoryx2 0.10 creates the domain's global management segment world-writable (0666), so any
+/// local user could write into it and stop every new node of the account (issue 22). Creating a
+/// node leaves it owner-only.
+#[test]
+fn the_domains_management_segment_is_owner_only_once_a_node_exists() {
+    use std::os::unix::fs::MetadataExt;
+    let d = Domain::new("global_mgmt");
+    let _node = node(&d, "gm");
+    let segments: Vec<_> = d
+        .leftovers()
+        .into_iter()
+        .filter(|p| p.to_string_lossy().ends_with(".global_mgmt"))
+        .collect();
+    assert_eq!(segments.len(), 1, "{:?}", d.leftovers());
+    let mode = std::fs::metadata(&segments[0]).unwrap().mode() & 0o777;
+    assert_eq!(mode, 0o600, "{}: {mode:o}", segments[0].display());
+    // A second node of the account still opens it.
+    let _second = node(&d, "gm2");
+}
