@@ -234,6 +234,60 @@ fn a_fifo_as_configuration_or_parameter_file_is_refused_without_hanging() {
     assert!(!out.exists(), "calibrate record wrote {}", out.display());
 }
 
+/// The issue's own command line on the simulator, `calibrate clamp --depths 5.0 --out
+/// clamp.csv` over an existing recording (and `--depths nan`, `--settle-s -1`): refused before
+/// anything is opened, the recording untouched; and `calibrate --out` onto a FIFO refused, the
+/// FIFO left as it was. (The same checks through `--robot ros2:ARM` are in
+/// tests/console_calibration.rs.)
+#[test]
+fn calibrate_on_the_simulator_refuses_bad_arguments_and_keeps_the_recording() {
+    let d = scratch("bad_calibrate_sim");
+    let out = d.join("clamp.csv");
+    let earlier = "joint,depth_index,insertion_m,position_rad,effort_nm,torque_offset_nm,direction\n\
+                   1,0,0.12,0.01,0.3,0.1,1\n";
+    std::fs::write(&out, earlier).unwrap();
+    let scenario = repo().join("config/sim/clamp.toml");
+    for (arg, value, expect) in [
+        ("--depths", "5.0", "--depths 5"),
+        ("--depths", "nan", "--depths NaN"),
+        ("--settle-s", "-1", "--settle-s -1"),
+    ] {
+        let o = Command::new(sidecar_bin())
+            .args(["calibrate", "clamp", "--config"])
+            .arg(&scenario)
+            .args(["--out", out.to_str().unwrap(), arg, value])
+            .output()
+            .unwrap();
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{arg} {value} accepted: {err}");
+        assert!(!err.contains("panicked"), "{arg} {value}: {err}");
+        assert!(err.contains(expect), "{arg} {value}: {err}");
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            earlier,
+            "{arg} {value}"
+        );
+    }
+    let fifo = d.join("out.fifo");
+    mkfifo(&fifo);
+    let o = Command::new(sidecar_bin())
+        .args(["calibrate", "clamp", "--config"])
+        .arg(&scenario)
+        .args(["--out", fifo.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert!(!o.status.success(), "--out FIFO accepted: {err}");
+    assert!(err.contains("out.fifo"), "{err}");
+    assert!(
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo(),
+        "the FIFO was replaced"
+    );
+}
+
 /// Numbers no arm can give, in the data files `evaluate` and `fit` read: each refused, naming
 /// the file, the line, the column and the value (issue 22 item 4). A divot file whose true tip
 /// was 1e308 m gave all-`null` statistics with exit 0 before the tip's bound.
