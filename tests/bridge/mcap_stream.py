@@ -5,8 +5,10 @@
 `mcap-ros2-support`, until the footer or the first record that is not complete.
 
 Prints one JSON object per message (topic, sequence, log_time), then one last object:
-{"end": "footer" | "truncated", "error": ..., "seeking": true | false}, where "seeking" says
-whether the seeking reader (which needs the summary and footer) opens the file too.
+{"end": "footer" | "truncated", "error": ..., "seeking": true | false, "seeking_messages": N},
+where "seeking" says whether the seeking reader opens the file too (`make_reader` on the file,
+as most tools open a recording: it reads the footer first, then the summary if there is one,
+else the file in order) and "seeking_messages" how many messages it reads (null if it fails).
 
 Usage: mcap_stream.py FILE
 """
@@ -14,7 +16,7 @@ Usage: mcap_stream.py FILE
 import json
 import sys
 
-from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 
@@ -33,13 +35,17 @@ def main():
                 }))
         except Exception as e:  # the end of a file cut short: stop there, as `mcap recover` does
             end, error = "truncated", f"{type(e).__name__}: {e}"
-    seeking = True
+    seeking, seeking_messages = True, None
     try:
         with open(sys.argv[1], "rb") as f:
-            SeekingReader(f).get_summary()
+            reader = make_reader(f)
+            reader.get_summary()
+            seeking_messages = sum(1 for _ in reader.iter_messages(log_time_order=False))
     except Exception:
         seeking = False
-    print(json.dumps({"end": end, "error": error, "seeking": seeking}))
+    print(json.dumps({
+        "end": end, "error": error, "seeking": seeking, "seeking_messages": seeking_messages,
+    }))
     return 0
 
 

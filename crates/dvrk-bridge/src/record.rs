@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
 use std::io::BufWriter;
-use std::os::unix::fs::MetadataExt;
+use std::os::unix::fs::{FileExt, MetadataExt};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -17,14 +17,43 @@ use crate::source::Sample;
 /// The longest a chunk stays open: what a SIGKILL or a power loss can cost of a recording.
 pub const CHUNK_INTERVAL: Duration = Duration::from_secs(1);
 
+/// The payload size at which the sink closes a chunk before [`CHUNK_INTERVAL`] (about a quarter
+/// of a second of one arm at 1.5 kHz): a full disk then costs at most this much of what was
+/// recorded, and each chunk is closed by the sink, which puts the interim footer after it.
+const CLOSE_AT_BYTES: u64 = 1 << 20;
+/// The size at which the writer would close a chunk on its own, without the interim footer:
+/// never reached, the sink closes at [`CLOSE_AT_BYTES`] (plus one message). The open chunk is
+/// held in memory (allocated once, at this size).
+const CHUNK_BYTES: u64 = 4 << 20;
+
+/// What follows the last closed chunk until the next one: a Footer record that says there is no
+/// summary (opcode 0x02, length 20, `summary_start` 0, `summary_offset_start` 0, `summary_crc`
+/// 0) and the closing magic. With it the file is a complete MCAP without an index at every
+/// moment but while a chunk is being written, so the seeking readers (Python `make_reader` on
+/// a file, `mcap info`) open it after SIGKILL or a power loss too, and read it linearly.
+const INTERIM_FOOTER: [u8; 37] = {
+    let mut f = [0u8; 37];
+    f[0] = 0x02;
+    f[1] = 20;
+    let magic = *b"\x89MCAP0\r\n";
+    let mut i = 0;
+    while i < 8 {
+        f[29 + i] = magic[i];
+        i += 1;
+    }
+    f
+};
+
 /// An MCAP file being written: one channel per arm and recorded [`OutTopic`], named by its ROS 2
 /// topic name (`/PSM1/compensated/local/measured_cp`, `/PSM2/measured_js`).
 ///
 /// The file is written at its own name from the start and survives any end of the recording:
-/// - a chunk is closed, flushed and synced to the disk at least every [`CHUNK_INTERVAL`] (and
-///   whenever it reaches the writer's chunk size), so after SIGKILL, a power loss or a full disk
-///   a streaming reader (the `mcap` libraries' non-seeking readers, `mcap recover`) reads every
-///   message up to the last finished chunk;
+/// - a chunk is closed, flushed and synced to the disk at least every [`CHUNK_INTERVAL`] (and at
+///   [`CLOSE_AT_BYTES`]), and an
+///   interim footer without summary ([`INTERIM_FOOTER`]) follows it until the next one, so after
+///   SIGKILL, a power loss or a full disk every reader, seeking ones included, reads every
+///   message up to the last finished chunk (only while a chunk is being written, a few ms a
+///   second, does a streaming reader alone read it);
 /// - [`McapSink::finish`] writes the summary and footer (a clean stop: SIGINT, SIGTERM,
 ///   `--seconds`, or an error of the source), so the seeking readers open the file too;
 /// - nothing recorded is ever deleted: after a write error (a full disk) the file keeps every
@@ -44,6 +73,10 @@ pub struct McapSink {
     chunk_since: Instant,
     payload: Vec<u8>,
     written: u64,
+    /// The end of the last closed chunk, where the interim footer starts (0 before the first).
+    good_end: u64,
+    /// Payload bytes in the open chunk.
+    chunk_bytes: u64,
 }
 
 /// One arm's encoder, channels and count.
@@ -110,9 +143,13 @@ impl McapSink {
             path: path.to_owned(),
             source,
         };
+        // Chunks held in memory and written out whole when closed (`disable_seeking`), so the
+        // file does not change between two closes and the interim footer stays valid.
         let mut writer = mcap::WriteOptions::new()
             .compression(None)
             .profile("ros2")
+            .chunk_size(Some(CHUNK_BYTES))
+            .disable_seeking(true)
             .create(BufWriter::new(file))
             .map_err(&mcap_err)?;
         let mut schemas: BTreeMap<&str, u16> = BTreeMap::new();
@@ -159,27 +196,57 @@ impl McapSink {
             chunk_since: Instant::now(),
             payload: Vec::new(),
             written: 0,
+            good_end: 0,
+            chunk_bytes: 0,
         };
         // The header, schemas and channels on the disk before the first message.
         sink.close_chunk()?;
         Ok(sink)
     }
 
-    /// Closes the open chunk, writes it out and syncs it to the disk: from here on a streaming
-    /// reader reads every message written so far, whatever happens to this process.
+    /// Closes the open chunk, writes it out, puts the interim footer after it and syncs it to
+    /// the disk: from here on every reader reads every message written so far, whatever
+    /// happens to this process. On a write error (a full disk) the file is cut back to the end
+    /// of the last chunk closed before, with its footer.
     fn close_chunk(&mut self) -> Result<(), BridgeError> {
-        self.writer.flush().map_err(|source| BridgeError::Mcap {
-            path: self.path.clone(),
+        let path = self.path.clone();
+        if let Err(source) = self.writer.flush() {
+            self.restore_footer();
+            return Err(BridgeError::Mcap { path, source });
+        }
+        let io_err = |source| BridgeError::CreateFile {
+            path: path.clone(),
             source,
-        })?;
-        self.file
-            .sync_data()
-            .map_err(|source| BridgeError::CreateFile {
-                path: self.path.clone(),
-                source,
-            })?;
+        };
+        // The writer's offset (this handle shares its file description): the end of the chunk.
+        // The footer is written there without moving it, so the next chunk overwrites it.
+        let end = std::io::Seek::stream_position(&mut self.file).map_err(io_err)?;
+        self.good_end = end;
+        let written = self.file.write_all_at(&INTERIM_FOOTER, end);
+        if let Err(e) = written.and_then(|()| self.file.sync_data()) {
+            self.restore_footer();
+            return Err(io_err(e));
+        }
         self.chunk_since = Instant::now();
+        self.chunk_bytes = 0;
         Ok(())
+    }
+
+    /// After a failed write: cuts the file back to the end of the last closed chunk and puts
+    /// the interim footer there again (the cut frees the space it needs). Best effort: the
+    /// chunks before stay readable by a streaming reader in any case.
+    fn restore_footer(&mut self) {
+        if self.good_end == 0 {
+            return;
+        }
+        if self.file.set_len(self.good_end).is_ok()
+            && self
+                .file
+                .write_all_at(&INTERIM_FOOTER, self.good_end)
+                .is_ok()
+        {
+            let _ = self.file.sync_data();
+        }
     }
 
     /// Messages written so far.
@@ -202,10 +269,13 @@ impl McapSink {
     /// before is readable.
     pub fn finish(mut self) -> Result<u64, BridgeError> {
         let path = self.path.clone();
-        self.writer.finish().map_err(|source| BridgeError::Mcap {
-            path: path.clone(),
-            source,
-        })?;
+        if let Err(source) = self.writer.finish() {
+            self.restore_footer();
+            return Err(BridgeError::Mcap {
+                path: path.clone(),
+                source,
+            });
+        }
         let file = self
             .writer
             .into_inner()
@@ -304,7 +374,8 @@ impl McapSink {
             })?;
         a.written += 1;
         self.written += 1;
-        if self.chunk_since.elapsed() >= CHUNK_INTERVAL {
+        self.chunk_bytes += self.payload.len() as u64;
+        if self.chunk_bytes >= CLOSE_AT_BYTES || self.chunk_since.elapsed() >= CHUNK_INTERVAL {
             self.close_chunk()?;
         }
         Ok(())

@@ -158,9 +158,8 @@ pub fn run_record(args: &RecordArgs) -> Result<()> {
     let reports = dvrk_bridge::run_record(&src, &rec, stop.as_atomic()).with_context(|| {
         match std::fs::metadata(&args.out) {
             Ok(m) if !existed && m.is_file() => format!(
-                "recording to {} stopped; the {} bytes written are kept there, readable up to \
-                 the last chunk closed (at most {} s before the error) with a streaming MCAP \
-                 reader or `mcap recover`",
+                "recording to {} stopped; the {} bytes written are kept there, readable by \
+                 any MCAP reader up to the last chunk closed (at most {} s before the error)",
                 args.out.display(),
                 m.len(),
                 dvrk_bridge::record::CHUNK_INTERVAL.as_secs()
