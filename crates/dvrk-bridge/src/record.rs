@@ -29,8 +29,9 @@ const CHUNK_BYTES: u64 = 4 << 20;
 /// What follows the last closed chunk until the next one: a Footer record that says there is no
 /// summary (opcode 0x02, length 20, `summary_start` 0, `summary_offset_start` 0, `summary_crc`
 /// 0) and the closing magic. With it the file is a complete MCAP without an index at every
-/// moment but while a chunk is being written, so the seeking readers (Python `make_reader` on
-/// a file, `mcap info`) open it after SIGKILL or a power loss too, and read it linearly.
+/// moment but while a chunk is being written, so the readers that start from the footer (the
+/// Python `mcap` package's `make_reader` on a file) open it after SIGKILL or a power loss too,
+/// and read it in order.
 const INTERIM_FOOTER: [u8; 37] = {
     let mut f = [0u8; 37];
     f[0] = 0x02;
@@ -49,13 +50,12 @@ const INTERIM_FOOTER: [u8; 37] = {
 ///
 /// The file is written at its own name from the start and survives any end of the recording:
 /// - a chunk is closed, flushed and synced to the disk at least every [`CHUNK_INTERVAL`] (and at
-///   [`CLOSE_AT_BYTES`]), and an
-///   interim footer without summary ([`INTERIM_FOOTER`]) follows it until the next one, so after
-///   SIGKILL, a power loss or a full disk every reader, seeking ones included, reads every
-///   message up to the last finished chunk (only while a chunk is being written, a few ms a
-///   second, does a streaming reader alone read it);
+///   [`CLOSE_AT_BYTES`]), and an interim footer without summary ([`INTERIM_FOOTER`]) follows it
+///   until the next one, so after SIGKILL, a power loss or a full disk the readers that start
+///   from the footer and the streaming ones read every message up to the last finished chunk
+///   (only while a chunk is being written, a few ms a second, do the streaming ones alone);
 /// - [`McapSink::finish`] writes the summary and footer (a clean stop: SIGINT, SIGTERM,
-///   `--seconds`, or an error of the source), so the seeking readers open the file too;
+///   `--seconds`, or an error of the source), so readers find the file's index;
 /// - nothing recorded is ever deleted: after a write error (a full disk) the file keeps every
 ///   finished chunk. Only a file that holds no message is removed, by [`McapSink::discard`].
 ///
@@ -77,6 +77,9 @@ pub struct McapSink {
     good_end: u64,
     /// Payload bytes in the open chunk.
     chunk_bytes: u64,
+    /// A write failed: the file ends at its last closed chunk and its interim footer, and
+    /// [`McapSink::finish`] leaves it so (a summary written later would index the lost chunk).
+    failed: bool,
 }
 
 /// One arm's encoder, channels and count.
@@ -198,6 +201,7 @@ impl McapSink {
             written: 0,
             good_end: 0,
             chunk_bytes: 0,
+            failed: false,
         };
         // The header, schemas and channels on the disk before the first message.
         sink.close_chunk()?;
@@ -236,6 +240,7 @@ impl McapSink {
     /// the interim footer there again (the cut frees the space it needs). Best effort: the
     /// chunks before stay readable by a streaming reader in any case.
     fn restore_footer(&mut self) {
+        self.failed = true;
         if self.good_end == 0 {
             return;
         }
@@ -269,6 +274,14 @@ impl McapSink {
     /// before is readable.
     pub fn finish(mut self) -> Result<u64, BridgeError> {
         let path = self.path.clone();
+        if self.failed {
+            return Err(BridgeError::CreateFile {
+                path,
+                source: std::io::Error::other(
+                    "a write failed earlier: the file ends at its last closed chunk",
+                ),
+            });
+        }
         if let Err(source) = self.writer.finish() {
             self.restore_footer();
             return Err(BridgeError::Mcap {
@@ -358,20 +371,22 @@ impl McapSink {
         self.payload
             .extend_from_slice(&crate::cdr::ENCAPSULATION_CDR_LE);
         self.payload.extend_from_slice(a.encoder.last_body());
-        self.writer
-            .write_to_known_channel(
-                &MessageHeader {
-                    channel_id,
-                    sequence: header.seq as u32,
-                    log_time: time,
-                    publish_time: time,
-                },
-                &self.payload,
-            )
-            .map_err(|source| BridgeError::Mcap {
+        let wrote = self.writer.write_to_known_channel(
+            &MessageHeader {
+                channel_id,
+                sequence: header.seq as u32,
+                log_time: time,
+                publish_time: time,
+            },
+            &self.payload,
+        );
+        if let Err(source) = wrote {
+            self.restore_footer();
+            return Err(BridgeError::Mcap {
                 path: self.path.clone(),
                 source,
-            })?;
+            });
+        }
         a.written += 1;
         self.written += 1;
         self.chunk_bytes += self.payload.len() as u64;

@@ -332,11 +332,11 @@ pub fn run_record(
     let arms = match result {
         Ok(arms) => arms,
         Err(e) => {
-            // Nothing recorded is deleted: the footer is written if the file still takes it
+            // Nothing recorded is deleted: the index is written if the file still takes it
             // (an error of the source), otherwise (a full disk) the file keeps every chunk
             // closed before the error.
             if let Err(f) = sink.finish() {
-                tracing::warn!("record: no footer written ({f}); the closed chunks are kept");
+                tracing::warn!("record: no index written ({f}); the closed chunks are kept");
             }
             return Err(e);
         }
