@@ -154,9 +154,30 @@ fn bounded(
     unit: &str,
 ) -> anyhow::Result<f64> {
     let v = number(rec, i, name, path, line)?;
+    within(
+        v,
+        [lo, hi],
+        unit,
+        path,
+        line,
+        format_args!("column `{name}`"),
+    )
+}
+
+/// `v` if it lies within `[lo, hi]`, else an error naming the file, the line, the value (`what`,
+/// e.g. a column) and the physical range: the one check of every data file's bounds (the CSV
+/// layouts here, the dynamics file of `calibrate dynamics`).
+pub(crate) fn within(
+    v: f64,
+    [lo, hi]: [f64; 2],
+    unit: &str,
+    path: &Path,
+    line: u64,
+    what: std::fmt::Arguments<'_>,
+) -> anyhow::Result<f64> {
     if !(lo..=hi).contains(&v) {
         bail!(
-            "{} line {line}: column `{name}` = {v:?} {unit} is outside the physical range [{lo}, {hi}] {unit}",
+            "{} line {line}: {what} = {v:?} {unit} is outside the physical range [{lo}, {hi}] {unit}",
             path.display()
         );
     }

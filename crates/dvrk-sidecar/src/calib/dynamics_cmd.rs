@@ -492,16 +492,9 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<DynamicsSample>> {
             ([-e, e], "N·m"),
             ([-e, e], "N·m"),
         ];
-        for (k, ([lo, hi], unit)) in bounds.into_iter().enumerate() {
-            if !(lo..=hi).contains(&v[k]) {
-                bail!(
-                    "{} line {}: {} = {:?} {unit} is outside the physical range [{lo}, {hi}] {unit}",
-                    path.display(),
-                    i + 1,
-                    names[k],
-                    v[k]
-                );
-            }
+        for (k, (range, unit)) in bounds.into_iter().enumerate() {
+            let line = i as u64 + 1;
+            super::data::within(v[k], range, unit, path, line, format_args!("{}", names[k]))?;
         }
         rows.push(DynamicsSample {
             t_s: v[0],
