@@ -71,47 +71,42 @@ pub fn find_inaccessible(config: &Config) -> Option<Inaccessible> {
 /// to this account is set to 0600; the account's own processes are the only ones that open it
 /// (another account, root included, has a domain of its own). A segment another account created
 /// first is left alone: it cannot be changed from here (README.md says what then to do).
-/// Returns the segments it restricted. Setup only.
-pub fn restrict_global_segment(config: &Config) -> Vec<PathBuf> {
+/// Setup only.
+pub fn restrict_global_segment(config: &Config) {
     use std::os::unix::fs::PermissionsExt;
-    let prefix = config.global.prefix.to_string();
-    let Ok(entries) = std::fs::read_dir(SHM_DIR) else {
-        return Vec::new();
-    };
     let me = euid();
-    let mut done = Vec::new();
-    for e in entries.flatten() {
-        let name = e.file_name();
-        let name = name.as_bytes();
-        if !name.starts_with(prefix.as_bytes()) || !name.ends_with(b".global_mgmt") {
+    for path in named(Path::new(SHM_DIR), &config.global.prefix.to_string()) {
+        if !path.as_os_str().as_bytes().ends_with(b".global_mgmt") {
             continue;
         }
-        let path = e.path();
         // Not followed: a segment is a plain file, and /dev/shm's sticky bit keeps others from
         // putting anything else in place of ours.
         let Ok(meta) = std::fs::symlink_metadata(&path) else {
             continue;
         };
-        if !meta.file_type().is_file() || meta.uid() != me || meta.mode() & 0o077 == 0 {
-            continue;
-        }
-        if std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).is_ok() {
-            done.push(path);
+        if meta.file_type().is_file() && meta.uid() == me && meta.mode() & 0o077 != 0 {
+            let _ = std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600));
         }
     }
-    done
 }
 
-/// The first entry of `dir` whose name starts with `prefix` that fails `access(mode)`.
-fn first_in(dir: &Path, prefix: &str, mode: libc::c_int) -> Option<Inaccessible> {
-    let entries = std::fs::read_dir(dir).ok()?;
+/// The entries of `dir` whose name starts with `prefix`, sorted (none if it cannot be read).
+fn named(dir: &Path, prefix: &str) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
     let mut names: Vec<PathBuf> = entries
         .flatten()
         .filter(|e| e.file_name().as_bytes().starts_with(prefix.as_bytes()))
         .map(|e| e.path())
         .collect();
     names.sort();
-    names.iter().find_map(|p| check(p, mode))
+    names
+}
+
+/// The first entry of `dir` whose name starts with `prefix` that fails `access(mode)`.
+fn first_in(dir: &Path, prefix: &str, mode: libc::c_int) -> Option<Inaccessible> {
+    named(dir, prefix).iter().find_map(|p| check(p, mode))
 }
 
 /// `Some` when `path` exists and `access(path, mode)` fails with EACCES or EPERM.
