@@ -292,15 +292,15 @@ impl Owners {
     /// budget allows (until then it stands, so the console's datagrams are not dropped while
     /// another address's lookup holds the budget).
     fn allowed(&mut self, src: SocketAddrV4, now_ns: u64) -> bool {
-        let cached = self
-            .cache
-            .iter()
-            .position(|e| e.is_some_and(|(a, _, _)| a == src));
+        let cached = self.cache.iter().enumerate().find_map(|(i, e)| match *e {
+            Some((a, ok, at)) if a == src => Some((i, ok, at)),
+            _ => None,
+        });
         let throttled = self
             .last_lookup_ns
             .is_some_and(|t| now_ns.saturating_sub(t) < OWNER_LOOKUP_EVERY_NS);
-        let slot = match cached.and_then(|i| self.cache[i].map(|e| (i, e))) {
-            Some((i, (_, ok, at))) => {
+        let slot = match cached {
+            Some((i, ok, at)) => {
                 if throttled || now_ns.saturating_sub(at) < OWNER_RECHECK_NS {
                     return ok;
                 }
