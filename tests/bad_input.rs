@@ -288,6 +288,23 @@ fn calibrate_on_the_simulator_refuses_bad_arguments_and_keeps_the_recording() {
     );
 }
 
+/// `fit` of the 2017 clamp data of joint 1 with `file` given to `flag`, written beside `file`.
+fn fit_with(flag: &str, file: &Path) -> Vec<String> {
+    let clamp = repo().join("data/2017/dvrk2017-clamp-joint1.csv");
+    let out = file.with_extension("toml");
+    ["fit", "--joint", "1", "--clamp"]
+        .map(String::from)
+        .into_iter()
+        .chain([
+            clamp.display().to_string(),
+            flag.to_owned(),
+            file.display().to_string(),
+            "--out".to_owned(),
+            out.display().to_string(),
+        ])
+        .collect()
+}
+
 /// Numbers no arm can give, in the data files `evaluate` and `fit` read: each refused, naming
 /// the file, the line, the column and the value (issue 22 item 4). A divot file whose true tip
 /// was 1e308 m gave all-`null` statistics with exit 0 before the tip's bound.
@@ -344,19 +361,7 @@ fn unphysical_numbers_in_data_files_are_refused_through_the_binary() {
     ] {
         let p = d.join(name);
         std::fs::write(&p, format!("{dynamics_header}\n{row}\n")).unwrap();
-        let clamp = repo().join("data/2017/dvrk2017-clamp-joint1.csv");
-        let args = ["fit", "--joint", "1", "--clamp"]
-            .map(String::from)
-            .into_iter()
-            .chain([
-                clamp.display().to_string(),
-                "--dynamics".into(),
-                p.display().to_string(),
-                "--out".into(),
-                d.join(format!("{name}.toml")).display().to_string(),
-            ])
-            .collect();
-        cases.push((name.to_owned(), args, want));
+        cases.push((name.to_owned(), fit_with("--dynamics", &p), want));
     }
     // A torque-offset sweep at 1e308 rad, in the project's layout.
     let sweep = d.join("sweep.csv");
@@ -366,20 +371,9 @@ fn unphysical_numbers_in_data_files_are_refused_through_the_binary() {
          1,0,0.12,1e308,0.1,0,1\n",
     )
     .unwrap();
-    let clamp = repo().join("data/2017/dvrk2017-clamp-joint1.csv");
     cases.push((
         "sweep.csv".into(),
-        ["fit", "--joint", "1", "--clamp"]
-            .map(String::from)
-            .into_iter()
-            .chain([
-                clamp.display().to_string(),
-                "--torque-offset".into(),
-                sweep.display().to_string(),
-                "--out".into(),
-                d.join("sweep.toml").display().to_string(),
-            ])
-            .collect(),
+        fit_with("--torque-offset", &sweep),
         "position_rad` = 1e308 rad",
     ));
     for (name, args, want) in cases {

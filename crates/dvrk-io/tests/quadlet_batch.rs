@@ -138,6 +138,23 @@ fn timed_port(addr: SocketAddr, window: u8, timeout: Duration, retry_wait: Durat
     p
 }
 
+/// Requests a board holds unanswered, with the replies it will send.
+type Pending = Vec<(Req, Vec<Vec<u8>>)>;
+
+/// Adds `req` to what the board holds unanswered, unless its register is held already (a
+/// register asked again, presumed lost, is not another outstanding one), and raises `max` to
+/// the number held.
+fn hold(pending: &mut Pending, max: &std::sync::Mutex<usize>, req: Req, replies: Vec<Vec<u8>>) {
+    if !pending
+        .iter()
+        .any(|(q, _)| (q.node, q.addr) == (req.node, req.addr))
+    {
+        pending.push((req, replies));
+    }
+    let mut mx = max.lock().unwrap();
+    *mx = (*mx).max(pending.len());
+}
+
 fn send_all(sock: &UdpSocket, from: SocketAddr, replies: &[Vec<u8>]) {
     for r in replies {
         sock.send_to(r, from).unwrap();
@@ -211,26 +228,15 @@ fn replies_out_of_order_are_matched_to_their_registers_and_the_window_holds() {
 fn at_most_the_window_is_outstanding() {
     for window in [2u8, 6] {
         let reqs = shared_cycle();
-        let mut pending: Vec<(Req, Vec<Vec<u8>>)> = Vec::new();
+        let mut pending = Pending::new();
         let max = std::sync::Arc::new(std::sync::Mutex::new(0usize));
         let m = max.clone();
         let (addr, h) = board(Boards::psm(8), move |boards, req, replies, sock, from| {
-            let add = |pending: &mut Vec<(Req, Vec<Vec<u8>>)>, req: Req, r| {
-                // A register asked again (presumed lost) is not another outstanding one.
-                if !pending
-                    .iter()
-                    .any(|(q, _)| (q.node, q.addr) == (req.node, req.addr))
-                {
-                    pending.push((req, r));
-                }
-                let mut mx = m.lock().unwrap();
-                *mx = (*mx).max(pending.len());
-            };
-            add(&mut pending, req, replies);
+            hold(&mut pending, &m, req, replies);
             if pending.len() >= usize::from(window) {
                 // Full: whatever else comes in a pause is counted, then the oldest answered.
                 for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
-                    add(&mut pending, q, r);
+                    hold(&mut pending, &m, q, r);
                 }
                 let (_, r) = pending.remove(0);
                 send_all(sock, from, &r);
@@ -269,7 +275,7 @@ fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
     let (ph, mx) = (phase.clone(), max.clone());
     let drop_once = reqs[5];
     let mut dropped = false;
-    let mut pending: Vec<(Req, Vec<Vec<u8>>)> = Vec::new();
+    let mut pending = Pending::new();
     let (addr, h) = board(boards_with(4), move |boards, req, replies, sock, from| {
         if *ph.lock().unwrap() == 0 {
             if (req.node, req.addr) == drop_once && !dropped {
@@ -279,26 +285,16 @@ fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
             }
             return false;
         }
-        let add = |pending: &mut Vec<(Req, Vec<Vec<u8>>)>, q: Req, r| {
-            if !pending
-                .iter()
-                .any(|(p, _)| (p.node, p.addr) == (q.node, q.addr))
-            {
-                pending.push((q, r));
-            }
-            let mut m = mx.lock().unwrap();
-            *m = (*m).max(pending.len());
-        };
-        add(&mut pending, req, replies);
+        hold(&mut pending, &mx, req, replies);
         for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
-            add(&mut pending, q, r);
+            hold(&mut pending, &mx, q, r);
         }
         while !pending.is_empty() {
             let (_, r) = pending.remove(0);
             send_all(sock, from, &r);
             // The port sends the next request when a reply comes: count it before answering on.
             for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
-                add(&mut pending, q, r);
+                hold(&mut pending, &mx, q, r);
             }
         }
         false
