@@ -195,6 +195,23 @@ pub const PLAY_EVIDENCE_SIGMAS: f64 = 3.0;
 pub const PLAY_EVIDENCE_FLOOR: f64 = 0.25;
 /// Time constant (s) of the average of the shaft torque that is the evidence for the play's side.
 pub const EVIDENCE_TIME_S: f64 = 0.01;
+/// Time constant (s) of the sway of the shaft torque about that average (see
+/// `JointTrust::sway_var`): a few evidence times, so a stick-slip's swing of 20-50 ms is held
+/// through its turns.
+pub const SWAY_TIME_S: f64 = 0.03;
+/// The share of the torque's sway beyond its noise that the bound takes as the error of a torque
+/// measured late: the motor-side effort follows the shaft's load through the servo, 4-6 ms late
+/// on the simulator (a tip sliding in stick-slip, its deflection's peaks ahead of the measured
+/// torque's), while the sway is measured against the 10 ms average, so the lag's error is a third
+/// to a half of it for a swing slower than the average. Chosen on 51 scenarios (benches/README.md,
+/// issue 20): 0.5 covered 99.57% of `free-motion`'s cycles in 10 s (over the band), 0.35 99.36%;
+/// `i20-hard-stop` (30 s) 84.5% without the term, 88.5% with 0.35, 89.6% with 0.5. A tuned
+/// number, not a measured lag.
+pub const SWAY_LAG_SHARE: f64 = 0.35;
+/// The sway the side's evidence ignores, in residual standard deviations of the file's motion
+/// model: that model's own error follows the motion (it is not white), and the evidence already
+/// takes [`PLAY_EVIDENCE_SIGMAS`] of it.
+pub const SWAY_FREE_SIGMAS: f64 = 2.0;
 /// Relative uncertainty (1 sigma) of the distal inertia's load `J_2 L^2 qdd` in the free-space
 /// prediction: the fit's `J_2` (the default file's is 6% off the simulator's truth) and the
 /// filtered acceleration's error. 0.2 with [`DISTAL_GRAVITY_REL_SIGMA`]: on the simulator the free
@@ -751,6 +768,11 @@ struct JointTrust {
     /// The shaft torque averaged over [`EVIDENCE_TIME_S`] (N·m): the evidence for the play's
     /// side, in which contact persists and noise does not.
     tau_average: f64,
+    /// Mean square (N·m²) of the external torque's distance to `tau_average`, over
+    /// [`SWAY_TIME_S`]: how far the load the shaft carries swings within the evidence's window.
+    /// A steady contact or a free arm leaves the noise; a tip in stick-slip over a surface, or a
+    /// shaft ringing after a stop, much more.
+    sway_var: f64,
     /// Time (s) of the last sample, for the average's step.
     last_t_s: f64,
     /// The torque's noise variance (N·m²) as measured: half the mean square of the external
@@ -779,6 +801,7 @@ impl Default for JointTrust {
             efforts_head: 0,
             efforts_len: 0,
             tau_average: 0.0,
+            sway_var: 0.0,
             last_t_s: f64::NAN,
             noise_var: 0.0,
             last_tau_ext: 0.0,
@@ -1116,6 +1139,8 @@ impl Compensator {
             let mut average_sigma = 0.0;
             let mut sigma_noise = sigma_tau;
             let mut contact_share = 1.0;
+            let mut sway_beyond_noise = 0.0;
+            let mut sway_load = 0.0;
             let (full, tau_shaft, m) = match &joint.dynamics {
                 Some(_) => {
                     // The contact's evidence: the measured external torque, averaged, beyond a
@@ -1160,6 +1185,28 @@ impl Compensator {
                     } else {
                         sigma_tau
                     };
+                    // The sway: the sample's distance to the average, in mean square. The
+                    // average is that of the samples so far (this one included), so white noise
+                    // alone leaves about its own variance.
+                    if ready && tau_ext.is_finite() {
+                        let gamma = if dt > 0.0 && dt.is_finite() {
+                            (dt / SWAY_TIME_S).min(1.0)
+                        } else {
+                            1.0
+                        };
+                        let dev = tau_ext - tr.tau_average;
+                        tr.sway_var += gamma * (dev * dev - tr.sway_var);
+                        if !tr.sway_var.is_finite() {
+                            tr.sway_var = 0.0;
+                        }
+                    }
+                    let beyond = |floor: f64| (tr.sway_var - floor * floor).max(0.0).sqrt();
+                    sway_beyond_noise = beyond(sigma_noise);
+                    // A sway beyond what the motion model's own error does is a load that
+                    // changes within the average's window: the average may name a side the
+                    // shaft has already left (a stick-slip's turn: 0.54 mm the wrong way on a
+                    // random surface scenario before this), so it weakens the evidence.
+                    sway_load = beyond(SWAY_FREE_SIGMAS * sigma_tau);
                     let contact = tr.tau_average;
                     let floor = PLAY_EVIDENCE_FLOOR * joint.tau_min_nm;
                     let contact_excess = (contact.abs() - floor).max(0.0).copysign(contact);
@@ -1191,7 +1238,8 @@ impl Compensator {
                     let free_share = 1.0 - contact_share;
                     let scale = (PLAY_EVIDENCE_SIGMAS
                         * (contact_share * sigma_tau
-                            + free_share * average_sigma.max(contact.abs())))
+                            + free_share * average_sigma.max(contact.abs()))
+                        .quad(sway_load))
                     .quad(sigma_free);
                     let m = erf(evidence.abs() / (scale * core::f64::consts::SQRT_2))
                         .copysign(evidence);
@@ -1242,9 +1290,13 @@ impl Compensator {
                     // part, not the evidence for the side.
                     let unseen =
                         (1.0 - contact_share) * (tr.tau_average.abs() - average_sigma).max(0.0);
-                    let sigma_side = sigma_free.quad(contact_share * sigma_noise);
+                    let sigma_side = sigma_free
+                        .quad(contact_share * sigma_noise)
+                        .quad(SWAY_LAG_SHARE * sway_beyond_noise);
                     let (tau_b, sigma_b) = (tau_shaft, sigma_side.quad(unseen));
-                    let p_other = other_side_probability(evidence_margin, sigma_side);
+                    // The side is as uncertain as its evidence: a swinging load may have crossed.
+                    let p_other =
+                        other_side_probability(evidence_margin, sigma_side.quad(sway_load));
                     let mut b = dynamic_joint_bound(play, m, p_other, k, sigma_b, tau_b, rel_k);
                     b.sigma = b.sigma.quad(rel_play * play);
                     (b, sigma_b, (contact_share * sigma_noise).quad(unseen))
