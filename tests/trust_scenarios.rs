@@ -172,16 +172,17 @@ fn still_move_still_ending_beyond_the_torque_offset_table() {
 
 /// Hard stops (72 rad/s² at 0.72 rad/s): the distal part rings across its play after each stop;
 /// the hold after a transient keeps the correction from following the lagging effort the wrong
-/// way (0.35 mm with a 0.05 s hold). The bound's coverage is NOT met here (83%: the withheld
-/// bound does not know the ringing), so it is not asserted; see the closing note of issue 20.
+/// way (0.35 mm with a 0.05 s hold). The withheld bound covered 83% of the cycles while it held
+/// the contact as last trusted alone; with the load the measured torque and its average agree on,
+/// and the torque's sway in the trusted bound, 93%.
 #[test]
 fn hard_stops() {
     let name = "i20-hard-stop";
     let v = evaluate(&format!("config/sim/{name}.toml"), "10", None);
+    let (raw, comp) = common_goals(name, &v);
+    not_too_wide(name, &v);
     let harm = num(&v, &["harm_mm", "max"]);
     assert!(harm <= 0.05, "{name}: harm_mm.max {harm}: {v}");
-    let raw = num(&v, &["tip_error_mm", "raw", "mean"]);
-    let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
     assert!(
         comp <= 0.8 * raw,
         "{name}: compensated {comp} > 80% of raw {raw}"
