@@ -629,7 +629,7 @@ fn a_swinging_contact_weakens_the_side_instead_of_pushing_the_wrong_way() {
     // The 95% bound over the swing: 83% covered (71% while the side's probability left the
     // sway out). Below the 90% in this synthetic case, where the shaft jumps across its
     // whole play at each zero crossing; the simulator's stick-slip scenario (the shaft crossing
-    // in a few ms) is covered in 94% of its cycles (tests/trust_scenarios.rs).
+    // in a few ms) is covered in 95% of its cycles (tests/trust_scenarios.rs, 12 s).
     let coverage = covered as f64 / 1500.0;
     assert!((0.8..=0.995).contains(&coverage), "coverage {coverage}");
 }
