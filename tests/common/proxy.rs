@@ -3,6 +3,7 @@
 //! of what it did. The client (serve) sends its requests to [`FaultProxy::addr`]; the proxy
 //! forwards them to the emulator and the emulator's replies back to the client.
 
+use super::Rng;
 use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -49,22 +50,6 @@ struct Shared {
     counters: Mutex<ProxyCounters>,
     client: Mutex<Option<SocketAddr>>,
     stop: AtomicBool,
-}
-
-/// splitmix64, seeded: the same seed injects the same faults.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn chance(&mut self, p: f64) -> bool {
-        p > 0.0 && ((self.next() >> 11) as f64 / (1u64 << 53) as f64) < p
-    }
 }
 
 pub struct FaultProxy {
