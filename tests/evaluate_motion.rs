@@ -42,15 +42,6 @@ fn evaluate(params: &str, scenario: &str, seconds: &str, plots: Option<&str>) ->
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
-fn num(v: &Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for p in path {
-        x = &x[*p];
-    }
-    x.as_f64()
-        .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
-}
-
 fn pair(v: &Value, key: &str) -> [f64; 2] {
     let a = v[key]
         .as_array()

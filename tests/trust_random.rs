@@ -120,13 +120,6 @@ fn scenario(seed: u64, kind: &str) -> String {
     s
 }
 
-fn num(v: &Value, path: &[&str]) -> f64 {
-    path.iter()
-        .fold(v, |x, p| &x[*p])
-        .as_f64()
-        .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
-}
-
 fn env_u64(name: &str, default: u64) -> u64 {
     std::env::var(name)
         .ok()

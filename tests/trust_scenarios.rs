@@ -55,15 +55,6 @@ fn evaluate(scenario: &str, seconds: &str, plots: Option<&str>) -> Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
-fn num(v: &Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for p in path {
-        x = &x[*p];
-    }
-    x.as_f64()
-        .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
-}
-
 /// In contact the bound also says something: at most 99.5% of the cycles covered.
 fn not_too_wide(name: &str, v: &Value) {
     let coverage = num(v, &["coverage"]);

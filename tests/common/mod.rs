@@ -242,6 +242,15 @@ pub fn emulator(port: u16, scenario: &str) -> Proc {
     p
 }
 
+/// The number at `path` in a JSON document (e.g. `["tip_error_mm", "raw", "mean"]` of an
+/// `evaluate --json` report); panics, naming the path and the document, when it is missing.
+pub fn num(v: &serde_json::Value, path: &[&str]) -> f64 {
+    path.iter()
+        .fold(v, |x, p| &x[*p])
+        .as_f64()
+        .unwrap_or_else(|| panic!("{path:?} missing in {v}"))
+}
+
 /// The flag names of a sample as `echo --json` prints them (`header.flags`).
 pub fn flag_names(sample: &serde_json::Value) -> Vec<String> {
     sample["header"]["flags"]
