@@ -719,6 +719,18 @@ fn dynamic_joint_bound(
     }
 }
 
+/// The weight of a new sample in an exponential average of time constant `time_s` after a step
+/// `dt` (s): `dt / time_s`, at most 1; 1 (the sample alone) for a step that is not positive and
+/// finite (the first sample, a time that went back).
+#[inline]
+fn average_weight(dt: f64, time_s: f64) -> f64 {
+    if dt > 0.0 && dt.is_finite() {
+        (dt / time_s).min(1.0)
+    } else {
+        1.0
+    }
+}
+
 /// `erf(x)` (Abramowitz and Stegun 7.1.26, |error| < 1.5e-7): the evidence for the side of the
 /// play, `E[sgn tau] = erf(tau / (sigma sqrt 2))` for a torque measured with noise `sigma`.
 fn erf(x: f64) -> f64 {
@@ -1148,8 +1160,8 @@ impl Compensator {
                     // torque-offset or model error as contact; `tau_min` is the fitter's floor
                     // of both).
                     let dt = t_s - tr.last_t_s;
-                    let alpha = if ready && dt > 0.0 && dt.is_finite() {
-                        (dt / EVIDENCE_TIME_S).min(1.0)
+                    let alpha = if ready {
+                        average_weight(dt, EVIDENCE_TIME_S)
                     } else {
                         1.0
                     };
@@ -1166,11 +1178,7 @@ impl Compensator {
                     if ready && tau_ext.is_finite() {
                         if tr.has_noise {
                             let d = tau_ext - tr.last_tau_ext;
-                            let beta = if dt > 0.0 && dt.is_finite() {
-                                (dt / NOISE_TIME_S).min(1.0)
-                            } else {
-                                1.0
-                            };
+                            let beta = average_weight(dt, NOISE_TIME_S);
                             tr.noise_var += beta * (0.5 * d * d - tr.noise_var);
                         } else {
                             tr.noise_var = sigma_tau * sigma_tau;
@@ -1189,11 +1197,7 @@ impl Compensator {
                     // average is that of the samples so far (this one included), so white noise
                     // alone leaves about its own variance.
                     if ready && tau_ext.is_finite() {
-                        let gamma = if dt > 0.0 && dt.is_finite() {
-                            (dt / SWAY_TIME_S).min(1.0)
-                        } else {
-                            1.0
-                        };
+                        let gamma = average_weight(dt, SWAY_TIME_S);
                         let dev = tau_ext - tr.tau_average;
                         tr.sway_var += gamma * (dev * dev - tr.sway_var);
                         if !tr.sway_var.is_finite() {
