@@ -186,5 +186,46 @@ class IsolatedDomain(unittest.TestCase):
         self.assertIsNotNone(a)
         self.assertEqual(int(a["header"]["seq"][0]), 7)
 
+    @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
+    def test_native_event_and_predictive_waits_give_their_thread_a_short_slice(self):
+        # The slice is per thread: each case opens its subscription on a thread of its own
+        # and reads the kernel's own account of that thread's slice.
+        import threading
+
+        from dvrk_sidecar import _native, native
+
+        release = tuple(int(x) for x in os.uname().release.split("-")[0].split(".")[:2])
+        if release < (6, 12):
+            self.skipTest(f"kernel {os.uname().release} has no per-task slice (6.12+)")
+
+        def slice_ns():
+            with open("/proc/thread-self/sched") as f:
+                line = next(l for l in f if l.strip().startswith("se.slice"))
+            value = line.split(":")[1].strip()
+            ms, _, frac = value.partition(".")
+            return int(ms) * 1_000_000 + int(frac) if frac else int(value)
+
+        topic = "compensated/local/measured_cp"
+        for wait in dvrk_sidecar.WAIT_STRATEGIES:
+            with self.subTest(wait=wait):
+                seen = {}
+
+                def subscribe():
+                    seen["before"] = slice_ns()
+                    node = _native.Node("slice", self.domain, ROOT)
+                    sub = _native.Subscription(node, "PSM1", topic, native.DTYPES[topic], wait=wait)
+                    seen["after"] = slice_ns()
+                    sub.close()
+
+                t = threading.Thread(target=subscribe)
+                t.start()
+                t.join()
+                if wait == "spin":
+                    self.assertEqual(seen["after"], seen["before"])
+                else:
+                    self.assertNotEqual(seen["before"], 100_000)
+                    self.assertEqual(seen["after"], 100_000)
+
+
 if __name__ == "__main__":
     unittest.main()

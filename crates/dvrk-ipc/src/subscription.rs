@@ -45,7 +45,9 @@ pub enum WaitStrategy {
     /// Least CPU; latency is one cross-process wake-up. A subscription of the
     /// cycle's first message, `compensated/local/measured_cp`, waits on the event notified right
     /// after that message ([`ServiceNames::cycle_first`]); the others on the event notified after
-    /// the cycle's last message ([`ServiceNames::cycle`]).
+    /// the cycle's last message ([`ServiceNames::cycle`]). Asks for a short time slice for the
+    /// thread that subscribes ([`Subscription::short_slice`]), so that its wake-up preempts the
+    /// service when both share a CPU.
     #[default]
     Event,
     /// Poll the shared memory without sleeping. Lowest latency, one whole CPU core per
@@ -60,7 +62,7 @@ pub enum WaitStrategy {
     /// has at least as many listeners as the process has CPUs. While fewer than a quarter of
     /// recent waits start polling in time (a publisher too irregular to predict), only one wait
     /// in eight polls and the others sleep like `Event`. Sets the calling thread's timer
-    /// slack to 1 ns (`PR_SET_TIMERSLACK`).
+    /// slack to 1 ns (`PR_SET_TIMERSLACK`) and, as `Event`, asks for a short time slice.
     Predictive,
 }
 
@@ -245,6 +247,8 @@ pub struct Subscription<T: Message, S: Service = iceoryx2::service::ipc::Service
     event: Option<EventFactory<S>>,
     /// CPUs this process may run on, read once at creation.
     cores: usize,
+    /// Whether creating it gave the calling thread the short time slice.
+    short_slice: bool,
 }
 
 /// Where a predictive wait started polling, to grade the prediction when the sample comes.
@@ -281,8 +285,9 @@ where
 
     /// Subscribes to `topic` under `names` (opening or creating the services with the project's
     /// QoS), waiting as `options` says. A [`WaitStrategy::Spin`] subscription opens no listener
-    /// on the cycle event; a [`WaitStrategy::Predictive`] one also opens a timer and sets the
-    /// calling thread's timer slack to 1 ns.
+    /// on the cycle event. [`WaitStrategy::Event`] and [`WaitStrategy::Predictive`] ones ask
+    /// for a short time slice for the calling thread ([`Subscription::short_slice`]); a
+    /// predictive one also opens a timer and sets the calling thread's timer slack to 1 ns.
     pub fn with_options(
         node: &Node<S>,
         names: &ServiceNames,
@@ -316,6 +321,12 @@ where
             } else {
                 (None, None, None)
             };
+        // A woken subscriber preempts a longer-slice task on its CPU (the service itself, when
+        // the scheduler wakes it there) instead of waiting for it: `sys::request_short_slice`.
+        // Best effort: a thread whose scheduling may not be changed (a seccomp filter) waits
+        // as before, and `short_slice()` says so.
+        let short_slice =
+            options.wait.uses_event() && matches!(sys::request_short_slice(), Ok(true));
         let timer = if options.wait == WaitStrategy::Predictive {
             sys::minimise_timer_slack().map_err(|source| IpcError::Timer {
                 what: "prctl(PR_SET_TIMERSLACK, 1)",
@@ -354,7 +365,17 @@ where
             stats: SubscriptionStats::default(),
             event,
             cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            short_slice,
         })
+    }
+
+    /// Whether creating this subscription gave the calling thread a short time slice
+    /// (0.1 ms, `sched_setattr`): event and predictive subscriptions ask for it
+    /// for the thread that creates them, which should be the thread that waits. `false` for
+    /// `Spin`, for a thread under a real-time or other non-normal policy (left as it is), and
+    /// where the kernel refused.
+    pub fn short_slice(&self) -> bool {
+        self.short_slice
     }
 
     /// Waits for the next sample and returns the newest one, or why there is none.

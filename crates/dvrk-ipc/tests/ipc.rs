@@ -645,3 +645,77 @@ fn the_domains_management_segment_is_owner_only_once_a_node_exists() {
     // A second node of the account still opens it.
     let _second = node(&d, "gm2");
 }
+
+/// The calling thread's EEVDF slice as the kernel reports it in `/proc/thread-self/sched`
+/// (`se.slice`, ns), independently of the library's own system calls.
+fn reported_slice_ns() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/thread-self/sched").ok()?;
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("se.slice"))?;
+    let value = line.split(':').nth(1)?.trim();
+    // Printed as an integer, or as "ms.ns" by kernels with SCHED_DEBUG's split format.
+    match value.split_once('.') {
+        Some((ms, frac)) => Some(ms.parse::<u64>().ok()? * 1_000_000 + frac.parse::<u64>().ok()?),
+        None => value.parse().ok(),
+    }
+}
+
+/// Whether the running kernel takes a normal task's `sched_runtime` as its slice (6.12+).
+fn kernel_has_custom_slices() -> bool {
+    let release = std::fs::read_to_string("/proc/sys/kernel/osrelease").unwrap_or_default();
+    let mut parts = release
+        .trim()
+        .split(['.', '-'])
+        .map(|p| p.parse::<u32>().unwrap_or(0));
+    let (major, minor) = (parts.next().unwrap_or(0), parts.next().unwrap_or(0));
+    (major, minor) >= (6, 12)
+}
+
+#[test]
+fn event_and_predictive_subscriptions_give_their_thread_a_short_slice_spin_does_not() {
+    use dvrk_ipc::{SubscribeOptions, WaitStrategy};
+    let d = Domain::new("slice");
+    for wait in WaitStrategy::ALL {
+        let config = d.config.clone();
+        let names = d.names.clone();
+        // A thread of its own per case: the slice is the thread's, and stays with it.
+        let (asked, before, after) = std::thread::spawn(move || {
+            let node = create_node::<ipc::Service>("slice", Some(&config)).expect("node");
+            let before = reported_slice_ns();
+            let options = SubscribeOptions {
+                period: PERIOD,
+                wait,
+                deadline: None,
+            };
+            let sub =
+                Subscription::<PoseV2>::with_options(&node, &names, Topic::MeasuredCp, options)
+                    .expect("subscription");
+            (sub.short_slice(), before, reported_slice_ns())
+        })
+        .join()
+        .expect("subscribing thread");
+        if wait == WaitStrategy::Spin {
+            assert!(
+                !asked,
+                "a spinning subscription never sleeps: no slice asked"
+            );
+            assert_eq!(after, before, "spin leaves the thread's slice as it was");
+            continue;
+        }
+        assert!(asked, "{wait:?}: a normal thread is given the short slice");
+        match after {
+            Some(slice) if kernel_has_custom_slices() => {
+                assert_eq!(slice, 100_000, "{wait:?}: se.slice after subscribing");
+                assert_ne!(
+                    before,
+                    Some(100_000),
+                    "the default slice is not already 0.1 ms"
+                );
+            }
+            _ => eprintln!(
+                "skipped: this kernel has no per-task slice to read back (se.slice {after:?})"
+            ),
+        }
+    }
+}
