@@ -17,13 +17,18 @@
 //!
 //! Both margins are stochastic quantile trackers. A late wake-up raises the guard by
 //! `GUARD_UP_NS`, an on-time one lowers it by `GUARD_DOWN_NS`, so it settles where
-//! P(late) = DOWN / (UP + DOWN), 5 %: at the p95 of the timer's wake-up lateness and the
+//! P(late) = DOWN / (UP + DOWN), 10 %: at the p90 of the timer's wake-up lateness and the
 //! arrivals' jitter together, not at its far tail. The tail of a timer on a VM is hundreds of
 //! µs, and a guard sized to it would poll for most of each period; a late wake-up costs nothing
 //! worse than the cycle event, which the wait watches at the same time. (The guard aimed at the
-//! p80 before: with one subscriber in five woken late, the late ones sat just below the median
-//! and pulled it up, p50 3.1-5.3 µs instead of 2.8-4.7 µs for 1.5-2 points of CPU more,
-//! 2026-11-24.) `spin_after` settles where about 3 % of samples come after it (each of those
+//! p80 before 2026-11-24: with one subscriber in five woken late, the late ones sat just below
+//! the median and pulled it up, p50 3.1-5.3 µs instead of 2.8-4.7 µs for 1.5-2 points of CPU
+//! more. It aimed at the p95 until 2026-11-28, when the event path's own hand-off halved (the
+//! short time slice, `sys::request_short_slice`), which made a late wake-up cheaper: at the p90,
+//! two alternating pairs of latency-harness runs gave 86-88 % of waits in time instead of 91 %,
+//! the same p50 (Rust 3.6-5.2 against 3.2-3.7 µs, the Python native wait 6.7-7.6 against
+//! 6.5-9.5 µs) and less CPU (Rust 6.8-7.1 against 8.4-8.9 %, Python native 9.3-10.5 against
+//! 11.9-12.0 %).) `spin_after` settles where about 3 % of samples come after it (each of those
 //! costs a whole window of polling).
 //! Each is capped at `1 / MAX_MARGIN_DIVISOR` of the
 //! period, which bounds the polling per cycle to half a period even for a publisher whose
@@ -43,7 +48,7 @@ pub const LEARN_SAMPLES: u32 = 16;
 const GUARD_INIT_NS: f64 = 50_000.0;
 /// Least guard.
 const GUARD_MIN_NS: f64 = 2_000.0;
-const GUARD_UP_NS: f64 = 19_000.0;
+const GUARD_UP_NS: f64 = 9_000.0;
 const GUARD_DOWN_NS: f64 = 1_000.0;
 /// Least and starting polling time after the predicted arrival.
 const SPIN_AFTER_MIN_NS: f64 = 20_000.0;
@@ -334,7 +339,7 @@ mod tests {
     }
 
     #[test]
-    fn guard_settles_where_one_wake_up_in_twenty_is_late() {
+    fn guard_settles_where_one_wake_up_in_ten_is_late() {
         // Wake-up lateness plus arrival jitter, pseudo-random with a long tail: 5..45 µs mostly,
         // one in ten up to 150 µs (the guard is capped at a quarter of a period, 167 µs).
         let mut p = Predictor::new(P);
@@ -358,7 +363,7 @@ mod tests {
             p.graded(on_time);
         }
         let frac = f64::from(late) / f64::from(n);
-        assert!((0.035..=0.07).contains(&frac), "{:.1} % late", frac * 100.0);
+        assert!((0.075..=0.13).contains(&frac), "{:.1} % late", frac * 100.0);
     }
 
     #[test]
