@@ -480,6 +480,51 @@ def _minimise_timer_slack() -> None:
         raise OSError(ctypes.get_errno(), "prctl(PR_SET_TIMERSLACK)")
 
 
+class _SchedAttr(ctypes.Structure):
+    """struct sched_attr, its first (48-byte) version."""
+
+    _fields_ = [
+        ("size", ctypes.c_uint32),
+        ("sched_policy", ctypes.c_uint32),
+        ("sched_flags", ctypes.c_uint64),
+        ("sched_nice", ctypes.c_int32),
+        ("sched_priority", ctypes.c_uint32),
+        ("sched_runtime", ctypes.c_uint64),
+        ("sched_deadline", ctypes.c_uint64),
+        ("sched_period", ctypes.c_uint64),
+    ]
+
+
+# sched_setattr and sched_getattr, per machine (the generic table's numbers elsewhere).
+_SCHED_SYSCALLS = {"x86_64": (314, 315), "aarch64": (274, 275)}
+SHORT_SLICE_NS = 100_000
+"""The time slice an event or predictive waiter's thread asks for (dvrk_ipc::sys)."""
+
+
+def request_short_slice() -> bool:
+    """Asks for a 0.1 ms time slice for this thread, as dvrk_ipc's event and predictive waits
+    do: since Linux 6.12 a task woken with a shorter slice than the running one's preempts it,
+    so a waiter woken on the service's CPU takes its sample while the service finishes its
+    cycle. Only under the normal policy (SCHED_OTHER); the nice value is kept. True when set;
+    False for another policy, another machine, or a refusal (it is a hint: the wait works
+    without it)."""
+    calls = _SCHED_SYSCALLS.get(os.uname().machine)
+    if calls is None:
+        return False
+    setattr_nr, getattr_nr = calls
+    libc = ctypes.CDLL(None, use_errno=True)
+    attr = _SchedAttr()
+    size = ctypes.sizeof(_SchedAttr)
+    if libc.syscall(getattr_nr, 0, ctypes.byref(attr), size, 0) != 0:
+        return False
+    if attr.sched_policy != 0:  # SCHED_OTHER
+        return False
+    attr.size = size
+    attr.sched_runtime = SHORT_SLICE_NS
+    attr.sched_flags &= 0x01  # SCHED_FLAG_RESET_ON_FORK only (no utilisation clamps here)
+    return libc.syscall(setattr_nr, 0, ctypes.byref(attr), 0) == 0
+
+
 class Predictor:
     """The publisher's cycle: a period and a phase learnt from the samples' `publish_t_ns`, and
     two adaptive margins around the predicted arrival (the model of dvrk_ipc's predictive wait:
@@ -556,6 +601,9 @@ class Waiter:
     - `predictive`: learn the publisher's period and phase from `publish_t_ns`, sleep on the
       event's socket until shortly before the next sample is due, then poll; never later than
       the event. Sets this thread's timer slack to 1 ns.
+
+    `event` and `predictive` ask for a 0.1 ms time slice for this thread
+    (`request_short_slice`; `short_slice` says whether it was set), as the native client does.
     """
 
     def __init__(self, node, prefix: str, strategy: str = "event", nominal_period_ns: int = NOMINAL_PERIOD_NS):
@@ -565,11 +613,13 @@ class Waiter:
         self.listener = None
         self.fd = None
         self.predictor = None
+        self.short_slice = False
         if strategy == "spin":
             return
         self.event = open_cycle_event(node, prefix)
         before = _socket_fds()
         self.listener = self.event.listener_builder().create()
+        self.short_slice = request_short_slice()
         if strategy == "predictive":
             # iceoryx2's Python API does not expose the listener's descriptor; it is the unix
             # socket that creating the listener opened and bound to the event's path.

@@ -1,8 +1,9 @@
 """dvrk_sidecar's iceoryx2 side in an isolated domain of its own (real shared memory, removed
 afterwards), with each client (`backend="native"` when the native module is built, and
 `"pure"`): a service of another type is refused with a readable error, a silent arm raises
-NoSample, echo exits 2 on silence, a Python publisher's samples reach the Arm, and the two
-copies of iceoryx2 in one process leave each other's nodes alone."""
+NoSample, echo exits 2 on silence, a Python publisher's samples reach the Arm, the two
+copies of iceoryx2 in one process leave each other's nodes alone, and event and predictive
+waits give their thread the short time slice."""
 
 import ctypes
 import os
@@ -186,13 +187,10 @@ class IsolatedDomain(unittest.TestCase):
         self.assertIsNotNone(a)
         self.assertEqual(int(a["header"]["seq"][0]), 7)
 
-    @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
-    def test_native_event_and_predictive_waits_give_their_thread_a_short_slice(self):
-        # The slice is per thread: each case opens its subscription on a thread of its own
-        # and reads the kernel's own account of that thread's slice.
+    def test_event_and_predictive_waits_give_their_thread_a_short_slice(self):
+        # The slice is per thread: each case opens its waiter on a thread of its own and reads
+        # the kernel's own account of that thread's slice.
         import threading
-
-        from dvrk_sidecar import _native, native
 
         release = tuple(int(x) for x in os.uname().release.split("-")[0].split(".")[:2])
         if release < (6, 12):
@@ -206,26 +204,37 @@ class IsolatedDomain(unittest.TestCase):
             return int(ms) * 1_000_000 + int(frac) if frac else int(value)
 
         topic = "compensated/local/measured_cp"
-        for wait in dvrk_sidecar.WAIT_STRATEGIES:
-            with self.subTest(wait=wait):
-                seen = {}
 
-                def subscribe():
-                    seen["before"] = slice_ns()
-                    node = _native.Node("slice", self.domain, ROOT)
-                    sub = _native.Subscription(node, "PSM1", topic, native.DTYPES[topic], wait=wait)
-                    seen["after"] = slice_ns()
-                    sub.close()
+        def open_native(wait):
+            from dvrk_sidecar import _native, native
 
-                t = threading.Thread(target=subscribe)
-                t.start()
-                t.join()
-                if wait == "spin":
-                    self.assertEqual(seen["after"], seen["before"])
-                else:
-                    self.assertNotEqual(seen["before"], 100_000)
-                    self.assertEqual(seen["after"], 100_000)
+            node = _native.Node("slice", self.domain, ROOT)
+            return _native.Subscription(node, "PSM1", topic, native.DTYPES[topic], wait=wait).close
 
+        def open_pure(wait):
+            waiter = ipc.Waiter(ipc.create_node("slice", self.domain, ROOT), "PSM1", wait)
+            self.assertEqual(waiter.short_slice, wait != "spin")
+            return waiter.close
+
+        for backend in BACKENDS:
+            for wait in dvrk_sidecar.WAIT_STRATEGIES:
+                with self.subTest(backend=backend, wait=wait):
+                    seen = {}
+
+                    def subscribe():
+                        seen["before"] = slice_ns()
+                        close = (open_native if backend == "native" else open_pure)(wait)
+                        seen["after"] = slice_ns()
+                        close()
+
+                    t = threading.Thread(target=subscribe)
+                    t.start()
+                    t.join()
+                    if wait == "spin":
+                        self.assertEqual(seen["after"], seen["before"])
+                    else:
+                        self.assertNotEqual(seen["before"], 100_000)
+                        self.assertEqual(seen["after"], 100_000)
 
 if __name__ == "__main__":
     unittest.main()
