@@ -169,8 +169,8 @@ fn thread_slice_ns() -> io::Result<u64> {
 /// preempts it at once instead of waiting for that task to sleep or use up its own slice.
 /// A subscriber woken by the service on the service's CPU then takes its sample while the
 /// service finishes its cycle, rather than after. Its share of the CPU does not change (that is
-/// the weight, from the nice value), and no privilege is needed. Older kernels accept and
-/// ignore it.
+/// the weight, from the nice value), and no privilege is needed. Threads the caller starts
+/// afterwards inherit it (as they inherit its nice value). Older kernels accept and ignore it.
 pub fn request_short_slice() -> io::Result<bool> {
     let mut attr = thread_sched_attr()?;
     if attr.sched_policy != libc::SCHED_OTHER as u32 {
