@@ -495,7 +495,7 @@ class _SchedAttr(ctypes.Structure):
     ]
 
 
-# sched_setattr and sched_getattr, per machine (the generic table's numbers elsewhere).
+# sched_setattr and sched_getattr system call numbers, per machine (on others no slice is asked).
 _SCHED_SYSCALLS = {"x86_64": (314, 315), "aarch64": (274, 275)}
 SHORT_SLICE_NS = 100_000
 """The time slice an event or predictive waiter's thread asks for (dvrk_ipc::sys)."""
