@@ -530,3 +530,21 @@ fn out_onto_a_device_or_a_fifo_is_refused_and_leaves_it_alone() {
         );
     }
 }
+
+/// A consumer's `DVRK_SIDECAR_SHORT_SLICE` (issue 23's short time slice) that is neither 0 nor
+/// 1: `echo` refuses it when it subscribes, naming the variable and the value, instead of
+/// waiting without telling.
+#[test]
+fn a_bad_short_slice_setting_is_refused_by_name_and_value() {
+    let out = Command::new(sidecar_bin())
+        .args(["echo", "bad_slice/measured_js", "--count", "1"])
+        .env("DVRK_SIDECAR_SHORT_SLICE", "off")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = assert_refused(&out, "DVRK_SIDECAR_SHORT_SLICE=off");
+    assert!(
+        err.contains("DVRK_SIDECAR_SHORT_SLICE=\"off\": expected 0 (no short time slice) or 1"),
+        "{err}"
+    );
+}

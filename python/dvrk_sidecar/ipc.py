@@ -501,6 +501,21 @@ SHORT_SLICE_NS = 100_000
 """The time slice an event or predictive waiter's thread asks for (dvrk_ipc::sys)."""
 
 
+SHORT_SLICE_ENV = "DVRK_SIDECAR_SHORT_SLICE"
+"""`0` turns the short time slice off, `1` (or unset) on (dvrk_ipc::SHORT_SLICE_ENV)."""
+
+
+def short_slice_wanted() -> bool:
+    """Whether event and predictive waiters ask for the short slice, from $DVRK_SIDECAR_SHORT_SLICE
+    (ConfigError for a value other than 0 or 1, with the same words as dvrk_ipc)."""
+    value = os.environ.get(SHORT_SLICE_ENV)
+    if value is None or value == "1":
+        return True
+    if value == "0":
+        return False
+    raise ConfigError(f'{SHORT_SLICE_ENV}="{value}": expected 0 (no short time slice) or 1 (the default)')
+
+
 def request_short_slice() -> bool:
     """Asks for a 0.1 ms time slice for this thread, as dvrk_ipc's event and predictive waits
     do: since Linux 6.12 a task woken with a shorter slice than the running one's preempts it,
@@ -603,7 +618,8 @@ class Waiter:
       the event. Sets this thread's timer slack to 1 ns.
 
     `event` and `predictive` ask for a 0.1 ms time slice for this thread
-    (`request_short_slice`; `short_slice` says whether it was set), as the native client does.
+    (`request_short_slice`; `short_slice` says whether it was set), as the native client does,
+    unless $DVRK_SIDECAR_SHORT_SLICE is 0.
     """
 
     def __init__(self, node, prefix: str, strategy: str = "event", nominal_period_ns: int = NOMINAL_PERIOD_NS):
@@ -616,10 +632,11 @@ class Waiter:
         self.short_slice = False
         if strategy == "spin":
             return
+        want_slice = short_slice_wanted()  # before anything is opened: a bad value leaks nothing
         self.event = open_cycle_event(node, prefix)
         before = _socket_fds()
         self.listener = self.event.listener_builder().create()
-        self.short_slice = request_short_slice()
+        self.short_slice = want_slice and request_short_slice()
         if strategy == "predictive":
             # iceoryx2's Python API does not expose the listener's descriptor; it is the unix
             # socket that creating the listener opened and bound to the event's path.

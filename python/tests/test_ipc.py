@@ -221,12 +221,14 @@ class IsolatedDomain(unittest.TestCase):
 
         def open_pure(wait):
             waiter = ipc.Waiter(ipc.create_node("slice", self.domain, ROOT), "PSM1", wait)
-            self.assertEqual(waiter.short_slice, wait != "spin")
+            self.assertEqual(waiter.short_slice, wait != "spin" and ipc.short_slice_wanted())
             return waiter.close
 
-        for backend in BACKENDS:
-            for wait in dvrk_sidecar.WAIT_STRATEGIES:
-                with self.subTest(backend=backend, wait=wait):
+        cases = [(b, w, None) for b in BACKENDS for w in dvrk_sidecar.WAIT_STRATEGIES]
+        # $DVRK_SIDECAR_SHORT_SLICE=0 turns it off for both clients.
+        cases += [(b, w, "0") for b in BACKENDS for w in ("event", "predictive")]
+        for backend, wait, env in cases:
+            with self.subTest(backend=backend, wait=wait, env=env):
                     seen = {}
 
                     def subscribe():
@@ -238,14 +240,35 @@ class IsolatedDomain(unittest.TestCase):
                         seen["after"] = slice_ns()
                         close()
 
-                    t = threading.Thread(target=subscribe)
-                    t.start()
-                    t.join()
-                    if wait == "spin":
+                    if env is None:
+                        os.environ.pop(ipc.SHORT_SLICE_ENV, None)
+                    else:
+                        os.environ[ipc.SHORT_SLICE_ENV] = env
+                    try:
+                        t = threading.Thread(target=subscribe)
+                        t.start()
+                        t.join()
+                    finally:
+                        os.environ.pop(ipc.SHORT_SLICE_ENV, None)
+                    if wait == "spin" or env == "0":
                         self.assertEqual(seen["after"], seen["before"])
                     else:
                         self.assertNotEqual(seen["before"], 100_000)
                         self.assertEqual(seen["after"], 100_000)
+
+    def test_a_bad_short_slice_setting_is_refused_with_its_name_and_value(self):
+        os.environ[ipc.SHORT_SLICE_ENV] = "off"
+        try:
+            for backend in BACKENDS:
+                with self.subTest(backend=backend):
+                    with self.assertRaises(dvrk_sidecar.DvrkSidecarError) as cm:
+                        Arm("PSM1", wait="event", domain=self.domain, root=ROOT, backend=backend).measured_js(wait=0.01)
+                    self.assertIn(
+                        'DVRK_SIDECAR_SHORT_SLICE="off": expected 0 (no short time slice) or 1 (the default)',
+                        str(cm.exception),
+                    )
+        finally:
+            os.environ.pop(ipc.SHORT_SLICE_ENV, None)
 
 if __name__ == "__main__":
     unittest.main()

@@ -176,6 +176,14 @@ pub enum IpcError {
         source: std::io::Error,
     },
 
+    /// An environment variable of the project holds a value it does not take.
+    #[error("{name}={value:?}: expected {expected}")]
+    InvalidEnvironment {
+        name: &'static str,
+        value: String,
+        expected: &'static str,
+    },
+
     /// The timer of a predictive subscription could not be set up.
     #[error("{what} failed: {source}")]
     Timer {

@@ -93,8 +93,8 @@ pub use services::{
 };
 pub use subscription::{
     DEAD_PUBLISHER_CHECK_INTERVAL, DEADLINE_PERIODS, MIN_DEFAULT_DEADLINE, NOMINAL_PERIOD,
-    Prediction, SubscribeOptions, Subscription, SubscriptionStats, UnknownWaitStrategy, Update,
-    WaitStrategy,
+    Prediction, SHORT_SLICE_ENV, SubscribeOptions, Subscription, SubscriptionStats,
+    UnknownWaitStrategy, Update, WaitStrategy,
 };
 
 /// The iceoryx2 crate this contract is built on (same version in every process).

@@ -37,6 +37,29 @@ pub const DEAD_PUBLISHER_CHECK_INTERVAL: Duration = Duration::from_millis(200);
 /// Nominal publishing period of the sidecar (1500 Hz, like the dVRK console).
 pub const NOMINAL_PERIOD: Duration = Duration::from_nanos(666_667);
 
+/// The environment variable that turns off (`0`) the short time slice that event and predictive
+/// subscriptions ask for their thread ([`Subscription::short_slice`]); `1` or unset: on. Read
+/// when a subscription is created, by the Rust and both Python clients; any other value is
+/// refused there ([`IpcError::InvalidEnvironment`]).
+pub const SHORT_SLICE_ENV: &str = "DVRK_SIDECAR_SHORT_SLICE";
+
+/// Whether event and predictive subscriptions ask for the short slice, for the value of
+/// [`SHORT_SLICE_ENV`].
+fn short_slice_wanted(env: Option<std::ffi::OsString>) -> Result<bool, IpcError> {
+    match env {
+        None => Ok(true),
+        Some(v) => match v.to_str() {
+            Some("1") => Ok(true),
+            Some("0") => Ok(false),
+            _ => Err(IpcError::InvalidEnvironment {
+                name: SHORT_SLICE_ENV,
+                value: v.to_string_lossy().into_owned(),
+                expected: "0 (no short time slice) or 1 (the default)",
+            }),
+        },
+    }
+}
+
 /// How a [`Subscription`] waits for the next sample.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub enum WaitStrategy {
@@ -47,7 +70,7 @@ pub enum WaitStrategy {
     /// after that message ([`ServiceNames::cycle_first`]); the others on the event notified after
     /// the cycle's last message ([`ServiceNames::cycle`]). Asks for a short time slice for the
     /// thread that subscribes ([`Subscription::short_slice`]), so that its wake-up preempts the
-    /// service when both share a CPU.
+    /// service when both share a CPU ([`SHORT_SLICE_ENV`] turns it off).
     #[default]
     Event,
     /// Poll the shared memory without sleeping. Lowest latency, one whole CPU core per
@@ -325,8 +348,9 @@ where
         // the scheduler wakes it there) instead of waiting for it: `sys::request_short_slice`.
         // Best effort: a thread whose scheduling may not be changed (a seccomp filter) waits
         // as before, and `short_slice()` says so.
-        let short_slice =
-            options.wait.uses_event() && matches!(sys::request_short_slice(), Ok(true));
+        let short_slice = options.wait.uses_event()
+            && short_slice_wanted(std::env::var_os(SHORT_SLICE_ENV))?
+            && matches!(sys::request_short_slice(), Ok(true));
         let timer = if options.wait == WaitStrategy::Predictive {
             sys::minimise_timer_slack().map_err(|source| IpcError::Timer {
                 what: "prctl(PR_SET_TIMERSLACK, 1)",
@@ -372,8 +396,8 @@ where
     /// Whether creating this subscription gave the calling thread a short time slice
     /// (0.1 ms, `sched_setattr`): event and predictive subscriptions ask for it
     /// for the thread that creates them, which should be the thread that waits. `false` for
-    /// `Spin`, for a thread under a real-time or other non-normal policy (left as it is), and
-    /// where the kernel refused.
+    /// `Spin`, for a thread under a real-time or other non-normal policy (left as it is), where
+    /// the kernel refused, and when [`SHORT_SLICE_ENV`] is `0`.
     pub fn short_slice(&self) -> bool {
         self.short_slice
     }
@@ -763,5 +787,23 @@ where
         Update::Stale {
             since_ns: now.saturating_sub(self.last_fresh_ns),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_short_slice_is_on_unless_the_environment_says_0() {
+        use std::ffi::OsString;
+        assert!(short_slice_wanted(None).unwrap());
+        assert!(short_slice_wanted(Some(OsString::from("1"))).unwrap());
+        assert!(!short_slice_wanted(Some(OsString::from("0"))).unwrap());
+        let e = short_slice_wanted(Some(OsString::from("off"))).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "DVRK_SIDECAR_SHORT_SLICE=\"off\": expected 0 (no short time slice) or 1 (the default)"
+        );
     }
 }
