@@ -523,6 +523,12 @@ def request_short_slice() -> bool:
     cycle. Only under the normal policy (SCHED_OTHER); the nice value is kept. True when set;
     False for another policy, another machine, or a refusal (it is a hint: the wait works
     without it)."""
+    return _set_thread_slice(SHORT_SLICE_NS)
+
+
+def _set_thread_slice(ns: int) -> bool:
+    """sched_setattr of this thread's slice to `ns` (0: the kernel's default), keeping its
+    policy and nice value; only under SCHED_OTHER. True when set."""
     calls = _SCHED_SYSCALLS.get(os.uname().machine)
     if calls is None:
         return False
@@ -535,7 +541,7 @@ def request_short_slice() -> bool:
     if attr.sched_policy != 0:  # SCHED_OTHER
         return False
     attr.size = size
-    attr.sched_runtime = SHORT_SLICE_NS
+    attr.sched_runtime = ns
     attr.sched_flags &= 0x01  # SCHED_FLAG_RESET_ON_FORK only (no utilisation clamps here)
     return libc.syscall(setattr_nr, 0, ctypes.byref(attr), 0) == 0
 

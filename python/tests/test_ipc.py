@@ -203,14 +203,6 @@ class IsolatedDomain(unittest.TestCase):
             ms, _, frac = value.partition(".")
             return int(ms) * 1_000_000 + int(frac) if frac else int(value)
 
-        def reset_slice():
-            setattr_nr, getattr_nr = ipc._SCHED_SYSCALLS[os.uname().machine]
-            libc = ctypes.CDLL(None, use_errno=True)
-            attr = ipc._SchedAttr()
-            self.assertEqual(libc.syscall(getattr_nr, 0, ctypes.byref(attr), ctypes.sizeof(attr), 0), 0)
-            attr.size, attr.sched_runtime, attr.sched_flags = ctypes.sizeof(attr), 0, 0
-            self.assertEqual(libc.syscall(setattr_nr, 0, ctypes.byref(attr), 0), 0)
-
         topic = "compensated/local/measured_cp"
 
         def open_native(wait):
@@ -229,32 +221,32 @@ class IsolatedDomain(unittest.TestCase):
         cases += [(b, w, "0") for b in BACKENDS for w in ("event", "predictive")]
         for backend, wait, env in cases:
             with self.subTest(backend=backend, wait=wait, env=env):
-                    seen = {}
+                seen = {}
 
-                    def subscribe():
-                        # A thread inherits its creator's slice, and earlier tests opened
-                        # waiters on the main thread: back to the kernel's default first.
-                        reset_slice()
-                        seen["before"] = slice_ns()
-                        close = (open_native if backend == "native" else open_pure)(wait)
-                        seen["after"] = slice_ns()
-                        close()
+                def subscribe():
+                    # A thread inherits its creator's slice, and earlier tests opened
+                    # waiters on the main thread: back to the kernel's default first.
+                    self.assertTrue(ipc._set_thread_slice(0))
+                    seen["before"] = slice_ns()
+                    close = (open_native if backend == "native" else open_pure)(wait)
+                    seen["after"] = slice_ns()
+                    close()
 
-                    if env is None:
-                        os.environ.pop(ipc.SHORT_SLICE_ENV, None)
-                    else:
-                        os.environ[ipc.SHORT_SLICE_ENV] = env
-                    try:
-                        t = threading.Thread(target=subscribe)
-                        t.start()
-                        t.join()
-                    finally:
-                        os.environ.pop(ipc.SHORT_SLICE_ENV, None)
-                    if wait == "spin" or env == "0":
-                        self.assertEqual(seen["after"], seen["before"])
-                    else:
-                        self.assertNotEqual(seen["before"], 100_000)
-                        self.assertEqual(seen["after"], 100_000)
+                if env is None:
+                    os.environ.pop(ipc.SHORT_SLICE_ENV, None)
+                else:
+                    os.environ[ipc.SHORT_SLICE_ENV] = env
+                try:
+                    t = threading.Thread(target=subscribe)
+                    t.start()
+                    t.join()
+                finally:
+                    os.environ.pop(ipc.SHORT_SLICE_ENV, None)
+                if wait == "spin" or env == "0":
+                    self.assertEqual(seen["after"], seen["before"])
+                else:
+                    self.assertNotEqual(seen["before"], 100_000)
+                    self.assertEqual(seen["after"], 100_000)
 
     def test_a_bad_short_slice_setting_is_refused_with_its_name_and_value(self):
         os.environ[ipc.SHORT_SLICE_ENV] = "off"
