@@ -1,9 +1,9 @@
 """dvrk_sidecar's iceoryx2 side in an isolated domain of its own (real shared memory, removed
 afterwards), with each client (`backend="native"` when the native module is built, and
 `"pure"`): a service of another type is refused with a readable error, a silent arm raises
-NoSample, echo exits 2 on silence, a Python publisher's samples reach the Arm, the two
-copies of iceoryx2 in one process leave each other's nodes alone, and event and predictive
-waits give their thread the short time slice."""
+NoSample, echo exits 2 on silence, a Python publisher's samples reach the Arm, each native
+wait hands out an array of its own, the two copies of iceoryx2 in one process leave each
+other's nodes alone, and event and predictive waits give their thread the short time slice."""
 
 import ctypes
 import os
@@ -13,6 +13,7 @@ import time
 import unittest
 
 import iceoryx2 as iox2
+import numpy
 
 import dvrk_sidecar
 from dvrk_sidecar import Arm, NoSample, OpenError, ipc, msg
@@ -157,6 +158,35 @@ class IsolatedDomain(unittest.TestCase):
                 }
                 self.assertEqual(seqs, {cycle.seq})
                 self.assertEqual(cycle.compensated.local.measured_cp()[0, 3], float(cycle.seq))
+
+    @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
+    def test_each_native_wait_hands_out_an_array_of_its_own(self):
+        # The native wait copies a sample into an array it made before waiting: every sample
+        # must still get its own array, which later waits leave as it was, and a wait that
+        # timed out keeps its array for the next sample.
+        from dvrk_sidecar import _native, native
+
+        topic = "compensated/local/measured_cp"
+        node = _native.Node("own", self.domain, ROOT)
+        subs = {}
+        for wait in dvrk_sidecar.WAIT_STRATEGIES:
+            subs[wait] = _native.Subscription(node, "PSM1", topic, native.DTYPES[topic], wait=wait)
+            self.addCleanup(subs[wait].close)
+            self.assertIsNone(subs[wait].wait(0.05))  # no publisher yet
+        self._publisher()
+        for wait, sub in subs.items():
+            with self.subTest(wait=wait):
+                got = []
+                while len(got) < 12:
+                    a = sub.wait(5.0)
+                    self.assertIsNotNone(a, f"no sample within 5 s after {len(got)}")
+                    got.append(a)
+                seqs = [int(a["header"]["seq"][0]) for a in got]
+                self.assertEqual(seqs, sorted(set(seqs)))
+                # The publisher writes x = seq into this topic's pose.
+                self.assertEqual([float(a["position_m"][0][0]) for a in got], [float(q) for q in seqs])
+                for i, a in enumerate(got[1:], 1):
+                    self.assertFalse(numpy.shares_memory(a, got[i - 1]))
 
     @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
     def test_the_two_iceoryx2_copies_in_one_process_leave_each_others_nodes_alone(self):

@@ -4,8 +4,8 @@
 //! runs the consumer's wait strategy (event, predictive, spin) in compiled code with the GIL
 //! released, so other Python threads keep running while one waits, and hands the newest sample
 //! to Python as one numpy array over the whole message (a structured dtype given by the Python
-//! side, built from its ctypes layouts): one copy of the message into a new buffer, then every
-//! field a view of it.
+//! side, built from its ctypes layouts): one copy of the message into a new buffer (made before
+//! the wait, so the hand-off is the copy alone), then every field a view of it.
 //!
 //! Python never sees this module directly: `dvrk_sidecar.Arm` uses it when it imports
 //! (`dvrk_sidecar.BACKEND == "native"`) and falls back to the pure-Python client otherwise.
@@ -160,9 +160,10 @@ macro_rules! each_type {
     };
 }
 
-/// What one call of the underlying `Subscription::wait` gave, the sample already a numpy array.
-enum Step<'py> {
-    Fresh(Bound<'py, PyAny>),
+/// What one call of the underlying `Subscription::wait` gave (a fresh sample already copied
+/// into the spare array).
+enum Step {
+    Fresh,
     Stale,
     Terminated,
     Interrupted,
@@ -181,7 +182,35 @@ struct NativeSubscription {
     size: usize,
     dtype: Py<PyAny>,
     frombuffer: Py<PyAny>,
+    /// The array the next sample `wait` receives is copied into, made before the wait (see
+    /// [`Spare`]); `None` until the first wait and after each fresh sample.
+    spare: Option<Spare>,
     terminated: bool,
+}
+
+/// A new numpy array over a new, zeroed `bytearray` of the message's size, made before a wait
+/// so that the sample's hand-off is a copy into it, not the construction of the array (which
+/// costs more than the copy with caches cold after the sleep). Each sample still gets an array
+/// of its own: a spare is handed out once, and the next wait makes another.
+struct Spare {
+    bytes: Py<PyByteArray>,
+    array: Py<PyAny>,
+}
+
+impl Spare {
+    fn new(
+        py: Python<'_>,
+        frombuffer: &Py<PyAny>,
+        dtype: &Py<PyAny>,
+        size: usize,
+    ) -> PyResult<Self> {
+        let bytes = PyByteArray::new_with(py, size, |_| Ok(()))?;
+        let array = frombuffer.call1(py, (&bytes, dtype.bind(py)))?;
+        Ok(Self {
+            bytes: bytes.unbind(),
+            array,
+        })
+    }
 }
 
 impl NativeSubscription {
@@ -271,6 +300,7 @@ impl NativeSubscription {
             size,
             dtype,
             frombuffer,
+            spare: None,
             terminated: false,
         })
     }
@@ -283,30 +313,52 @@ impl NativeSubscription {
     fn wait<'py>(&mut self, py: Python<'py>, timeout: f64) -> PyResult<Option<Bound<'py, PyAny>>> {
         let until = dvrk_ipc::monotonic_ns().saturating_add(seconds_to_ns(timeout));
         loop {
-            let frombuffer = &self.frombuffer;
-            let dtype = &self.dtype;
+            let spare = match self.spare.take() {
+                Some(spare) => spare,
+                None => Spare::new(py, &self.frombuffer, &self.dtype, self.size)?,
+            };
+            let size = self.size;
             let inner = self
                 .inner
                 .as_mut()
                 .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))?;
+            // The spare's buffer, written with the GIL released: nothing else can reach it (the
+            // bytearray and its array are referenced from here only until the array is
+            // returned), and the array's export of the buffer keeps the bytearray from being
+            // resized, so the pointer stays valid.
+            let dest = OnThisThread(spare.bytes.bind(py).data());
             let step = each_type!(inner, s => {
                 let s = OnThisThread(s);
-                let update = py.detach(move || s.into_inner().wait()).map_err(native_err)?;
-                match update {
-                    Update::Fresh(v) => Step::Fresh(Self::array(py, frombuffer, dtype, bytes_of(&v))?),
-                    Update::Stale { .. } => Step::Stale,
-                    Update::Terminated => Step::Terminated,
-                    Update::Interrupted => Step::Interrupted,
-                }
+                py.detach(move || {
+                    let dest = dest.into_inner();
+                    s.into_inner().wait().map(|update| match update {
+                        Update::Fresh(v) => {
+                            let bytes = bytes_of(&v);
+                            debug_assert_eq!(bytes.len(), size);
+                            // SAFETY: `dest` is the spare bytearray's buffer of `size` bytes (its
+                            // dtype's itemsize, checked equal to the message's size at
+                            // construction); see above for why it is valid and unaliased.
+                            unsafe {
+                                core::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, size.min(bytes.len()))
+                            };
+                            Step::Fresh
+                        }
+                        Update::Stale { .. } => Step::Stale,
+                        Update::Terminated => Step::Terminated,
+                        Update::Interrupted => Step::Interrupted,
+                    })
+                })
+                .map_err(native_err)?
             });
             match step {
-                Step::Fresh(a) => {
+                Step::Fresh => {
                     self.terminated = false;
-                    return Ok(Some(a));
+                    return Ok(Some(spare.array.into_bound(py)));
                 }
                 Step::Terminated => self.terminated = true,
                 Step::Stale | Step::Interrupted => {}
             }
+            self.spare = Some(spare);
             py.check_signals()?;
             if dvrk_ipc::monotonic_ns() >= until {
                 return Ok(None);
