@@ -4,7 +4,8 @@
 //!
 //! Classes: a fixed-size array with an extra value, an unphysical stiffness, UDP port 0, a prefix
 //! the bridge would refuse, a FIFO as configuration (under a timeout, so the suite itself cannot
-//! hang), a huge invalid line, stdout a closed pipe, `--out` onto a device or a FIFO.
+//! hang), a huge invalid line, a huge number, stdout a closed pipe, `--out` onto a device or a
+//! FIFO.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common;
@@ -413,6 +414,40 @@ fn a_huge_invalid_line_is_quoted_within_bounds() {
     std::fs::write(&big, vec![b'#'; 17 << 20]).unwrap();
     let err = assert_refused(&check_config(&big), "17 MiB");
     assert!(err.contains("big.toml") && err.contains("16 MiB"), "{err}");
+}
+
+#[test]
+fn a_huge_number_is_echoed_in_scientific_notation() {
+    // A command-line value...
+    let c = repo().join("config");
+    let o = Command::new(sidecar_bin())
+        .arg("evaluate")
+        .arg("--params")
+        .arg(c.join("compliance/sim-psm.toml"))
+        .arg("--scenario")
+        .arg(c.join("sim/divot-push.toml"))
+        .args(["--seconds", "1e308"])
+        .output()
+        .unwrap();
+    let err = assert_refused(&o, "--seconds 1e308");
+    assert!(
+        err.contains("--seconds 1e308: must be in (0, 3600]"),
+        "{err}"
+    );
+    assert!(err.len() < 200, "{} bytes on stderr: {err}", err.len());
+    // ...and a configuration field: named, with its value as written, not as 301 digits.
+    let d = scratch("bad_huge_number");
+    let cfg = config_with(
+        &d,
+        "timeout.toml",
+        &[("prefix =", "prefix = \"PSM1\"\nreply_timeout_ms = 1e300")],
+    );
+    let err = assert_refused(&check_config(&cfg), "reply_timeout_ms = 1e300");
+    assert!(
+        err.contains("timeout.toml") && err.contains("field `reply_timeout_ms` = 1e300:"),
+        "{err}"
+    );
+    assert!(err.len() < 400, "{} bytes on stderr: {err}", err.len());
 }
 
 /// Runs the binary with stdout a pipe whose reading end is already closed (as after

@@ -4,6 +4,7 @@
 //! Relative paths in the file are resolved against the directory of the file itself, so a copy in
 //! `/etc/dvrk-sidecar/` works the same as `config/sidecar.toml` in the repository.
 
+use crate::text::num;
 use std::fmt;
 use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
@@ -722,7 +723,10 @@ impl SidecarConfig {
         if let Rate::Hz(hz) = p.rate
             && !(hz.is_finite() && (1.0..=20_000.0).contains(&hz))
         {
-            bail!("{here}: field `rate` = {hz}: must be between 1 and 20000 Hz, or \"follow\"");
+            bail!(
+                "{here}: field `rate` = {}: must be between 1 and 20000 Hz, or \"follow\"",
+                num(hz)
+            );
         }
         if let Some(prio) = p.realtime.fifo_priority
             && !(1..=99).contains(&prio)
@@ -732,7 +736,7 @@ impl SidecarConfig {
         if !(p.reply_timeout_ms.is_finite() && (0.05..=1000.0).contains(&p.reply_timeout_ms)) {
             bail!(
                 "{here}: field `reply_timeout_ms` = {}: must be between 0.05 and 1000 ms",
-                p.reply_timeout_ms
+                num(p.reply_timeout_ms)
             );
         }
         let max_in_flight = dvrk_io::port::MAX_QUADLET_WINDOW;

@@ -20,6 +20,7 @@
 //! the start. `--fault KIND@SECONDS` injects a fault for the fault tests, and `--command-log`
 //! writes every command received and every state change, one JSON object per line.
 
+use crate::text::num;
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -724,12 +725,12 @@ fn command_name(c: &ConsoleCommand) -> String {
 /// Runs the stand-in until SIGINT/SIGTERM.
 pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConfig) -> Result<()> {
     if !(args.rate_hz > 0.0 && args.rate_hz <= 2000.0) {
-        bail!("--crtk-rate {}: must be in ]0, 2000] Hz", args.rate_hz);
+        bail!("--crtk-rate {}: must be in ]0, 2000] Hz", num(args.rate_hz));
     }
     if !(args.effort_noise_nm >= 0.0 && args.effort_noise_nm < 1.0) {
         bail!(
             "--effort-noise-nm {}: must be in [0, 1)",
-            args.effort_noise_nm
+            num(args.effort_noise_nm)
         );
     }
     let mut faults: Vec<(Fault, f64)> = args

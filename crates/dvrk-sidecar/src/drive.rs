@@ -20,6 +20,7 @@
 //! `cycle,t_start_ns,t_read_ns,ok`, then `ts<i>` per board, then `c<i>_<axis>` per board and
 //! axis 0-3, boards in ascending id (two boards: `ts0,ts1,c0_0..c0_3,c1_0..c1_3`).
 
+use crate::text::num;
 use std::io::Write;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::os::fd::AsRawFd;
@@ -450,7 +451,7 @@ fn record_header(n: usize) -> String {
 pub fn run(args: &DriveArgs) -> Result<()> {
     let (base, port) = parse_boards(&args.boards)?;
     if !(args.rate.is_finite() && args.rate > 0.0 && args.rate <= 20_000.0) {
-        bail!("--rate {}: must be in (0, 20000] Hz", args.rate);
+        bail!("--rate {}: must be in (0, 20000] Hz", num(args.rate));
     }
     if let Some(a) = &args.arms {
         crate::simcmd::parse_arms(Some(a))?;

@@ -24,4 +24,5 @@ pub mod signals;
 pub mod simcmd;
 pub mod stats;
 pub mod tap;
+pub mod text;
 pub mod watch;

@@ -1,5 +1,6 @@
 //! Offline tools: `fk` and `correct`.
 
+use crate::text::num;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
@@ -152,16 +153,6 @@ pub fn check_joint_limits(arm: ArmKind, q: &[f64]) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// A number for an error message: plain when of a usual size, else in scientific notation (so
-/// 1e308 prints as `1e308`, not as 309 digits).
-pub fn num(v: f64) -> String {
-    if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
-    }
 }
 
 /// Largest |effort| a Classic PSM's amplifiers can produce on joints 1-3, with 25% to spare: the

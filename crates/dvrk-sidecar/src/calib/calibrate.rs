@@ -14,6 +14,7 @@
 //! instead, in the layout of `calibrate dynamics`, while the lab's own excitation moves joints 1
 //! and 2 in free space (`fit --dynamics` reads it unchanged).
 
+use crate::text::num;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -177,7 +178,10 @@ impl SimArgs {
         let [lo, hi] = super::console_run::CONSOLE_JOINT_LIMITS[2];
         for &d in &self.depths {
             if !(d.is_finite() && d > lo && d <= hi) {
-                bail!("--depths {d}: each depth must be a number of metres in ]{lo}, {hi}]");
+                bail!(
+                    "--depths {}: each depth must be a number of metres in ]{lo}, {hi}]",
+                    num(d)
+                );
             }
         }
         if !(self.effort_limit_nm.is_finite()
@@ -186,21 +190,21 @@ impl SimArgs {
         {
             bail!(
                 "--effort-limit-nm {}: must be in ]0, 3] N·m (the PSM's joints 1-2 effort cap is 3.32)",
-                self.effort_limit_nm
+                num(self.effort_limit_nm)
             );
         }
         if let Some(s) = self.settle_s
             && !(s.is_finite() && s > 0.0 && s <= 10.0)
         {
-            bail!("--settle-s {s}: must be in ]0, 10] s");
+            bail!("--settle-s {}: must be in ]0, 10] s", num(s));
         }
         if !(self.ratio > 0.0 && self.ratio <= 1.0) {
-            bail!("--ratio {}: must be in ]0, 1]", self.ratio);
+            bail!("--ratio {}: must be in ]0, 1]", num(self.ratio));
         }
         if !(self.prompt_pause_s.is_finite() && (0.0..=60.0).contains(&self.prompt_pause_s)) {
             bail!(
                 "--prompt-pause-s {}: must be in [0, 60] s",
-                self.prompt_pause_s
+                num(self.prompt_pause_s)
             );
         }
         if name != "clamp" && !self.torque_offset.is_empty() {
@@ -478,7 +482,10 @@ pub fn run_record(a: &RecordArgs, stop: &AtomicBool) -> anyhow::Result<()> {
         return super::dynamics_cmd::record_live(a, &config_prefix(&a.config)?, stop);
     }
     if let Some(s) = a.seconds {
-        bail!("--seconds {s}: only with --dynamics (still-period rows stop with --rows or Ctrl-C)");
+        bail!(
+            "--seconds {}: only with --dynamics (still-period rows stop with --rows or Ctrl-C)",
+            num(s)
+        );
     }
     let Some(joint) = a.joint else {
         bail!("--joint: give the joint under test (1 or 2), or --dynamics");

@@ -16,6 +16,7 @@
 //!   within one poll (1 ms) of being seen: no motion command follows but at most one `hold`, the
 //!   rows collected are written atomically, and the command exits non-zero with the reason.
 
+use crate::text::num;
 use std::io::BufRead;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
@@ -892,11 +893,11 @@ pub fn run_dynamics(
     if !(a.effort_limit_nm.is_finite() && a.effort_limit_nm > 0.0 && a.effort_limit_nm <= 3.0) {
         bail!(
             "--effort-limit-nm {}: must be in ]0, 3] N·m",
-            a.effort_limit_nm
+            num(a.effort_limit_nm)
         );
     }
     if !(a.ratio > 0.0 && a.ratio <= 1.0) {
-        bail!("--ratio {}: must be in ]0, 1]", a.ratio);
+        bail!("--ratio {}: must be in ]0, 1]", num(a.ratio));
     }
     let targs = TrajectoryArgs {
         out: a.out.clone(),

@@ -10,6 +10,7 @@
 //! ([`dvrk_compliance::fit_dynamics`]). Each depth is a segment of its own; segments are separated
 //! by a gap of one second in `t_s`, where the fit restarts its filter.
 
+use crate::text::num;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -91,7 +92,10 @@ pub(crate) fn check_schedule(depths: &[f64], seconds_per_depth: f64) -> anyhow::
         }
     }
     if !(seconds_per_depth.is_finite() && (2.0..=600.0).contains(&seconds_per_depth)) {
-        bail!("--seconds-per-depth {seconds_per_depth}: must be within 2..=600 s");
+        bail!(
+            "--seconds-per-depth {}: must be within 2..=600 s",
+            num(seconds_per_depth)
+        );
     }
     Ok(())
 }
@@ -100,7 +104,7 @@ pub(crate) fn check_schedule(depths: &[f64], seconds_per_depth: f64) -> anyhow::
 pub fn record(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<Vec<DynamicsSample>> {
     check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.rate_hz.is_finite() && (100.0..=20_000.0).contains(&a.rate_hz)) {
-        bail!("--rate-hz {}: must be within 100..=20000", a.rate_hz);
+        bail!("--rate-hz {}: must be within 100..=20000", num(a.rate_hz));
     }
     let Some(config) = &a.config else {
         bail!("--config SCENARIO (simulator) or --robot ros2:ARM (a real arm): one is needed");
@@ -198,7 +202,10 @@ pub fn record_live(
     super::data::check_output_path(&a.out)?;
     let seconds = a.seconds.unwrap_or(f64::INFINITY);
     if seconds.is_nan() || seconds <= 0.0 {
-        bail!("--seconds {seconds}: must be a positive number of seconds");
+        bail!(
+            "--seconds {}: must be a positive number of seconds",
+            num(seconds)
+        );
     }
     let limit = a.rows.unwrap_or(usize::MAX);
     let (mut sub, names, node) = super::calibrate::subscribe_measured_js(prefix)?;
@@ -337,12 +344,12 @@ pub fn trajectory_scaled(a: &TrajectoryArgs, speed: f64) -> anyhow::Result<Vec<[
         bail!("the excitation is not a multi-sine");
     };
     if !(speed.is_finite() && speed > 0.0 && speed <= 1.0) {
-        bail!("excitation speed scale {speed}: must be in ]0, 1]");
+        bail!("excitation speed scale {}: must be in ]0, 1]", num(speed));
     }
 
     check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.rate_hz.is_finite() && (10.0..=20_000.0).contains(&a.rate_hz)) {
-        bail!("--rate-hz {}: must be within 10..=20000", a.rate_hz);
+        bail!("--rate-hz {}: must be within 10..=20000", num(a.rate_hz));
     }
     let limits = dvrk_sim::PhysicsParams::CLASSIC;
     let [c1, c2] = a.center[..] else {

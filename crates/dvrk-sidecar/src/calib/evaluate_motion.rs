@@ -18,6 +18,7 @@
 //! model's 95% bound on the compensated tip error; and `coverage`, the fraction of cycles whose
 //! compensated error is within that bound.
 
+use crate::text::num;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -119,10 +120,10 @@ pub fn evaluate_scenario(
     rate_hz: f64,
 ) -> anyhow::Result<(MotionEvaluation, Vec<Trace>)> {
     if !(seconds.is_finite() && seconds > 0.0 && seconds <= 3600.0) {
-        bail!("--seconds {seconds}: must be in (0, 3600]");
+        bail!("--seconds {}: must be in (0, 3600]", num(seconds));
     }
     if !(rate_hz.is_finite() && (100.0..=20_000.0).contains(&rate_hz)) {
-        bail!("--rate-hz {rate_hz}: must be within 100..=20000");
+        bail!("--rate-hz {}: must be within 100..=20000", num(rate_hz));
     }
     let period_ns = (1e9 / rate_hz).round() as u64;
     let cycles = (seconds * rate_hz).round() as u64;

@@ -1,5 +1,6 @@
 //! `dvrk-sidecar fit`: calibration data in, compliance parameter file out.
 
+use crate::text::num;
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
@@ -173,7 +174,10 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
     let mut dynamics = Vec::new();
     if let Some(path) = &args.dynamics {
         if !(args.gate_sigmas.is_finite() && (0.0..=10.0).contains(&args.gate_sigmas)) {
-            bail!("--gate-sigmas {}: must be within 0..=10", args.gate_sigmas);
+            bail!(
+                "--gate-sigmas {}: must be within 0..=10",
+                num(args.gate_sigmas)
+            );
         }
         let rows = super::dynamics_cmd::read(path)?;
         let segments = super::dynamics_cmd::segments(&rows);
