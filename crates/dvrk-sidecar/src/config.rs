@@ -4,7 +4,6 @@
 //! Relative paths in the file are resolved against the directory of the file itself, so a copy in
 //! `/etc/dvrk-sidecar/` works the same as `config/sidecar.toml` in the repository.
 
-use crate::text::num;
 use std::fmt;
 use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
@@ -15,6 +14,8 @@ use dvrk_io::IoConfig;
 use dvrk_io::reader::AccessMode;
 use nalgebra::{Isometry3, UnitQuaternion};
 use serde::Deserialize;
+
+use crate::text::num;
 
 /// The most arms one service serves (a console drives two or three PSMs); the loop's per-second
 /// summary is a fixed array of this size.

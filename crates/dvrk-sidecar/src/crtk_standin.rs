@@ -20,7 +20,6 @@
 //! the start. `--fault KIND@SECONDS` injects a fault for the fault tests, and `--command-log`
 //! writes every command received and every state change, one JSON object per line.
 
-use crate::text::num;
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -30,6 +29,8 @@ use dvrk_bridge::cdr::RosTime;
 use dvrk_bridge::console::{ConsoleCommand, ConsoleServer, PSM_JOINT_NAMES};
 use dvrk_bridge::crtk::{JointStateMsg, OperatingStateMsg};
 use dvrk_sim::{Emulator, Environment, Motion, Scenario, SimPsm, SimRng};
+
+use crate::text::num;
 
 /// Classic PSM joint limits of the console (share/kinematic/PSM.json): yaw, pitch, insertion,
 /// roll, wrist pitch, wrist yaw.

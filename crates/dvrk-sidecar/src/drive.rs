@@ -20,7 +20,6 @@
 //! `cycle,t_start_ns,t_read_ns,ok`, then `ts<i>` per board, then `c<i>_<axis>` per board and
 //! axis 0-3, boards in ascending id (two boards: `ts0,ts1,c0_0..c0_3,c1_0..c1_3`).
 
-use crate::text::num;
 use std::io::Write;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::os::fd::AsRawFd;
@@ -40,6 +39,7 @@ use tracing::info;
 use crate::rt;
 use crate::signals::StopFlag;
 use crate::stats::DurationHistogram;
+use crate::text::num;
 
 /// The boards' UDP port (reference §3.1).
 const BOARD_PORT: u16 = 1394;

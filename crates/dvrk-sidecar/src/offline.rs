@@ -1,6 +1,5 @@
 //! Offline tools: `fk` and `correct`.
 
-use crate::text::num;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
@@ -8,6 +7,7 @@ use dvrk_compliance::ArmKind;
 use serde::Serialize;
 
 use crate::config;
+use crate::text::num;
 
 #[derive(clap::Args)]
 pub struct FkArgs {

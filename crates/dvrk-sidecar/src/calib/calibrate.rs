@@ -14,7 +14,6 @@
 //! instead, in the layout of `calibrate dynamics`, while the lab's own excitation moves joints 1
 //! and 2 in free space (`fit --dynamics` reads it unchanged).
 
-use crate::text::num;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -30,6 +29,7 @@ use dvrk_io::{ArmSample, IoConfig};
 use dvrk_sim::{Environment, Motion, Scenario, sim_port};
 
 use super::data::{self, DivotRow, DivotTruth};
+use crate::text::num;
 
 /// Simulator read period: one sample per millisecond, like the dVRK's 1 kHz PID.
 const PERIOD_NS: u64 = 1_000_000;

@@ -16,7 +16,6 @@
 //!   within one poll (1 ms) of being seen: no motion command follows but at most one `hold`, the
 //!   rows collected are written atomically, and the command exits non-zero with the reason.
 
-use crate::text::num;
 use std::io::BufRead;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
@@ -28,6 +27,8 @@ use dvrk_bridge::crtk::JointStateMsg;
 use dvrk_compliance::calibration::{
     AUX, Fixture, Plan, Record, Runner, RunnerConfig, Sample, Status,
 };
+
+use crate::text::num;
 
 /// Console joint limits of the Classic PSM (yaw, pitch, insertion), used as the runner's.
 pub const CONSOLE_JOINT_LIMITS: [[f64; 2]; 3] = [[-1.588, 1.588], [-0.925, 0.925], [0.0, 0.24]];

@@ -10,7 +10,6 @@
 //! ([`dvrk_compliance::fit_dynamics`]). Each depth is a segment of its own; segments are separated
 //! by a gap of one second in `t_s`, where the fit restarts its filter.
 
-use crate::text::num;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -22,6 +21,7 @@ use dvrk_io::reader::{AccessMode, ArmReader};
 use dvrk_sim::{Environment, Motion, sim_port};
 
 use crate::config::{load_io, load_scenario};
+use crate::text::num;
 
 /// The header of a dynamics file.
 pub const HEADER: &str = "t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm";

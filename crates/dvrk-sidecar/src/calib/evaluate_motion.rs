@@ -18,7 +18,6 @@
 //! model's 95% bound on the compensated tip error; and `coverage`, the fraction of cycles whose
 //! compensated error is within that bound.
 
-use crate::text::num;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -30,6 +29,7 @@ use serde::Serialize;
 
 use super::plots::{Kind, Panel, Series, render};
 use crate::cycle::{ReadOutcome, compute_dynamic};
+use crate::text::num;
 
 /// Mean, 95th percentile and maximum of a tip error (mm).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]

@@ -1,6 +1,5 @@
 //! `dvrk-sidecar fit`: calibration data in, compliance parameter file out.
 
-use crate::text::num;
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
@@ -13,6 +12,7 @@ use dvrk_compliance::{
 use serde::Serialize;
 
 use super::data;
+use crate::text::num;
 
 /// Which model the written parameter file selects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
