@@ -274,6 +274,16 @@ pub struct Subscription<T: Message, S: Service = iceoryx2::service::ipc::Service
     short_slice: bool,
 }
 
+/// The caller's `prepare` of [`Subscription::wait_prepared`], until it has run.
+type Prepare<'a> = Option<&'a mut dyn FnMut()>;
+
+/// Runs `prepare` if it has not run yet in this wait.
+fn run_once(prepare: &mut Prepare<'_>) {
+    if let Some(p) = prepare.take() {
+        p();
+    }
+}
+
 /// Where a predictive wait started polling, to grade the prediction when the sample comes.
 #[derive(Debug, Clone, Copy)]
 enum Polling {
@@ -409,11 +419,29 @@ where
 
     /// Like [`Subscription::wait`], and calls `each` for every sample drained, oldest first,
     /// including the one returned (for consumers that need every `seq`).
-    pub fn wait_with<F: FnMut(&T)>(&mut self, mut each: F) -> Result<Update<T>, SubscriptionError> {
+    pub fn wait_with<F: FnMut(&T)>(&mut self, each: F) -> Result<Update<T>, SubscriptionError> {
+        self.wait_prepared(each, || {})
+    }
+
+    /// Like [`Subscription::wait_with`], and calls `prepare` at most once, when the sample is
+    /// due but not there yet: the work a consumer must do before each sample (making the
+    /// buffer it is handed over in, say) then costs no latency, its own or, with more
+    /// subscribers than cores, the others'. The predictive strategy calls it once its timer
+    /// has woken it, before it polls (its guard learns the time `prepare` takes, as it learns
+    /// the timer's lateness); the event strategy, and the predictive one while it waits as the
+    /// event path does, before sleeping; spinning, before it polls. Not called when a sample
+    /// is already there on entry, nor when the sample lands while the predictive wait still
+    /// sleeps (a timer late beyond its guard).
+    pub fn wait_prepared<F: FnMut(&T), P: FnMut()>(
+        &mut self,
+        mut each: F,
+        mut prepare: P,
+    ) -> Result<Update<T>, SubscriptionError> {
+        let mut prepare = Some(&mut prepare as &mut dyn FnMut());
         match self.wait {
-            WaitStrategy::Event => self.wait_event(&mut each),
-            WaitStrategy::Spin => self.wait_spin(&mut each),
-            WaitStrategy::Predictive => self.wait_predictive(&mut each),
+            WaitStrategy::Event => self.wait_event(&mut each, &mut prepare),
+            WaitStrategy::Spin => self.wait_spin(&mut each, &mut prepare),
+            WaitStrategy::Predictive => self.wait_predictive(&mut each, &mut prepare),
         }
     }
 
@@ -494,12 +522,17 @@ where
 
     // ---- strategies ------------------------------------------------------------------------
 
-    fn wait_event(&mut self, each: &mut dyn FnMut(&T)) -> Result<Update<T>, SubscriptionError> {
+    fn wait_event(
+        &mut self,
+        each: &mut dyn FnMut(&T),
+        prepare: &mut Prepare<'_>,
+    ) -> Result<Update<T>, SubscriptionError> {
         let stale_at = sys::monotonic_ns().saturating_add(self.deadline_ns);
         loop {
             if let Some(v) = self.take_pending(each)? {
                 return Ok(Update::Fresh(v));
             }
+            run_once(prepare);
             match self.sleep(stale_at, None)? {
                 Ready::Interrupted => return Ok(Update::Interrupted),
                 Ready::TimedOut => return Ok(self.stale_or_terminated()),
@@ -514,12 +547,17 @@ where
         }
     }
 
-    fn wait_spin(&mut self, each: &mut dyn FnMut(&T)) -> Result<Update<T>, SubscriptionError> {
+    fn wait_spin(
+        &mut self,
+        each: &mut dyn FnMut(&T),
+        prepare: &mut Prepare<'_>,
+    ) -> Result<Update<T>, SubscriptionError> {
         let stale_at = sys::monotonic_ns().saturating_add(self.deadline_ns);
         loop {
             if let Some(v) = self.drain(each)? {
                 return Ok(Update::Fresh(v));
             }
+            run_once(prepare);
             if sys::monotonic_ns() >= stale_at {
                 return Ok(self.stale_or_terminated());
             }
@@ -530,6 +568,7 @@ where
     fn wait_predictive(
         &mut self,
         each: &mut dyn FnMut(&T),
+        prepare: &mut Prepare<'_>,
     ) -> Result<Update<T>, SubscriptionError> {
         let now = sys::monotonic_ns();
         let stale_at = now.saturating_add(self.deadline_ns);
@@ -539,25 +578,25 @@ where
         }
         if !self.predictor.ready() {
             // Still learning: behave like the event path; arrivals teach the predictor.
-            return self.wait_event(each);
+            return self.wait_event(each, prepare);
         }
         if !self.predictor.poll_this_wait() {
             // Most recent waits started polling too late to matter: sleep on the wake-up as
             // the event path does (the arrival still teaches the predictor).
             self.stats.predicted_skipped_total += 1;
-            return self.wait_event(each);
+            return self.wait_event(each, prepare);
         }
         let arrival = self.predictor.next_arrival_ns();
         let wake_at = arrival.saturating_sub(self.predictor.guard_ns());
         let spin_until = arrival
             .saturating_add(self.predictor.spin_after_ns())
             .min(stale_at);
-        let polling = if wake_at > sys::monotonic_ns() {
+        if wake_at > sys::monotonic_ns() {
             loop {
                 match self.sleep(stale_at, Some(wake_at))? {
                     Ready::Interrupted => return Ok(Update::Interrupted),
                     Ready::TimedOut => return Ok(self.stale_or_terminated()),
-                    Ready::Timer => break Polling::OnTimer(sys::monotonic_ns()),
+                    Ready::Timer => break,
                     Ready::Event => {}
                 }
                 // The wake-up came first: the sample is there (the timer was late), or this is
@@ -568,10 +607,11 @@ where
                     return Ok(Update::Fresh(v));
                 }
             }
-        } else {
-            // Called after the wake-up point: poll right away.
-            Polling::OnTimer(sys::monotonic_ns())
-        };
+        }
+        // Polling starts after `prepare` (called after the wake-up point, too): graded from
+        // then, the guard covers its time.
+        run_once(prepare);
+        let polling = Polling::OnTimer(sys::monotonic_ns());
         let crowded = self.crowded();
         // The first look tells whether the sample was already there when polling started.
         if let Some(v) = self.drain(each)? {

@@ -1,5 +1,6 @@
 //! The predictive wait against a real publisher in this process (real shared memory and event
-//! socket): what it does when the cycle event comes without a new sample.
+//! socket): what it does when the cycle event comes without a new sample, and when it runs the
+//! caller's `prepare` (`Subscription::wait_prepared`; the event wait's, too, for comparison).
 //!
 //! The sidecar notifies the cycle event after the cycle's last message, so a predictive
 //! subscriber that took its sample by polling finds that notification in its next sleep. It
@@ -133,5 +134,182 @@ fn a_cycle_event_without_a_new_sample_does_not_start_polling() {
         "the wait for seq {} used {} µs of CPU: it polled after the bare event ({stats:?})",
         LEARN + 1,
         cpu / 1000
+    );
+}
+
+/// What one wait of [`prepare_runs_once_when_the_sample_is_due`]'s subscriber saw.
+#[derive(Debug, Clone, Copy)]
+struct Prepared {
+    seq: u64,
+    /// When the wait began.
+    entered_ns: u64,
+    /// When `prepare` ran, once per call.
+    calls: [Option<u64>; 2],
+    /// Whether the predictor was ready when the wait began.
+    predicting: bool,
+}
+
+/// `wait_prepared` calls `prepare` once per wait, at the moment the strategy expects to be
+/// idle until the sample: the predictive wait after its timer (half a period after it began,
+/// at least), the event wait before it sleeps; never when the sample is there on entry.
+fn prepare_runs_once_when_the_sample_is_due(wait: WaitStrategy) -> Vec<Prepared> {
+    let d = Domain::new(&format!("prepare_{}", wait.name()));
+    let node = create_node::<ipc::Service>("prep_pub", Some(&d.config)).unwrap();
+    let topic =
+        open_topic::<JointStateV2, ipc::Service>(&node, &d.names, Topic::MeasuredJs).unwrap();
+    let publisher = topic.publisher_builder().create().unwrap();
+    let event = open_cycle_event(&node, &d.names).unwrap();
+    let notifier = event.notifier_builder().create().unwrap();
+
+    let (tx, rx) = mpsc::channel::<Prepared>();
+    let (config, names) = (d.config.clone(), d.names.clone());
+    let sub = std::thread::spawn(move || {
+        let node = create_node::<ipc::Service>("prep_sub", Some(&config)).unwrap();
+        let options = SubscribeOptions {
+            period: Duration::from_nanos(PERIOD_NS),
+            wait,
+            deadline: Some(Duration::from_secs(5)),
+        };
+        let mut sub =
+            Subscription::<JointStateV2>::with_options(&node, &names, Topic::MeasuredJs, options)
+                .unwrap();
+        tx.send(Prepared {
+            seq: 0,
+            entered_ns: 0,
+            calls: [None; 2],
+            predicting: false,
+        })
+        .unwrap();
+        loop {
+            let predicting = sub.prediction().is_some();
+            let entered_ns = monotonic_ns();
+            let mut calls = [None; 2];
+            let mut n = 0;
+            let update = sub
+                .wait_prepared(
+                    |_| {},
+                    || {
+                        if n < calls.len() {
+                            calls[n] = Some(monotonic_ns());
+                        }
+                        n += 1;
+                    },
+                )
+                .unwrap();
+            let Update::Fresh(m) = update else {
+                panic!("unexpected {update:?}");
+            };
+            let seq = m.header.seq;
+            tx.send(Prepared {
+                seq,
+                entered_ns,
+                calls,
+                predicting,
+            })
+            .unwrap();
+            if seq == LEARN + 2 {
+                return;
+            }
+            if seq == LEARN {
+                // The next sample lands before the next wait begins.
+                std::thread::sleep(Duration::from_nanos(PERIOD_NS * 3 / 2));
+            }
+        }
+    });
+    assert_eq!(rx.recv().unwrap().seq, 0, "subscriber ready");
+    for _ in 0..2000 {
+        if topic.dynamic_config().number_of_subscribers() == 1
+            && event.dynamic_config().number_of_listeners() == 1
+        {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let t0 = monotonic_ns() + PERIOD_NS;
+    for seq in 1..=LEARN + 2 {
+        sleep_until(t0 + (seq - 1) * PERIOD_NS);
+        let now = monotonic_ns();
+        let mut m = JointStateV2::default();
+        m.header.seq = seq;
+        m.header.sample_t_ns = now;
+        m.header.publish_t_ns = now;
+        m.header.valid = 1;
+        publisher.send_copy(m).unwrap();
+        notifier.notify().unwrap();
+    }
+    let got: Vec<Prepared> = rx.iter().collect();
+    sub.join().unwrap();
+    assert_eq!(
+        got.iter().map(|p| p.seq).collect::<Vec<_>>(),
+        (1..=LEARN + 2).collect::<Vec<_>>(),
+        "every seq, in order"
+    );
+    got
+}
+
+#[test]
+fn the_predictive_wait_prepares_after_its_timer() {
+    let got = prepare_runs_once_when_the_sample_is_due(WaitStrategy::Predictive);
+    let predicted: Vec<&Prepared> = got
+        .iter()
+        .filter(|p| p.predicting && p.seq <= LEARN)
+        .collect();
+    assert!(
+        predicted.len() >= 2,
+        "the predictor was ready for a few waits: {got:?}"
+    );
+    let mut prepared = 0;
+    for p in &predicted {
+        let at = match p.calls {
+            [Some(at), None] => at,
+            // The sample landed while the wait still slept (its timer late beyond the guard,
+            // on a loaded machine): no moment to prepare in.
+            [None, None] => continue,
+            _ => panic!("prepare ran more than once in a wait: {p:?}"),
+        };
+        prepared += 1;
+        // Each wait begins right after the last sample and sleeps until a guard (at most an
+        // eighth of the period) before the next: preparing at the start would be within
+        // microseconds of it.
+        assert!(
+            at - p.entered_ns > PERIOD_NS / 2,
+            "prepare ran {} µs into the wait for seq {}, before the timer",
+            (at - p.entered_ns) / 1000,
+            p.seq
+        );
+    }
+    assert!(
+        prepared * 2 >= predicted.len(),
+        "prepare ran in {prepared} of {} predicted waits: {got:?}",
+        predicted.len()
+    );
+    let late = got[LEARN as usize];
+    assert_eq!(
+        late.calls,
+        [None, None],
+        "a sample already there: no prepare"
+    );
+}
+
+#[test]
+fn the_event_wait_prepares_before_it_sleeps() {
+    let got = prepare_runs_once_when_the_sample_is_due(WaitStrategy::Event);
+    for p in &got[1..LEARN as usize] {
+        let [Some(at), None] = p.calls else {
+            panic!("prepare ran once in every wait: {p:?}");
+        };
+        // The sample comes a period after the last one: well after the sleep began.
+        assert!(
+            at - p.entered_ns < PERIOD_NS / 2,
+            "prepare ran {} µs into the wait for seq {}, after the sleep",
+            (at - p.entered_ns) / 1000,
+            p.seq
+        );
+    }
+    let late = got[LEARN as usize];
+    assert_eq!(
+        late.calls,
+        [None, None],
+        "a sample already there: no prepare"
     );
 }

@@ -4,8 +4,9 @@
 //! runs the consumer's wait strategy (event, predictive, spin) in compiled code with the GIL
 //! released, so other Python threads keep running while one waits, and hands the newest sample
 //! to Python as one numpy array over the whole message (a structured dtype given by the Python
-//! side, built from its ctypes layouts): one copy of the message into a new buffer (made before
-//! the wait, so the hand-off is the copy alone), then every field a view of it.
+//! side, built from its ctypes layouts): one copy of the message into a new buffer (made while
+//! the wait expects the sample, so the hand-off is the copy alone), then every field a view
+//! of it.
 //!
 //! Python never sees this module directly: `dvrk_sidecar.Arm` uses it when it imports
 //! (`dvrk_sidecar.BACKEND == "native"`) and falls back to the pure-Python client otherwise.
@@ -160,10 +161,10 @@ macro_rules! each_type {
     };
 }
 
-/// What one call of the underlying `Subscription::wait` gave (a fresh sample already copied
-/// into the spare array).
+/// What one call of the underlying `Subscription::wait` gave.
 enum Step {
-    Fresh,
+    /// The array the fresh sample was copied into.
+    Fresh(Spare),
     Stale,
     Terminated,
     Interrupted,
@@ -188,13 +189,18 @@ struct NativeSubscription {
     terminated: bool,
 }
 
-/// A new numpy array over a new, zeroed `bytearray` of the message's size, made before a wait
-/// so that the sample's hand-off is a copy into it, not the construction of the array (which
-/// costs more than the copy with caches cold after the sleep). Each sample still gets an array
-/// of its own: a spare is handed out once, and the next wait makes another.
+/// A new numpy array over a new, zeroed `bytearray` of the message's size, made before the
+/// sample lands (see [`NativeSubscription::wait`]) so that the hand-off is a copy into it, not
+/// the construction of the array (which costs more than the copy with caches cold after the
+/// sleep, and with many subscribers delays every one queued behind). Each sample still gets an
+/// array of its own: a spare is handed out once, and the next wait makes another.
 struct Spare {
-    bytes: Py<PyByteArray>,
+    /// Owns the buffer `dest` points into (the array holds it, too).
+    _bytes: Py<PyByteArray>,
     array: Py<PyAny>,
+    /// The bytearray's buffer of the message's size. Stays valid: the array's export of the
+    /// buffer keeps the bytearray from being resized, and both live as long as the spare.
+    dest: *mut u8,
 }
 
 impl Spare {
@@ -206,10 +212,22 @@ impl Spare {
     ) -> PyResult<Self> {
         let bytes = PyByteArray::new_with(py, size, |_| Ok(()))?;
         let array = frombuffer.call1(py, (&bytes, dtype.bind(py)))?;
+        let dest = bytes.data();
         Ok(Self {
-            bytes: bytes.unbind(),
+            _bytes: bytes.unbind(),
             array,
+            dest,
         })
+    }
+
+    /// Copies `bytes`, the message (of the size given to [`Spare::new`]), into the array; no
+    /// GIL needed (nothing else can reach the buffer before the array is handed out).
+    fn fill(&mut self, bytes: &[u8], size: usize) {
+        debug_assert_eq!(bytes.len(), size);
+        // SAFETY: `dest` is the spare bytearray's buffer of `size` bytes (its dtype's
+        // itemsize, checked equal to the message's size at construction), valid and unaliased
+        // (see the field); at most `size` bytes are written.
+        unsafe { core::ptr::copy_nonoverlapping(bytes.as_ptr(), self.dest, size.min(bytes.len())) };
     }
 }
 
@@ -313,52 +331,63 @@ impl NativeSubscription {
     fn wait<'py>(&mut self, py: Python<'py>, timeout: f64) -> PyResult<Option<Bound<'py, PyAny>>> {
         let until = dvrk_ipc::monotonic_ns().saturating_add(seconds_to_ns(timeout));
         loop {
-            let spare = match self.spare.take() {
-                Some(spare) => spare,
-                None => Spare::new(py, &self.frombuffer, &self.dtype, self.size)?,
-            };
             let size = self.size;
+            let (frombuffer, dtype) = (&self.frombuffer, &self.dtype);
             let inner = self
                 .inner
                 .as_mut()
                 .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))?;
-            // The spare's buffer, written with the GIL released: nothing else can reach it (the
-            // bytearray and its array are referenced from here only until the array is
-            // returned), and the array's export of the buffer keeps the bytearray from being
-            // resized, so the pointer stays valid.
-            let dest = OnThisThread(spare.bytes.bind(py).data());
-            let step = each_type!(inner, s => {
+            // The spare is made when the wait is about to poll for a sample that is due
+            // (`wait_prepared`), with the GIL taken back for it: after the predictive timer,
+            // when the CPU is otherwise idle, not between the last sample and this wait, where
+            // with more subscribers than cores it delays the ones queued behind. Made after
+            // the sample lands when the wait had no such moment (a sample already there).
+            let state = OnThisThread(self.spare.take());
+            let (step, spare) = each_type!(inner, s => {
                 let s = OnThisThread(s);
                 py.detach(move || {
-                    let dest = dest.into_inner();
-                    s.into_inner().wait().map(|update| match update {
-                        Update::Fresh(v) => {
-                            let bytes = bytes_of(&v);
-                            debug_assert_eq!(bytes.len(), size);
-                            // SAFETY: `dest` is the spare bytearray's buffer of `size` bytes (its
-                            // dtype's itemsize, checked equal to the message's size at
-                            // construction); see above for why it is valid and unaliased.
-                            unsafe {
-                                core::ptr::copy_nonoverlapping(bytes.as_ptr(), dest, size.min(bytes.len()))
-                            };
-                            Step::Fresh
+                    let mut spare = state.into_inner();
+                    let mut made = Ok(());
+                    let make = |spare: &mut Option<Spare>, made: &mut PyResult<()>| {
+                        if spare.is_none() && made.is_ok() {
+                            match Python::attach(|py| Spare::new(py, frombuffer, dtype, size)) {
+                                Ok(new) => *spare = Some(new),
+                                Err(e) => *made = Err(e),
+                            }
                         }
-                        Update::Stale { .. } => Step::Stale,
-                        Update::Terminated => Step::Terminated,
-                        Update::Interrupted => Step::Interrupted,
-                    })
+                    };
+                    let update = s
+                        .into_inner()
+                        .wait_prepared(|_| {}, || make(&mut spare, &mut made));
+                    let step = match update {
+                        Err(e) => Err(native_err(e)),
+                        Ok(Update::Fresh(v)) => {
+                            make(&mut spare, &mut made);
+                            made.and_then(|()| match spare.take() {
+                                Some(mut full) => {
+                                    full.fill(bytes_of(&v), size);
+                                    Ok(Step::Fresh(full))
+                                }
+                                None => Err(native_err("no array to hand the sample over in")),
+                            })
+                        }
+                        Ok(Update::Stale { .. }) => Ok(Step::Stale),
+                        Ok(Update::Terminated) => Ok(Step::Terminated),
+                        Ok(Update::Interrupted) => Ok(Step::Interrupted),
+                    };
+                    OnThisThread((step, spare))
                 })
-                .map_err(native_err)?
+                .into_inner()
             });
-            match step {
-                Step::Fresh => {
+            match step? {
+                Step::Fresh(full) => {
                     self.terminated = false;
-                    return Ok(Some(spare.array.into_bound(py)));
+                    return Ok(Some(full.array.into_bound(py)));
                 }
                 Step::Terminated => self.terminated = true,
                 Step::Stale | Step::Interrupted => {}
             }
-            self.spare = Some(spare);
+            self.spare = spare;
             py.check_signals()?;
             if dvrk_ipc::monotonic_ns() >= until {
                 return Ok(None);
