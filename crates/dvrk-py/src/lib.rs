@@ -331,17 +331,24 @@ impl NativeSubscription {
     fn wait<'py>(&mut self, py: Python<'py>, timeout: f64) -> PyResult<Option<Bound<'py, PyAny>>> {
         let until = dvrk_ipc::monotonic_ns().saturating_add(seconds_to_ns(timeout));
         loop {
+            // The predictive wait makes the spare when it is about to poll for a sample that is
+            // due (`wait_prepared`), with the GIL taken back for it: after its timer, shortly
+            // before the sample, not between the last sample and this wait, where with more
+            // subscribers than cores it delays the ones queued behind. The event and spinning
+            // waits have no such moment (they would prepare right away): they make it here,
+            // GIL held, and spare a second taking of the GIL per wait, which in a program
+            // whose other threads keep the GIL busy can cost a switch interval (5 ms). Made
+            // after the sample lands when the wait had no moment to prepare in (a sample
+            // already there).
+            if self.wait != WaitStrategy::Predictive && self.spare.is_none() {
+                self.spare = Some(Spare::new(py, &self.frombuffer, &self.dtype, self.size)?);
+            }
             let size = self.size;
             let (frombuffer, dtype) = (&self.frombuffer, &self.dtype);
             let inner = self
                 .inner
                 .as_mut()
                 .ok_or_else(|| NativeError::new_err(format!("{} is closed", self.service_name)))?;
-            // The spare is made when the wait is about to poll for a sample that is due
-            // (`wait_prepared`), with the GIL taken back for it: after the predictive timer,
-            // when the CPU is otherwise idle, not between the last sample and this wait, where
-            // with more subscribers than cores it delays the ones queued behind. Made after
-            // the sample lands when the wait had no such moment (a sample already there).
             let state = OnThisThread(self.spare.take());
             let (step, spare) = each_type!(inner, s => {
                 let s = OnThisThread(s);
