@@ -13,11 +13,17 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use common::Domain;
+use dvrk_ipc::iceoryx2::config::Config;
+use dvrk_ipc::iceoryx2::node::Node;
+use dvrk_ipc::iceoryx2::port::notifier::Notifier;
+use dvrk_ipc::iceoryx2::port::publisher::Publisher;
 use dvrk_ipc::iceoryx2::prelude::PortFactory as _;
 use dvrk_ipc::iceoryx2::service::ipc;
+use dvrk_ipc::iceoryx2::service::port_factory::event::PortFactory as EventFactory;
+use dvrk_ipc::iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use dvrk_ipc::{
-    JointStateV2, SubscribeOptions, Subscription, Topic, Update, WaitStrategy, create_node,
-    monotonic_ns, open_cycle_event, open_topic,
+    JointStateV2, ServiceNames, SubscribeOptions, Subscription, Topic, Update, WaitStrategy,
+    create_node, monotonic_ns, open_cycle_event, open_topic,
 };
 
 /// A slow period, so that polling through it (the fault) and sleeping through it (the fix)
@@ -47,30 +53,92 @@ fn sleep_until(t_ns: u64) {
     }
 }
 
+/// The publishing side of a test: `measured_js` and the cycle event of the test's domain, as
+/// the sidecar publishes them.
+struct Grid {
+    topic: PubSubFactory<ipc::Service, JointStateV2, ()>,
+    publisher: Publisher<ipc::Service, JointStateV2, ()>,
+    event: EventFactory<ipc::Service>,
+    notifier: Notifier<ipc::Service>,
+    /// Last, so that the ports and services above go first.
+    _node: Node<ipc::Service>,
+}
+
+impl Grid {
+    fn new(d: &Domain, node_name: &str) -> Self {
+        let node = create_node::<ipc::Service>(node_name, Some(&d.config)).unwrap();
+        let topic =
+            open_topic::<JointStateV2, ipc::Service>(&node, &d.names, Topic::MeasuredJs).unwrap();
+        let publisher = topic.publisher_builder().create().unwrap();
+        let event = open_cycle_event(&node, &d.names).unwrap();
+        let notifier = event.notifier_builder().create().unwrap();
+        Self {
+            topic,
+            publisher,
+            event,
+            notifier,
+            _node: node,
+        }
+    }
+
+    /// Waits (up to 2 s) until the one subscription's subscriber and listener are connected.
+    fn wait_for_the_subscriber(&self) {
+        for _ in 0..2000 {
+            if self.topic.dynamic_config().number_of_subscribers() == 1
+                && self.event.dynamic_config().number_of_listeners() == 1
+            {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// Sends a valid sample `seq`, sampled and published now.
+    fn send(&self, seq: u64) {
+        let now = monotonic_ns();
+        let mut m = JointStateV2::default();
+        m.header.seq = seq;
+        m.header.sample_t_ns = now;
+        m.header.publish_t_ns = now;
+        m.header.valid = 1;
+        self.publisher.send_copy(m).unwrap();
+    }
+
+    fn notify(&self) {
+        self.notifier.notify().unwrap();
+    }
+}
+
+/// A subscription to the grid's `measured_js` on a node of its own (returned after it, to be
+/// dropped after it), at the grid's period, with a 5 s deadline.
+fn subscribe(
+    config: &Config,
+    names: &ServiceNames,
+    node_name: &str,
+    wait: WaitStrategy,
+) -> (Subscription<JointStateV2>, Node<ipc::Service>) {
+    let node = create_node::<ipc::Service>(node_name, Some(config)).unwrap();
+    let options = SubscribeOptions {
+        period: Duration::from_nanos(PERIOD_NS),
+        wait,
+        deadline: Some(Duration::from_secs(5)),
+    };
+    let sub = Subscription::<JointStateV2>::with_options(&node, names, Topic::MeasuredJs, options)
+        .unwrap();
+    (sub, node)
+}
+
 #[test]
 fn a_cycle_event_without_a_new_sample_does_not_start_polling() {
     let d = Domain::new("predictive_bare_event");
-    let node = create_node::<ipc::Service>("pred_pub", Some(&d.config)).unwrap();
-    let topic =
-        open_topic::<JointStateV2, ipc::Service>(&node, &d.names, Topic::MeasuredJs).unwrap();
-    let publisher = topic.publisher_builder().create().unwrap();
-    let event = open_cycle_event(&node, &d.names).unwrap();
-    let notifier = event.notifier_builder().create().unwrap();
+    let grid = Grid::new(&d, "pred_pub");
 
     // The subscription lives on its own thread (its ports are !Send) and reports, for every
     // sample, its seq and the CPU time the wait that returned it used.
     let (tx, rx) = mpsc::channel::<(u64, u64)>();
     let (config, names) = (d.config.clone(), d.names.clone());
     let sub = std::thread::spawn(move || {
-        let node = create_node::<ipc::Service>("pred_sub", Some(&config)).unwrap();
-        let options = SubscribeOptions {
-            period: Duration::from_nanos(PERIOD_NS),
-            wait: WaitStrategy::Predictive,
-            deadline: Some(Duration::from_secs(5)),
-        };
-        let mut sub =
-            Subscription::<JointStateV2>::with_options(&node, &names, Topic::MeasuredJs, options)
-                .unwrap();
+        let (mut sub, _node) = subscribe(&config, &names, "pred_sub", WaitStrategy::Predictive);
         tx.send((0, 0)).unwrap();
         loop {
             let c0 = thread_cpu_ns();
@@ -88,37 +156,21 @@ fn a_cycle_event_without_a_new_sample_does_not_start_polling() {
         }
     });
     assert_eq!(rx.recv().unwrap(), (0, 0), "subscriber ready");
-    for _ in 0..2000 {
-        if topic.dynamic_config().number_of_subscribers() == 1
-            && event.dynamic_config().number_of_listeners() == 1
-        {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    let send = |seq: u64| {
-        let now = monotonic_ns();
-        let mut m = JointStateV2::default();
-        m.header.seq = seq;
-        m.header.sample_t_ns = now;
-        m.header.publish_t_ns = now;
-        m.header.valid = 1;
-        publisher.send_copy(m).unwrap();
-    };
+    grid.wait_for_the_subscriber();
     let t0 = monotonic_ns() + PERIOD_NS;
     for seq in 1..=LEARN {
         sleep_until(t0 + (seq - 1) * PERIOD_NS);
-        send(seq);
-        notifier.notify().unwrap();
+        grid.send(seq);
+        grid.notify();
     }
     // The cycle under test: the event comes 5 ms into the period without a sample (as after a
     // sample taken by polling), the sample on the grid 45 ms later.
     let t_last = t0 + (LEARN - 1) * PERIOD_NS;
     sleep_until(t_last + 5_000_000);
-    notifier.notify().unwrap();
+    grid.notify();
     sleep_until(t_last + PERIOD_NS);
-    send(LEARN + 1);
-    notifier.notify().unwrap();
+    grid.send(LEARN + 1);
+    grid.notify();
 
     let got: Vec<(u64, u64)> = rx.iter().collect();
     let stats = sub.join().unwrap();
@@ -158,25 +210,12 @@ struct Prepared {
 /// at least), the event wait before it sleeps; never when the sample is there on entry.
 fn prepare_runs_once_when_the_sample_is_due(wait: WaitStrategy) -> Vec<Prepared> {
     let d = Domain::new(&format!("prepare_{}", wait.name()));
-    let node = create_node::<ipc::Service>("prep_pub", Some(&d.config)).unwrap();
-    let topic =
-        open_topic::<JointStateV2, ipc::Service>(&node, &d.names, Topic::MeasuredJs).unwrap();
-    let publisher = topic.publisher_builder().create().unwrap();
-    let event = open_cycle_event(&node, &d.names).unwrap();
-    let notifier = event.notifier_builder().create().unwrap();
+    let grid = Grid::new(&d, "prep_pub");
 
     let (tx, rx) = mpsc::channel::<Prepared>();
     let (config, names) = (d.config.clone(), d.names.clone());
     let sub = std::thread::spawn(move || {
-        let node = create_node::<ipc::Service>("prep_sub", Some(&config)).unwrap();
-        let options = SubscribeOptions {
-            period: Duration::from_nanos(PERIOD_NS),
-            wait,
-            deadline: Some(Duration::from_secs(5)),
-        };
-        let mut sub =
-            Subscription::<JointStateV2>::with_options(&node, &names, Topic::MeasuredJs, options)
-                .unwrap();
+        let (mut sub, _node) = subscribe(&config, &names, "prep_sub", wait);
         tx.send(Prepared {
             seq: 0,
             entered_ns: 0,
@@ -221,25 +260,12 @@ fn prepare_runs_once_when_the_sample_is_due(wait: WaitStrategy) -> Vec<Prepared>
         }
     });
     assert_eq!(rx.recv().unwrap().seq, 0, "subscriber ready");
-    for _ in 0..2000 {
-        if topic.dynamic_config().number_of_subscribers() == 1
-            && event.dynamic_config().number_of_listeners() == 1
-        {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    grid.wait_for_the_subscriber();
     let t0 = monotonic_ns() + PERIOD_NS;
     for seq in 1..=PREPARED + 2 {
         sleep_until(t0 + (seq - 1) * PERIOD_NS);
-        let now = monotonic_ns();
-        let mut m = JointStateV2::default();
-        m.header.seq = seq;
-        m.header.sample_t_ns = now;
-        m.header.publish_t_ns = now;
-        m.header.valid = 1;
-        publisher.send_copy(m).unwrap();
-        notifier.notify().unwrap();
+        grid.send(seq);
+        grid.notify();
     }
     let got: Vec<Prepared> = rx.iter().collect();
     sub.join().unwrap();
