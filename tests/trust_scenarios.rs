@@ -191,16 +191,18 @@ fn palpation_over_a_tilted_surface() {
 /// A tip sticking and slipping as it slides pressed over a surface: the shaft torque swings
 /// every 40 ms and the measured torque follows it late. Before the torque's sway weakened the
 /// evidence for the play's side, a turn was corrected 0.54 mm the wrong way (over the issue's
-/// 0.5 mm); now 0.05 mm. The compensated mean is 33% of raw here (the 30% for sliding is
-/// not met in this pressed, fast case; 31% before), so it is bounded at 40%.
+/// 0.5 mm); now 0.05 mm. Each slip changes the measured effort fast; while that withheld the
+/// correction for a motion's whole transient (0.2 s), the compensated mean was 31% of raw over
+/// 30 s; with the short hold of a contact change (`CONTACT_CHANGE_HOLD_S`), 29%. The first
+/// seconds of a run are its warm-up, so the 30% is checked over 30 s.
 #[test]
 fn stick_slip_is_not_corrected_the_wrong_way() {
-    let v = evaluate("config/sim/i20-stick-slip.toml", "12", None);
+    let v = evaluate("config/sim/i20-stick-slip.toml", "30", None);
     let (raw, comp) = common_goals("stick-slip", &v);
     not_too_wide("stick-slip", &v);
     let harm = num(&v, &["harm_mm", "max"]);
     assert!(harm <= 0.1, "stick-slip: harm_mm.max {harm}: {v}");
-    assert!(comp <= 0.4 * raw, "compensated {comp} > 40% of raw {raw}");
+    assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
 }
 
 #[test]

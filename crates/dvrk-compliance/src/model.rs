@@ -92,7 +92,9 @@ pub mod trust {
     pub const GAP: u32 = 1 << 1;
     /// An abrupt change (the effort jumped, or the motion over the filter's window is not
     /// smooth): the internal-torque estimate lags, so the correction is withheld for
-    /// `TRANSIENT_HOLD_S` and fades back in over `FADE_S`.
+    /// `TRANSIENT_HOLD_S` and fades back in over `FADE_S`. An effort that changed fast while
+    /// the motion stayed smooth (a contact's load changing) is withheld for
+    /// `CONTACT_CHANGE_HOLD_S` only.
     pub const TRANSIENT: u32 = 1 << 2;
     /// The acceleration is beyond what the dynamics fit saw: the correction shrinks, to nothing
     /// at `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration.
@@ -164,7 +166,10 @@ pub const TRANSIENT_EFFORT_STEP_NM: f64 = 0.05;
 pub const EFFORT_RATE_SAMPLES: usize = 8;
 /// An effort change over [`EFFORT_RATE_SAMPLES`] above which the effort counts as abrupt (N·m):
 /// a 21 rad/s² start changes the effort by about 0.3 N·m in 5 ms, sliding over tissue or the
-/// paper's push cycle by under 0.01 N·m.
+/// paper's push cycle by under 0.01 N·m, a tip slipping over a surface by 0.15 N·m. Alone (the
+/// motion smooth, no effort step) it holds the correction for [`CONTACT_CHANGE_HOLD_S`] only;
+/// the free motions of the project's scenarios (abrupt starts up to 76 rad/s², hard stops) kept
+/// their harm at 0.05 mm or less with it (tests/trust_scenarios.rs).
 pub const TRANSIENT_EFFORT_CHANGE_NM: f64 = 0.035;
 /// Around a velocity reversal, this long (s) the friction's direction is uncertain: the filter's
 /// delay of 2 samples at 1.5 kHz, with a margin.
@@ -176,6 +181,17 @@ pub const REVERSAL_WINDOW_S: f64 = 0.005;
 /// the motor's side: on the simulator, stopping 0.72 rad/s in 10 ms, a 0.05 s hold let the
 /// correction go 0.35 mm the wrong way; 0.15 s, 0.03 mm.
 pub const TRANSIENT_HOLD_S: f64 = 0.15;
+/// How long the correction is withheld after the effort changed fast (above
+/// [`TRANSIENT_EFFORT_CHANGE_NM`] over [`EFFORT_RATE_SAMPLES`]) while the motion stayed smooth
+/// (no effort step, no rough residual): a contact's load changing, as when the tip sticks and
+/// slips over a surface, not a lagging estimate of the motion. Only the effort measured on the
+/// motor's side lags, the shaft's torque by a few ms (4-6 ms in the simulator's stick-slip),
+/// plus the change's own window of 5 ms: 20 ms covers both, and the correction then fades back
+/// in over [`FADE_S`]. With the 0.15 s of a motion's transient, a tip sticking and slipping
+/// every 40 ms had the correction withheld in 40-50% of its cycles: 0.40-0.60 of raw in the
+/// project's random sliding scenarios, 0.29-0.57 with this hold, the largest harm unchanged
+/// (2026-11-29).
+pub const CONTACT_CHANGE_HOLD_S: f64 = 0.02;
 /// How long a withheld correction takes to fade back in (s).
 pub const FADE_S: f64 = 0.05;
 /// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction.
@@ -758,6 +774,8 @@ struct JointTrust {
     has_last_effort: bool,
     /// Time (s) of the last abrupt change or of the warm-up; `-inf` before any.
     last_transient_s: f64,
+    /// Time (s) of the last fast change of a contact's load ([`CONTACT_CHANGE_HOLD_S`]).
+    last_contact_change_s: f64,
     /// Time (s) the arm last moved (joints without a dynamics model).
     last_moving_s: f64,
     /// A gap restarted the filter and it has not filled since.
@@ -803,6 +821,7 @@ impl Default for JointTrust {
             last_effort: 0.0,
             has_last_effort: false,
             last_transient_s: f64::NEG_INFINITY,
+            last_contact_change_s: f64::NEG_INFINITY,
             last_moving_s: f64::NEG_INFINITY,
             after_gap: false,
             last_trusted_contact: 0.0,
@@ -869,11 +888,12 @@ fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// `"continuous"`), but only while the arm is still.
 ///
 /// The weight `w` is the smallest of: 0 during the filter's warm-up (start, or after a gap);
-/// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`], an effort change
-/// over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`], or a window whose motion
-/// is not smooth: a cubic residual above [`TRANSIENT_RESIDUAL_RAD`] and above
+/// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`], or a window whose
+/// motion is not smooth: a cubic residual above [`TRANSIENT_RESIDUAL_RAD`] and above
 /// [`TRANSIENT_RESIDUAL_RATIO`] times its own recent level, so a steady fast motion is not
-/// taken for a burst) 0 for [`TRANSIENT_HOLD_S`], then fading back in over [`FADE_S`]; 1 up to
+/// taken for a burst) 0 for [`TRANSIENT_HOLD_S`], then fading back in over [`FADE_S`]; after an
+/// effort change over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`] alone (a
+/// contact's load changing under a smooth motion) the same, for [`CONTACT_CHANGE_HOLD_S`]; 1 up to
 /// the largest acceleration the dynamics fit saw, falling to 0 at [`ACCEL_CUTOFF_RATIO`] times
 /// it; 0 beyond the insertion margin; fading from 1 to 0 over [`TORQUE_OFFSET_MARGIN_RAD`]
 /// outside the torque-offset table's positions. Each reason sets a bit of [`trust`] in
@@ -970,6 +990,7 @@ impl Compensator {
         let mut sigma = [0.0; 2];
         let mut max_acc = [0.0; 2];
         let mut abrupt = [false; 2];
+        let mut contact_change = [false; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
             let st = &mut self.joints[j];
@@ -1044,7 +1065,8 @@ impl Compensator {
             } else if !st.ready() {
                 tr.residual_level = 0.0;
             }
-            abrupt[j] = st.ready() && (effort_step || effort_change || rough);
+            abrupt[j] = st.ready() && (effort_step || rough);
+            contact_change[j] = st.ready() && effort_change && !abrupt[j];
         }
 
         // Pass 2: the trust weight, the correction and its bound.
@@ -1075,9 +1097,16 @@ impl Compensator {
                 if abrupt[j] {
                     tr.last_transient_s = t_s;
                 }
+                if contact_change[j] {
+                    tr.last_contact_change_s = t_s;
+                }
             }
             let w_transient = if ready {
-                fade_in(t_s, tr.last_transient_s, TRANSIENT_HOLD_S)
+                fade_in(t_s, tr.last_transient_s, TRANSIENT_HOLD_S).min(fade_in(
+                    t_s,
+                    tr.last_contact_change_s,
+                    CONTACT_CHANGE_HOLD_S,
+                ))
             } else {
                 0.0
             };

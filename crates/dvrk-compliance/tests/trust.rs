@@ -8,8 +8,8 @@ mod common;
 
 use dvrk_compliance::dynamics::{DistalGravityParams, DynamicsParams, WINDOW};
 use dvrk_compliance::model::{
-    FADE_S, INSERTION_MARGIN_M, TIP_LEVER_EXTRA_M, TORQUE_OFFSET_MARGIN_RAD, TRANSIENT_HOLD_S,
-    TRANSIENT_RESIDUAL_RAD,
+    CONTACT_CHANGE_HOLD_S, EFFORT_RATE_SAMPLES, FADE_S, INSERTION_MARGIN_M, TIP_LEVER_EXTRA_M,
+    TORQUE_OFFSET_MARGIN_RAD, TRANSIENT_HOLD_S, TRANSIENT_RESIDUAL_RAD,
 };
 use dvrk_compliance::{Compensator, ComplianceConfig, trust};
 
@@ -184,6 +184,37 @@ fn a_steady_ripple_is_not_a_transient_but_a_step_on_top_of_it_is() {
         "the steady ripple was taken for a transient"
     );
     assert!(flagged_after_step > 0, "the velocity step was not flagged");
+}
+
+/// A contact's load that changes fast while the arm's motion stays smooth (a tip slipping: the
+/// shaft torque drops from 0.3 to 0.15 N·m within 3 ms, each sample's change under the effort
+/// step's limit) is withheld for the short hold of a contact change, not for a motion's
+/// transient; then the new load is corrected in full. With the motion's hold a tip sticking and
+/// slipping every 40 ms was never corrected.
+#[test]
+fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
+    let cfg = config(true);
+    let mut c = Compensator::new();
+    let settled = still(&mut c, &cfg, 0, 600, 0.12, 0.3);
+    assert_eq!(settled.flags, 0, "{settled:?}");
+    let mut flagged = false;
+    for i in 1..=5 {
+        let r = still(&mut c, &cfg, 600 + i - 1, 1, 0.12, 0.3 - 0.03 * i as f64);
+        flagged |= r.flags & trust::TRANSIENT != 0;
+    }
+    assert!(flagged, "the slip was not flagged");
+    // The change stays in the effort's window for EFFORT_RATE_SAMPLES samples; then the hold and
+    // the fade, far shorter than a motion's transient.
+    const { assert!(CONTACT_CHANGE_HOLD_S + FADE_S < 0.5 * (TRANSIENT_HOLD_S + FADE_S)) };
+    let n = ((CONTACT_CHANGE_HOLD_S + FADE_S) / DT) as usize + EFFORT_RATE_SAMPLES + 2;
+    let back = still(&mut c, &cfg, 605, n, 0.12, 0.15);
+    assert_eq!(back.flags & trust::TRANSIENT, 0, "{back:?}");
+    assert_eq!(back.weight, [1.0, 1.0], "{back:?}");
+    // 0.002 + 0.15 / 20 = 0.0095 rad on joint 1.
+    assert!(
+        (back.delta_rad[0] - 0.0095).abs() < 0.05 * 0.0095,
+        "{back:?}"
+    );
 }
 
 /// Outside its torque-offset table a joint's `tau_0` is the table's end value, wrong by the
