@@ -183,14 +183,18 @@ pub const REVERSAL_WINDOW_S: f64 = 0.005;
 pub const TRANSIENT_HOLD_S: f64 = 0.15;
 /// How long the correction is withheld after the effort changed fast (above
 /// [`TRANSIENT_EFFORT_CHANGE_NM`] over [`EFFORT_RATE_SAMPLES`]) while the motion stayed smooth
-/// (no effort step, no rough residual): a contact's load changing, as when the tip sticks and
-/// slips over a surface, not a lagging estimate of the motion. Only the effort measured on the
-/// motor's side lags, the shaft's torque by a few ms (4-6 ms in the simulator's stick-slip),
-/// plus the change's own window of 5 ms: 20 ms covers both, and the correction then fades back
-/// in over [`FADE_S`]. With the 0.15 s of a motion's transient, a tip sticking and slipping
-/// every 40 ms had the correction withheld in 40-50% of its cycles: 0.40-0.60 of raw in the
-/// project's random sliding scenarios, 0.29-0.57 with this hold, the largest harm unchanged
-/// (2026-11-29).
+/// (no effort step, no rough residual), on a joint with a dynamics model: a contact's load
+/// changing, as when the tip sticks and slips over a surface, not a lagging estimate of the
+/// motion. Only the effort measured on the motor's side lags the shaft's torque, by 4-6 ms in
+/// the simulator's stick-slip, and the change has its own window of 5 ms: 20 ms covers both,
+/// and the correction then fades back in over [`FADE_S`].
+///
+/// With a motion's 0.15 s instead, 40-53% of the cycles of the project's random surfaces moved
+/// in start-stop were withheld, and the mean compensated/raw of its sliding scenarios was 0.453
+/// (0.385 with this hold; `i20-stick-slip` 0.31, now 0.29), the largest harm the same
+/// (2026-11-29). A joint without a dynamics model keeps [`TRANSIENT_HOLD_S`]: there the change
+/// may as well be the motion's own (a stop settling), and with the short hold a start-stop
+/// motion's compensated mean was 17-37% worse.
 pub const CONTACT_CHANGE_HOLD_S: f64 = 0.02;
 /// How long a withheld correction takes to fade back in (s).
 pub const FADE_S: f64 = 0.05;
@@ -1065,8 +1069,12 @@ impl Compensator {
             } else if !st.ready() {
                 tr.residual_level = 0.0;
             }
-            abrupt[j] = st.ready() && (effort_step || rough);
-            contact_change[j] = st.ready() && effort_change && !abrupt[j];
+            // With a motion model, an effort change the smooth motion does not explain is a
+            // contact's load changing; without one it may as well be the motion's (a stop's
+            // settling), and holds as long as any transient.
+            let contact_only = joint.dynamics.is_some() && effort_change && !effort_step && !rough;
+            abrupt[j] = st.ready() && (effort_step || effort_change || rough) && !contact_only;
+            contact_change[j] = st.ready() && contact_only;
         }
 
         // Pass 2: the trust weight, the correction and its bound.

@@ -217,6 +217,27 @@ fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
     );
 }
 
+/// Without a dynamics model the same fast effort change may be the motion's own (a stop
+/// settling): it holds the correction as long as any transient.
+#[test]
+fn without_a_dynamics_model_a_fast_effort_change_holds_as_long_as_a_transient() {
+    let cfg = config(false);
+    let mut c = Compensator::new();
+    let settled = still(&mut c, &cfg, 0, 600, 0.12, 0.3);
+    assert_eq!(settled.weight, [1.0, 1.0], "{settled:?}");
+    for i in 1..=5 {
+        let _ = still(&mut c, &cfg, 600 + i - 1, 1, 0.12, 0.3 - 0.03 * i as f64);
+    }
+    let n = ((CONTACT_CHANGE_HOLD_S + FADE_S) / DT) as usize + EFFORT_RATE_SAMPLES + 2;
+    let r = still(&mut c, &cfg, 605, n, 0.12, 0.15);
+    assert_ne!(r.flags & trust::TRANSIENT, 0, "{r:?}");
+    assert!(r.weight[0] < 1.0, "{r:?}");
+    // The transient's hold and fade, then the still arm's own fade (STILL_ONLY).
+    let rest = ((TRANSIENT_HOLD_S + 2.0 * FADE_S) / DT) as usize + 2;
+    let back = still(&mut c, &cfg, 605 + n, rest, 0.12, 0.15);
+    assert_eq!(back.weight, [1.0, 1.0], "{back:?}");
+}
+
 /// Outside its torque-offset table a joint's `tau_0` is the table's end value, wrong by the
 /// counterbalance's slope: the correction fades out over the margin and the flag says why.
 #[test]
