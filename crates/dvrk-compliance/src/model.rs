@@ -99,10 +99,12 @@ pub mod trust {
     /// The acceleration is beyond what the dynamics fit saw: the correction shrinks, to nothing
     /// at `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration.
     pub const ACCEL_OUT_OF_RANGE: u32 = 1 << 3;
-    /// The insertion is outside the fitted range but within `INSERTION_MARGIN_M` of it: K(L)
-    /// is extrapolated and its uncertainty grows with the distance.
+    /// The insertion is outside the fitted range but within `INSERTION_MARGIN_M` +
+    /// `INSERTION_FADE_M` of it: K(L) is extrapolated and its uncertainty grows with the
+    /// distance; beyond `INSERTION_MARGIN_M` the correction fades out.
     pub const INSERTION_EXTRAPOLATED: u32 = 1 << 4;
-    /// The insertion is more than `INSERTION_MARGIN_M` outside the fitted range: no correction.
+    /// The insertion is more than `INSERTION_MARGIN_M` + `INSERTION_FADE_M` outside the fitted
+    /// range: no correction.
     pub const INSERTION_OUT_OF_RANGE: u32 = 1 << 5;
     /// A joint without a dynamics model while the arm moves: its effort holds inertia and
     /// friction the model cannot remove, so it is corrected only while the arm is still.
@@ -131,8 +133,17 @@ pub mod trust {
 /// wrong by the counterbalance's slope (up to 0.25 N·m/rad on the default file's pitch) times
 /// the distance, which the correction would take for contact.
 pub const TORQUE_OFFSET_MARGIN_RAD: f64 = 0.05;
-/// How far outside its fitted insertion range K(L) is extrapolated (m); beyond, no correction.
+/// How far outside its fitted insertion range K(L) is extrapolated and the correction made in
+/// full (m, inclusive).
 pub const INSERTION_MARGIN_M: f64 = 0.01;
+/// Beyond [`INSERTION_MARGIN_M`] the correction fades linearly to nothing over this distance
+/// (m); further out, none. A hard end made the compensated position jump by the whole
+/// correction (6 mm in a divot push at 0.23 m) as the insertion crossed it, and a push whose
+/// insertion sat at the margin's end went uncorrected: `0.23 - 0.22` is 1.0000000000000009e-2 m
+/// in binary floating point.
+pub const INSERTION_FADE_M: f64 = 0.002;
+/// Rounding allowed at the margin's end (m): far below any insertion's noise.
+const INSERTION_ROUNDING_M: f64 = 1e-9;
 /// Relative uncertainty (1 sigma) of K(L) inside the fitted range for a file that does not say
 /// (`inverse_compliance_rel_sigma`, written by `fit` since issue 20): 1% leaves room for a real
 /// arm's scatter. A lab with the 2017 kind of data should expect more; `fit` measures it.
@@ -473,7 +484,8 @@ impl ComplianceConfig {
             let Some(joint) = joint else { continue };
             let (_, clamped) = joint.clamp_insertion(raw_insertion_m);
             // The same insertion rule as the service's estimator: inside the range, extrapolated
-            // within INSERTION_MARGIN_M with a growing uncertainty, beyond it not corrected.
+            // within INSERTION_MARGIN_M with a growing uncertainty, fading out over
+            // INSERTION_FADE_M beyond it, then not corrected.
             let ins = insertion_rule(joint, raw_insertion_m);
             out.flags |= ins.flags;
             if !insertion_reported {
@@ -487,13 +499,19 @@ impl ComplianceConfig {
             out.tau_margin_nm[j] = tau_ext.abs() - joint.threshold_nm();
             out.weight[j] = ins.weight;
             let full = joint.deflection_rad(self.model, tau_ext, ins.insertion_m);
+            // Not corrected: the whole deflection the model would have removed is the error,
+            // with the stiffness's uncertainty on top.
+            let withheld = BoundParts {
+                bias: 0.95 * joint.play_rad() + full.abs() * (1.0 + ins.rel_k),
+                sigma: 0.0,
+            };
             if ins.weight > 0.0 {
-                let delta = full;
+                let delta = ins.weight * full;
                 out.delta_rad[j] = delta;
                 out.active[j] = delta != 0.0;
                 out.position[j] = position[j] - delta;
                 // The stateless formula has no noise model: its gate stands for 4 sigma.
-                let m = side_of_play(joint.play_rad(), delta, k, tau_ext);
+                let m = side_of_play(joint.play_rad(), full, k, tau_ext);
                 parts[j] = joint_bound(
                     joint.play_rad(),
                     m,
@@ -501,14 +519,10 @@ impl ComplianceConfig {
                     joint.threshold_nm() / 4.0,
                     tau_ext,
                     ins.rel_k,
-                );
+                )
+                .mix(ins.weight, &withheld);
             } else {
-                // Not corrected: the whole deflection the model would have removed is the error,
-                // with the stiffness's uncertainty of the clamped end on top.
-                parts[j] = BoundParts {
-                    bias: 0.95 * joint.play_rad() + full.abs() * (1.0 + ins.rel_k),
-                    sigma: 0.0,
-                };
+                parts[j] = withheld;
             }
             out.bound_rad[j] = parts[j].joint_bound();
         }
@@ -522,8 +536,9 @@ impl ComplianceConfig {
 /// and what the flags say: inside the fitted range as measured; within
 /// [`INSERTION_MARGIN_M`] outside it extrapolated (if 1/K stays within its physical bounds) with
 /// a relative stiffness uncertainty growing to [`STIFFNESS_SIGMA_GROWTH_AT_MARGIN`] + 1 times the in-range one at the
-/// margin's end; beyond it (or a non-finite insertion) not corrected (`weight` 0) at the
-/// clamped end.
+/// margin's end (and on at that rate), the `weight` falling from 1 to 0 over
+/// [`INSERTION_FADE_M`] beyond it; further out (or a non-finite insertion) not corrected
+/// (`weight` 0) at the clamped end.
 #[derive(Clone, Copy, Debug)]
 struct InsertionRule {
     insertion_m: f64,
@@ -566,12 +581,14 @@ fn insertion_rule(joint: &JointModel, raw_l: f64) -> InsertionRule {
     let plausible = (crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[0]
         ..=crate::bounds::INVERSE_COMPLIANCE_NM_PER_RAD[1])
         .contains(&inv_k);
-    if outside <= INSERTION_MARGIN_M && plausible {
+    let beyond_margin = (outside - INSERTION_MARGIN_M - INSERTION_ROUNDING_M).max(0.0);
+    let weight = 1.0 - beyond_margin / INSERTION_FADE_M;
+    if weight > 0.0 && plausible {
         InsertionRule {
             insertion_m: raw_l,
             rel_k: joint.stiffness_rel_sigma()
                 * (1.0 + STIFFNESS_SIGMA_GROWTH_AT_MARGIN * outside / INSERTION_MARGIN_M),
-            weight: 1.0,
+            weight,
             flags: trust::INSERTION_EXTRAPOLATED,
         }
     } else {

@@ -9,6 +9,7 @@ mod common;
 use std::fs;
 use std::path::Path;
 
+use dvrk_compliance::model::{INSERTION_FADE_M, INSERTION_MARGIN_M};
 use dvrk_compliance::trust;
 use dvrk_compliance::{ComplianceConfig, ComplianceParams, Correction, ModelKind};
 use proptest::prelude::*;
@@ -168,6 +169,48 @@ fn insertion_within_the_margin_is_extrapolated_with_a_wider_bound() {
         below.bound_rad[0] > inside.bound_rad[0],
         "{below:?} vs {inside:?}"
     );
+}
+
+/// Beyond the margin the correction fades out over `INSERTION_FADE_M` instead of stopping: no
+/// jump of the compensated position as the insertion crosses it, and an insertion at the
+/// margin's end (`0.23 - 0.22` is a hair above 0.01 in binary) is corrected in full.
+#[test]
+fn insertion_fades_out_beyond_the_margin_without_a_jump() {
+    let config = worked(ModelKind::Paper);
+    let effort = [1.125, 0.375, 0.0];
+    // Joint 1's range ends at 0.22: at 0.23 it is exactly at the margin's end.
+    let at_end = config.correct(&[0.5, -0.25, 0.23], &effort);
+    assert_eq!(at_end.weight[0], 1.0, "{at_end:?}");
+    assert_close([at_end.delta_rad[0], 0.0], [0.035, 0.0]);
+    // Joint 2's ends at 0.2: at 0.211, 1 mm past the margin, half of the correction.
+    let full = 0.005 + 0.5 / (100.0 * 0.211);
+    let half = config.correct(&[0.5, -0.25, 0.211], &effort);
+    assert!((half.weight[1] - 0.5).abs() < 1e-5, "{half:?}");
+    assert!(
+        (half.delta_rad[1] - half.weight[1] * full).abs() < 1e-12,
+        "{half:?}"
+    );
+    assert_ne!(half.flags & trust::INSERTION_EXTRAPOLATED, 0);
+    // The bound lies between the corrected one and the withheld one.
+    let corrected = config.correct(&[0.5, -0.25, 0.2095], &effort);
+    let withheld = config.correct(&[0.5, -0.25, 0.2125], &effort);
+    assert_eq!(withheld.delta_rad[1], 0.0);
+    assert_ne!(withheld.flags & trust::INSERTION_OUT_OF_RANGE, 0);
+    assert!(
+        corrected.bound_rad[1] < half.bound_rad[1] && half.bound_rad[1] < withheld.bound_rad[1],
+        "{corrected:?} {half:?} {withheld:?}"
+    );
+    // Swept across the fade in 10 µm steps, the correction moves by at most its share of
+    // 10 µm of the fade (0.029 rad * 0.005 = 1.5e-4 rad), never by the whole of it.
+    let mut last = corrected.delta_rad[1];
+    let mut l = 0.2095;
+    while l < 0.2125 {
+        l += 1e-5;
+        let d = config.correct(&[0.5, -0.25, l], &effort).delta_rad[1];
+        assert!((d - last).abs() < 2e-4, "L = {l}: {last} -> {d}");
+        last = d;
+    }
+    assert_eq!(last, 0.0);
 }
 
 #[test]
@@ -451,8 +494,8 @@ proptest! {
             // joint 1 (at 0.09 m: 74.03 / 12.35^2) and 0.40 for joint 2; 2 is a safe bound.
             prop_assert!((a.delta_rad[j] - b.delta_rad[j]).abs() <= 2.0 * e[j].abs() * dl.abs() + 1e-15);
         }
-        // Beyond the 10 mm margin: no correction at all.
-        if beyond > 0.0101 {
+        // Beyond the margin and its fade: no correction at all.
+        if beyond > INSERTION_MARGIN_M + INSERTION_FADE_M + 1e-6 {
             let above = config.correct(&[q[0], q[1], 0.22 + beyond], &effort);
             prop_assert_eq!(above.delta_rad, [0.0, 0.0]);
             let below = config.correct(&[q[0], q[1], 0.09 - beyond], &effort);

@@ -8,8 +8,8 @@ mod common;
 
 use dvrk_compliance::dynamics::{DistalGravityParams, DynamicsParams, WINDOW};
 use dvrk_compliance::model::{
-    CONTACT_CHANGE_HOLD_S, EFFORT_RATE_SAMPLES, FADE_S, INSERTION_MARGIN_M, TIP_LEVER_EXTRA_M,
-    TORQUE_OFFSET_MARGIN_RAD, TRANSIENT_HOLD_S, TRANSIENT_RESIDUAL_RAD,
+    CONTACT_CHANGE_HOLD_S, EFFORT_RATE_SAMPLES, FADE_S, INSERTION_FADE_M, INSERTION_MARGIN_M,
+    TIP_LEVER_EXTRA_M, TORQUE_OFFSET_MARGIN_RAD, TRANSIENT_HOLD_S, TRANSIENT_RESIDUAL_RAD,
 };
 use dvrk_compliance::{Compensator, ComplianceConfig, trust};
 
@@ -323,8 +323,22 @@ fn insertion_is_extrapolated_within_the_margin_and_refused_beyond() {
     assert_ne!(far.flags & trust::INSERTION_OUT_OF_RANGE, 0, "{far:?}");
     assert_eq!(far.delta_rad, [0.0, 0.0]);
     assert!(far.bound_rad[1] > 0.5 / 9.0, "{far:?}");
-    let above = run(0.22 + INSERTION_MARGIN_M + 0.001);
+    let above = run(0.22 + INSERTION_MARGIN_M + INSERTION_FADE_M + 0.001);
     assert_eq!(above.delta_rad, [0.0, 0.0]);
+    // Between the margin and the fade's end: part of the correction, flagged as reduced.
+    let fading = run(0.22 + INSERTION_MARGIN_M + 0.5 * INSERTION_FADE_M);
+    let inside_above = run(0.22);
+    for j in 0..2 {
+        assert!((fading.weight[j] - 0.5).abs() < 1e-5, "{fading:?}");
+        assert!(
+            (0.3..0.7).contains(&(fading.delta_rad[j] / inside_above.delta_rad[j])),
+            "{fading:?} vs {inside_above:?}"
+        );
+    }
+    assert_eq!(
+        fading.flags & (trust::INSERTION_EXTRAPOLATED | trust::REDUCED),
+        trust::INSERTION_EXTRAPOLATED | trust::REDUCED
+    );
 }
 
 /// Without a dynamics model the effort holds the motion's torque: the correction acts only while

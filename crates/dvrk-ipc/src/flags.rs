@@ -28,8 +28,8 @@
 //! | 22 | `GAP` | a gap in the samples (or time going back) restarted the estimator | — |
 //! | 23 | `TRANSIENT` | an abrupt change of effort or motion: correction withheld, then faded back in | — |
 //! | 24 | `ACCEL_OUT_OF_RANGE` | acceleration beyond what the dynamics fit saw: correction scaled down | — |
-//! | 25 | `INSERTION_EXTRAPOLATED` | insertion within 10 mm outside the fitted range: stiffness extrapolated, bound widened | — |
-//! | 26 | `INSERTION_OUT_OF_RANGE` | insertion more than 10 mm outside the fitted range: no correction | — |
+//! | 25 | `INSERTION_EXTRAPOLATED` | insertion within 12 mm outside the fitted range: stiffness extrapolated, bound widened; corrected in full up to 10 mm, fading out over the last 2 mm | — |
+//! | 26 | `INSERTION_OUT_OF_RANGE` | insertion more than 12 mm outside the fitted range: no correction | — |
 //! | 27 | `STILL_ONLY` | parameters without a dynamics model: corrected only while the arm is still | — |
 //! | 28 | `REDUCED` | the correction applied is less than the model's (evidence weight below 1) | — |
 //! | 29 | `POT_MISMATCH` | refused: a potentiometer and its encoder disagree beyond the dVRK's tolerance (a slipped encoder?) | 0 |
@@ -99,9 +99,10 @@ pub const GAP: u32 = 1 << 22;
 pub const TRANSIENT: u32 = 1 << 23;
 /// Issue 20: acceleration beyond what the dynamics fit saw: correction scaled down.
 pub const ACCEL_OUT_OF_RANGE: u32 = 1 << 24;
-/// Issue 20: insertion within 10 mm outside the fitted range: stiffness extrapolated, bound widened.
+/// Issue 20: insertion within 12 mm outside the fitted range: stiffness extrapolated, bound
+/// widened; corrected in full up to 10 mm, fading out over the last 2 mm.
 pub const INSERTION_EXTRAPOLATED: u32 = 1 << 25;
-/// Issue 20: insertion more than 10 mm outside the fitted range: no correction.
+/// Issue 20: insertion more than 12 mm outside the fitted range: no correction.
 pub const INSERTION_OUT_OF_RANGE: u32 = 1 << 26;
 /// Issue 20: parameters without a dynamics model: corrected only while the arm is still.
 pub const STILL_ONLY: u32 = 1 << 27;
