@@ -145,6 +145,7 @@ fn sub_shm<T: Message>(
         period: NOMINAL_PERIOD,
         wait,
         deadline: None,
+        ..SubscribeOptions::default()
     };
     let mut sub = Subscription::<T, Service>::with_options(&node, &names, topic, options)?;
     if datagram {

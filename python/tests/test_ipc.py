@@ -189,6 +189,26 @@ class IsolatedDomain(unittest.TestCase):
                     self.assertFalse(numpy.shares_memory(a, got[i - 1]))
 
     @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
+    def test_the_native_predictive_late_share_is_checked(self):
+        # 1-50 % of the predicted waits may wake after the sample; anything else is refused,
+        # naming the keyword and the value.
+        from dvrk_sidecar import _native, native
+
+        topic = "compensated/local/measured_cp"
+        node = _native.Node("late", self.domain, ROOT)
+        for bad in (0, 51, -1, 300):
+            with self.subTest(bad=bad):
+                with self.assertRaisesRegex(ValueError, f"predictive_late_percent {bad}: must be within 1..=50"):
+                    _native.Subscription(
+                        node, "PSM1", topic, native.DTYPES[topic], wait="predictive", predictive_late_percent=bad
+                    )
+        for good in (1, 10, 50):
+            sub = _native.Subscription(
+                node, "PSM1", topic, native.DTYPES[topic], wait="predictive", predictive_late_percent=good
+            )
+            sub.close()
+
+    @unittest.skipIf("native" not in BACKENDS, dvrk_sidecar.NATIVE_IMPORT_ERROR)
     def test_the_two_iceoryx2_copies_in_one_process_leave_each_others_nodes_alone(self):
         # The iceoryx2 package's nodes and the native module's each look dead to the other copy
         # (another process id, a monitor lock held by this very process): neither may remove

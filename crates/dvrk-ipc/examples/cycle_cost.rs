@@ -53,6 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             period: Duration::from_micros(667),
             wait,
             deadline: None,
+            ..SubscribeOptions::default()
         };
         let mut subs = (0..n_subs)
             .map(|_| {

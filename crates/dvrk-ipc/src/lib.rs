@@ -85,6 +85,7 @@ pub use names::{
     CYCLE_FIRST_SUFFIX, CYCLE_SUFFIX, DEFAULT_PREFIX, MAX_PREFIX_LEN, NUM_TOPICS, ServiceNames,
     Topic, arm_name_problem,
 };
+pub use predict::{PREDICTIVE_LATE_PERCENT, PREDICTIVE_LATE_PERCENT_RANGE};
 pub use publisher::{ArmPublisher, CycleStarted, PUBLISH_ORDER, ReapReport, SubscriberCounts};
 pub use services::{
     ArmServices, ICEORYX2_LOG_LEVEL, IPC_ROOT_ENV, MAX_DOMAIN_PREFIX_LEN, MAX_ROOT_PATH_LEN,

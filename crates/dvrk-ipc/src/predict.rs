@@ -17,8 +17,12 @@
 //!
 //! Both margins are stochastic quantile trackers. A late wake-up raises the guard by
 //! `GUARD_UP_NS`, an on-time one lowers it by `GUARD_DOWN_NS`, so it settles where
-//! P(late) = DOWN / (UP + DOWN), 10 %: at the p90 of the timer's wake-up lateness and the
-//! arrivals' jitter together, not at its far tail. The tail of a timer on a VM is hundreds of
+//! P(late) = DOWN / (UP + DOWN), 10 % by default ([`PREDICTIVE_LATE_PERCENT`]): at the p90 of
+//! the timer's wake-up lateness and the arrivals' jitter together, not at its far tail. A
+//! subscriber may aim elsewhere (`SubscribeOptions::predictive_late_percent`): the Python native
+//! module aims at 25 %, where the interpreter's own hand-off hides most of a later wake-up and
+//! the shorter polling saves about two points of a core (dvrk-py,
+//! `PYTHON_PREDICTIVE_LATE_PERCENT`). The tail of a timer on a VM is hundreds of
 //! µs, and a guard sized to it would poll for most of each period; a late wake-up costs nothing
 //! worse than the cycle event, which the wait watches at the same time. (The guard aimed at the
 //! p80 before 2026-11-24: with one subscriber in five woken late, the late ones sat just below
@@ -48,8 +52,13 @@ pub const LEARN_SAMPLES: u32 = 16;
 const GUARD_INIT_NS: f64 = 50_000.0;
 /// Least guard.
 const GUARD_MIN_NS: f64 = 2_000.0;
-const GUARD_UP_NS: f64 = 9_000.0;
 const GUARD_DOWN_NS: f64 = 1_000.0;
+/// The share of predicted waits (percent) whose wake-up may come after the sample, by default:
+/// the guard rises by `GUARD_DOWN_NS * (100 - p) / p` on a late one (9 µs at 10 %).
+pub const PREDICTIVE_LATE_PERCENT: u8 = 10;
+/// The range a subscriber's late share is taken within (percent): beyond half of the waits late
+/// the prediction would be the event path with extra wake-ups.
+pub const PREDICTIVE_LATE_PERCENT_RANGE: core::ops::RangeInclusive<u8> = 1..=50;
 /// Least and starting polling time after the predicted arrival.
 const SPIN_AFTER_MIN_NS: f64 = 20_000.0;
 const SPIN_AFTER_UP_NS: f64 = 30_000.0;
@@ -97,10 +106,23 @@ pub struct Predictor {
     hit_rate: f64,
     /// Waits since the last one that polled while the hit rate is low.
     skipped: u32,
+    /// What a late wake-up adds to the guard (ns).
+    guard_up_ns: f64,
 }
 
 impl Predictor {
+    #[cfg(test)]
     pub fn new(nominal_period_ns: u64) -> Self {
+        Self::with_late_percent(nominal_period_ns, PREDICTIVE_LATE_PERCENT)
+    }
+
+    /// A predictor whose guard settles where `late_percent` of the predicted waits wake up after
+    /// the sample (taken within [`PREDICTIVE_LATE_PERCENT_RANGE`]): fewer late ones cost more polling.
+    pub fn with_late_percent(nominal_period_ns: u64, late_percent: u8) -> Self {
+        let late = f64::from(late_percent.clamp(
+            *PREDICTIVE_LATE_PERCENT_RANGE.start(),
+            *PREDICTIVE_LATE_PERCENT_RANGE.end(),
+        ));
         let p = nominal_period_ns.max(1) as f64;
         Self {
             nominal_ns: p,
@@ -115,6 +137,7 @@ impl Predictor {
             spin_after_ns: SPIN_AFTER_MIN_NS,
             hit_rate: 1.0,
             skipped: 0,
+            guard_up_ns: GUARD_DOWN_NS * (100.0 - late) / late,
         }
     }
 
@@ -237,7 +260,7 @@ impl Predictor {
         if on_time {
             self.guard_ns = (self.guard_ns - GUARD_DOWN_NS).max(GUARD_MIN_NS);
         } else {
-            self.guard_ns = (self.guard_ns + GUARD_UP_NS).min(max);
+            self.guard_ns = (self.guard_ns + self.guard_up_ns).min(max);
         }
     }
 
@@ -338,11 +361,8 @@ mod tests {
         assert_eq!(p.guard_ns(), P / 4, "capped at a quarter of a period");
     }
 
-    #[test]
-    fn guard_settles_where_one_wake_up_in_ten_is_late() {
-        // Wake-up lateness plus arrival jitter, pseudo-random with a long tail: 5..45 µs mostly,
-        // one in ten up to 150 µs (the guard is capped at a quarter of a period, 167 µs).
-        let mut p = Predictor::new(P);
+    /// The share of late wake-ups when the lateness is drawn as described below.
+    fn late_share(mut p: Predictor) -> f64 {
         let mut x = 99u64;
         let mut late = 0u32;
         let n = 200_000u32;
@@ -362,8 +382,26 @@ mod tests {
             }
             p.graded(on_time);
         }
-        let frac = f64::from(late) / f64::from(n);
+        f64::from(late) / f64::from(n)
+    }
+
+    #[test]
+    fn guard_settles_where_one_wake_up_in_ten_is_late() {
+        // Wake-up lateness plus arrival jitter, pseudo-random with a long tail: 5..45 µs mostly,
+        // one in ten up to 150 µs (the guard is capped at a quarter of a period, 167 µs).
+        let frac = late_share(Predictor::new(P));
         assert!((0.075..=0.13).contains(&frac), "{:.1} % late", frac * 100.0);
+    }
+
+    #[test]
+    fn a_subscriber_may_aim_at_another_late_share() {
+        let frac = late_share(Predictor::with_late_percent(P, 25));
+        assert!((0.21..=0.29).contains(&frac), "{:.1} % late", frac * 100.0);
+        // Out of range: taken at the range's ends.
+        let frac = late_share(Predictor::with_late_percent(P, 0));
+        assert!(frac < 0.02, "{:.1} % late", frac * 100.0);
+        let frac = late_share(Predictor::with_late_percent(P, 200));
+        assert!((0.45..=0.55).contains(&frac), "{:.1} % late", frac * 100.0);
     }
 
     #[test]

@@ -142,6 +142,12 @@ pub struct SubscribeOptions {
     /// After how long without a sample [`Subscription::wait`] returns [`Update::Stale`].
     /// `None`: [`DEADLINE_PERIODS`] periods, at least [`MIN_DEFAULT_DEADLINE`].
     pub deadline: Option<Duration>,
+    /// [`WaitStrategy::Predictive`]: the share of predicted waits (percent) whose timer may wake
+    /// after the sample landed ([`crate::PREDICTIVE_LATE_PERCENT`], 10, by default; taken
+    /// within [`crate::PREDICTIVE_LATE_PERCENT_RANGE`]). Such a wait hands the sample over as
+    /// late as its timer fires (or the cycle's wake-up, whichever comes first); a smaller share
+    /// polls longer before each sample and costs more CPU.
+    pub predictive_late_percent: u8,
 }
 
 impl Default for SubscribeOptions {
@@ -150,6 +156,7 @@ impl Default for SubscribeOptions {
             period: NOMINAL_PERIOD,
             wait: WaitStrategy::Event,
             deadline: None,
+            predictive_late_percent: crate::PREDICTIVE_LATE_PERCENT,
         }
     }
 }
@@ -388,7 +395,7 @@ where
             on_word: false,
             datagram: false,
             timer,
-            predictor: Predictor::new(period_ns),
+            predictor: Predictor::with_late_percent(period_ns, options.predictive_late_percent),
             wait: options.wait,
             deadline_ns,
             last_fresh_ns: sys::monotonic_ns(),

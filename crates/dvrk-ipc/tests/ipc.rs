@@ -687,6 +687,7 @@ fn event_and_predictive_subscriptions_give_their_thread_a_short_slice_spin_does_
                 period: PERIOD,
                 wait,
                 deadline: None,
+                ..SubscribeOptions::default()
             };
             let sub =
                 Subscription::<PoseV2>::with_options(&node, &names, Topic::MeasuredCp, options)

@@ -109,6 +109,7 @@ fn child_role() {
                 period: PERIOD,
                 wait,
                 deadline: Some(Duration::from_millis(50)),
+                ..SubscribeOptions::default()
             };
             let mut sub = Subscription::<JointStateV2>::with_options(
                 &node,

@@ -65,6 +65,7 @@ fn waiting_allocates_nothing_with_any_strategy() {
             period: Duration::from_millis(1),
             wait,
             deadline: Some(Duration::from_millis(200)),
+            ..SubscribeOptions::default()
         };
         let mut sub = Subscription::<PoseV2>::with_options(
             &node,

@@ -122,6 +122,7 @@ fn subscribe(
         period: Duration::from_nanos(PERIOD_NS),
         wait,
         deadline: Some(Duration::from_secs(5)),
+        ..SubscribeOptions::default()
     };
     let sub = Subscription::<JointStateV2>::with_options(&node, names, Topic::MeasuredJs, options)
         .unwrap();

@@ -113,6 +113,7 @@ fn echo<T: Message>(
         period: NOMINAL_PERIOD,
         wait: args.wait,
         deadline: None,
+        ..SubscribeOptions::default()
     };
     let mut sub = Subscription::<T, Service>::with_options(node, names, topic, options)
         .with_context(|| format!("subscribing to {}", names.topic(topic).as_str()))?;

@@ -45,6 +45,7 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
         period: NOMINAL_PERIOD,
         wait: args.wait,
         deadline: args.deadline,
+        ..SubscribeOptions::default()
     };
     let mut tip = Subscription::<PoseV2, Service>::with_options(
         &node,
