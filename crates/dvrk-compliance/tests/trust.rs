@@ -189,8 +189,8 @@ fn a_steady_ripple_is_not_a_transient_but_a_step_on_top_of_it_is() {
 /// A contact's load that changes fast while the arm's motion stays smooth (a tip slipping: the
 /// shaft torque drops from 0.3 to 0.15 N·m within 3 ms, each sample's change under the effort
 /// step's limit) is withheld for the short hold of a contact change, not for a motion's
-/// transient; then the new load is corrected in full. With the motion's hold a tip sticking and
-/// slipping every 40 ms was never corrected.
+/// transient; then the new load is corrected in full. With the motion's hold, a tip sticking and
+/// slipping had the correction withheld in about half of its cycles.
 #[test]
 fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
     let cfg = config(true);

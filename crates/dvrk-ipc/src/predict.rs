@@ -15,16 +15,17 @@
 //! lateness still leaves it polling before the sample lands, and polls until `spin_after` past
 //! the prediction before it goes back to sleep on the event.
 //!
-//! Both margins are stochastic quantile trackers. A late wake-up raises the guard by
-//! `GUARD_UP_NS`, an on-time one lowers it by `GUARD_DOWN_NS`, so it settles where
-//! P(late) = DOWN / (UP + DOWN), 10 % by default ([`PREDICTIVE_LATE_PERCENT`]): at the p90 of
-//! the timer's wake-up lateness and the arrivals' jitter together, not at its far tail. A
-//! subscriber may aim elsewhere (`SubscribeOptions::predictive_late_percent`): the Python native
-//! module aims at 25 %, where the interpreter's own hand-off hides most of a later wake-up and
-//! the shorter polling saves about two points of a core (dvrk-py,
-//! `PYTHON_PREDICTIVE_LATE_PERCENT`). The tail of a timer on a VM is hundreds of
-//! µs, and a guard sized to it would poll for most of each period; a late wake-up costs nothing
-//! worse than the cycle event, which the wait watches at the same time. (The guard aimed at the
+//! Both margins are stochastic quantile trackers. A late wake-up raises the guard by UP =
+//! `GUARD_DOWN_NS * (100 - p) / p`, an on-time one lowers it by DOWN = `GUARD_DOWN_NS`, so it
+//! settles where P(late) = DOWN / (UP + DOWN) = p %, 10 % by default
+//! ([`PREDICTIVE_LATE_PERCENT`]): at the p90 of the timer's wake-up lateness and the arrivals'
+//! jitter together, not at its far tail. A subscriber may aim elsewhere
+//! (`SubscribeOptions::predictive_late_percent`): the Python native module aims at 25 %, where
+//! the interpreter's own hand-off hides most of a later wake-up and the shorter polling saves
+//! about two points of a core (dvrk-py, `PYTHON_PREDICTIVE_LATE_PERCENT`). The tail of a timer
+//! on a VM is hundreds of µs, and a guard sized to it would poll for most of each period; a
+//! late wake-up costs nothing worse than the cycle event, which the wait watches at the same
+//! time. (The guard aimed at the
 //! p80 before 2026-11-24: with one subscriber in five woken late, the late ones sat just below
 //! the median and pulled it up, p50 3.1-5.3 µs instead of 2.8-4.7 µs for 1.5-2 points of CPU
 //! more. It aimed at the p95 until 2026-11-28, when the event path's own hand-off halved (the

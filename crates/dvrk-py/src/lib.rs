@@ -173,7 +173,7 @@ enum Step {
 /// The share of predictive waits (percent) whose timer may fire after the sample landed, for a
 /// Python subscriber: 25, against dvrk-ipc's 10 for a Rust one. The interpreter's own
 /// hand-off (a few µs) hides a later wake-up in one wait of four, and the shorter polling
-/// window it allows keeps a Python consumer within the 10% of a core issue 23 sets (15% for a
+/// window it allows brings a Python consumer nearer the 10% of a core issue 23 sets (15% for a
 /// Rust one). Measured 2026-11-29, six alternating 4 s runs of the latency harness at one
 /// subscriber (medians): 9.3% of a core against 11.3% at 10, the p50 hand-off 8.9 against
 /// 7.7 µs and the p99 101 against 90 µs.
