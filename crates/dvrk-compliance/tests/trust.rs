@@ -186,6 +186,28 @@ fn a_steady_ripple_is_not_a_transient_but_a_step_on_top_of_it_is() {
     assert!(flagged_after_step > 0, "the velocity step was not flagged");
 }
 
+/// The slip of the two tests below: a still arm at 0.12 m settled under 0.3 N·m (samples
+/// 0-599), then the torque drops to 0.15 N·m over samples 600-604, each step (0.03 N·m) under
+/// the effort step's limit. Returns the settled correction and whether the slip was flagged
+/// TRANSIENT; the next sample is 605.
+fn settle_then_slip(
+    c: &mut Compensator,
+    cfg: &ComplianceConfig,
+) -> (dvrk_compliance::Correction, bool) {
+    let settled = still(c, cfg, 0, 600, 0.12, 0.3);
+    let mut flagged = false;
+    for i in 1..=5 {
+        let r = still(c, cfg, 600 + i - 1, 1, 0.12, 0.3 - 0.03 * i as f64);
+        flagged |= r.flags & trust::TRANSIENT != 0;
+    }
+    (settled, flagged)
+}
+
+/// Samples after the slip by which a contact change's hold and fade are over: the change
+/// stays in the effort's window for EFFORT_RATE_SAMPLES samples, then the hold and the fade.
+const AFTER_CONTACT_CHANGE: usize =
+    ((CONTACT_CHANGE_HOLD_S + FADE_S) / DT) as usize + EFFORT_RATE_SAMPLES + 2;
+
 /// A contact's load that changes fast while the arm's motion stays smooth (a tip slipping: the
 /// shaft torque drops from 0.3 to 0.15 N·m within 3 ms, each sample's change under the effort
 /// step's limit) is withheld for the short hold of a contact change, not for a motion's
@@ -195,19 +217,12 @@ fn a_steady_ripple_is_not_a_transient_but_a_step_on_top_of_it_is() {
 fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
     let cfg = config(true);
     let mut c = Compensator::new();
-    let settled = still(&mut c, &cfg, 0, 600, 0.12, 0.3);
+    let (settled, flagged) = settle_then_slip(&mut c, &cfg);
     assert_eq!(settled.flags, 0, "{settled:?}");
-    let mut flagged = false;
-    for i in 1..=5 {
-        let r = still(&mut c, &cfg, 600 + i - 1, 1, 0.12, 0.3 - 0.03 * i as f64);
-        flagged |= r.flags & trust::TRANSIENT != 0;
-    }
     assert!(flagged, "the slip was not flagged");
-    // The change stays in the effort's window for EFFORT_RATE_SAMPLES samples; then the hold and
-    // the fade, far shorter than a motion's transient.
+    // The hold and the fade are far shorter than a motion's transient.
     const { assert!(CONTACT_CHANGE_HOLD_S + FADE_S < 0.5 * (TRANSIENT_HOLD_S + FADE_S)) };
-    let n = ((CONTACT_CHANGE_HOLD_S + FADE_S) / DT) as usize + EFFORT_RATE_SAMPLES + 2;
-    let back = still(&mut c, &cfg, 605, n, 0.12, 0.15);
+    let back = still(&mut c, &cfg, 605, AFTER_CONTACT_CHANGE, 0.12, 0.15);
     assert_eq!(back.flags & trust::TRANSIENT, 0, "{back:?}");
     assert_eq!(back.weight, [1.0, 1.0], "{back:?}");
     // 0.002 + 0.15 / 20 = 0.0095 rad on joint 1.
@@ -223,12 +238,9 @@ fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
 fn without_a_dynamics_model_a_fast_effort_change_holds_as_long_as_a_transient() {
     let cfg = config(false);
     let mut c = Compensator::new();
-    let settled = still(&mut c, &cfg, 0, 600, 0.12, 0.3);
+    let (settled, _) = settle_then_slip(&mut c, &cfg);
     assert_eq!(settled.weight, [1.0, 1.0], "{settled:?}");
-    for i in 1..=5 {
-        let _ = still(&mut c, &cfg, 600 + i - 1, 1, 0.12, 0.3 - 0.03 * i as f64);
-    }
-    let n = ((CONTACT_CHANGE_HOLD_S + FADE_S) / DT) as usize + EFFORT_RATE_SAMPLES + 2;
+    let n = AFTER_CONTACT_CHANGE;
     let r = still(&mut c, &cfg, 605, n, 0.12, 0.15);
     assert_ne!(r.flags & trust::TRANSIENT, 0, "{r:?}");
     assert!(r.weight[0] < 1.0, "{r:?}");
