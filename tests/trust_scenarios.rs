@@ -205,6 +205,39 @@ fn stick_slip_is_not_corrected_the_wrong_way() {
     assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
 }
 
+/// The palpation on an arm noisier than the one the default file was fitted on (5 mA of current
+/// noise, 2.5 times): the transient limits follow the noise as measured. With the file's fixed
+/// limits the noise's own changes read as abrupt in 99.9% of the cycles and the compensated
+/// mean stayed at 93% of raw; now 13%.
+#[test]
+fn palpation_on_a_noisier_arm() {
+    let v = evaluate("config/sim/i20-noisy-palpation.toml", "10", None);
+    let (raw, comp) = common_goals("noisy palpation", &v);
+    not_too_wide("noisy palpation", &v);
+    assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
+}
+
+/// Free start-stop motion on the noisier arm (27 rad/s² on joint 2): the limits the noise raised
+/// see joint 1's start a few samples after joint 2's, and joint 1 takes its building effort for
+/// contact meanwhile unless the other joint's change holds it (0.59 mm the wrong way before).
+/// The motion is withheld in most of its cycles, whose bound takes the whole effort: its width is
+/// not checked here (2.9 times the compensated mean).
+#[test]
+fn start_stop_on_a_noisier_arm() {
+    let name = "noisy start-stop";
+    let v = evaluate("config/sim/i20-noisy-start-stop.toml", "10", None);
+    let harm = num(&v, &["harm_mm", "max"]);
+    assert!(harm <= 0.5, "{name}: harm_mm.max {harm} > 0.5 mm: {v}");
+    let coverage = num(&v, &["coverage"]);
+    assert!(coverage >= 0.90, "{name}: coverage {coverage} < 0.90: {v}");
+    let raw = num(&v, &["tip_error_mm", "raw", "mean"]);
+    let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
+    assert!(
+        comp <= raw + 0.02,
+        "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
+    );
+}
+
 #[test]
 fn ultrasound_scan_in_light_contact() {
     let v = evaluate("config/sim/i20-ultrasound-scan.toml", "12", None);
