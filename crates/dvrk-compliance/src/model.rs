@@ -231,6 +231,9 @@ pub const TRANSIENT_HOLD_S: f64 = 0.15;
 /// may as well be the motion's own (a stop settling), and with the short hold a start-stop
 /// motion's compensated mean was 17-37% worse.
 pub const CONTACT_CHANGE_HOLD_S: f64 = 0.02;
+/// How long after a joint was last at rest the other joint's contact change holds it (s): the
+/// filter's window (32 ms at 1.5 kHz) and its delay, in which the dynamics model lags a start.
+pub const START_FROM_REST_S: f64 = 0.05;
 /// How long a withheld correction takes to fade back in (s).
 pub const FADE_S: f64 = 0.05;
 /// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction.
@@ -864,6 +867,8 @@ struct JointTrust {
     effort_change_mean: f64,
     /// The share of the measured torque taken for contact in the last sample (0 before any).
     last_contact_share: f64,
+    /// Time (s) the joint was last at rest ([`STILL_VELOCITY`], [`STILL_ACCELERATION`]).
+    last_rest_s: f64,
 }
 
 impl Default for JointTrust {
@@ -890,6 +895,7 @@ impl Default for JointTrust {
             has_noise: false,
             effort_change_mean: NOMINAL_EFFORT_NOISE_NM / SIGMA_PER_MEAN_CHANGE,
             last_contact_share: 0.0,
+            last_rest_s: f64::NEG_INFINITY,
         }
     }
 }
@@ -1164,6 +1170,12 @@ impl Compensator {
             let (tau_motion, sigma_tau, max_acc) = (tau_motion[j], sigma[j], max_acc[j]);
             let mut flags = 0;
             let ready = st.ready();
+            if ready
+                && st.velocity().abs() < STILL_VELOCITY
+                && st.acceleration().abs() < STILL_ACCELERATION
+            {
+                tr.last_rest_s = t_s;
+            }
             if !ready {
                 flags |= trust::WARMUP;
                 if tr.after_gap {
@@ -1175,14 +1187,16 @@ impl Compensator {
                 if abrupt[j] {
                     tr.last_transient_s = t_s;
                 }
-                // A contact change on the other joint holds a joint that carries no full contact
-                // of its own: a motion's start that one joint's detector sees first builds on the
-                // other as a contact would, a few samples before that joint's own detector fires
-                // (0.59 mm the wrong way in `i20-noisy-start-stop`, where the noise raises the
-                // limits; 0.13 mm with the hold). A joint in contact keeps its own judgement:
-                // holding each joint of a sliding tip for the other's changes cost the sliding
-                // scenarios 1.4-4.5 points of raw on average.
-                let other_changed = contact_change[1 - j] && tr.last_contact_share < 1.0;
+                // A contact change on the other joint holds a joint just started from rest that
+                // carries no full contact of its own: a motion's start that one joint's detector
+                // sees first builds on the other as a contact would, a few samples before that
+                // joint's own detector fires (0.59 mm the wrong way in `i20-noisy-start-stop`,
+                // where the noise raises the limits; 0.13 mm with the hold). Held on every change
+                // of the other joint, free multi-sine motions lost up to 13 points of raw, and
+                // the sliding scenarios 1.4-4.5 points on average with joints in contact held.
+                let other_changed = contact_change[1 - j]
+                    && tr.last_contact_share < 1.0
+                    && t_s - tr.last_rest_s <= START_FROM_REST_S;
                 if contact_change[j] || other_changed {
                     tr.last_contact_change_s = t_s;
                 }

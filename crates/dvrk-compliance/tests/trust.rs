@@ -232,6 +232,46 @@ fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
     );
 }
 
+/// The other joint's fast effort change holds a joint at rest without contact (a motion's start
+/// that the other joint's detector saw first builds on this one as a contact would), not one
+/// moving on its own: joint 2 slips (0.3 to 0.15 N·m in 3 ms) while joint 1 is free, either at
+/// rest or turning steadily at 0.3 rad/s. Holding a moving joint for the other's changes cost
+/// free multi-sine motions up to 13 points of raw.
+#[test]
+fn the_other_joints_contact_change_holds_a_joint_only_just_after_rest() {
+    let cfg = config(true);
+    let l = 0.12;
+    for speed in [0.0, 0.3] {
+        let mut c = Compensator::new();
+        // Joint 1 free (its effort is the model's: the offset and the viscous friction), joint 2
+        // pressed with 0.3 N·m for 0.4 s, then slipping to 0.15 N·m.
+        let step = |c: &mut Compensator, k: usize, tau2: f64| {
+            let t = k as f64 * DT;
+            let e1 = 0.1 + DYN.viscous_nm_s_per_rad * speed;
+            c.correct(&cfg, t, &[0.1 + speed * t, -0.1, l], &[e1, 0.1 + tau2, 0.0])
+        };
+        let mut r = step(&mut c, 0, 0.3);
+        for k in 1..600 {
+            r = step(&mut c, k, 0.3);
+        }
+        assert_eq!(r.weight, [1.0, 1.0], "speed {speed}: {r:?}");
+        let mut held = false;
+        for i in 1..=5 {
+            r = step(&mut c, 599 + i, 0.3 - 0.03 * i as f64);
+            held |= r.weight[0] < 1.0;
+        }
+        for k in 605..615 {
+            r = step(&mut c, k, 0.15);
+            held |= r.weight[0] < 1.0;
+        }
+        assert!(
+            r.weight[1] < 1.0,
+            "speed {speed}: joint 2's slip not held: {r:?}"
+        );
+        assert_eq!(held, speed == 0.0, "speed {speed}: joint 1 held {held}");
+    }
+}
+
 /// Without a dynamics model the same fast effort change may be the motion's own (a stop
 /// settling): it holds the correction as long as any transient.
 #[test]
