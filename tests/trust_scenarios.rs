@@ -221,7 +221,7 @@ fn palpation_on_a_noisier_arm() {
 /// see joint 1's start a few samples after joint 2's, and joint 1 takes its building effort for
 /// contact meanwhile unless the other joint's change holds it (0.59 mm the wrong way before).
 /// The motion is withheld in most of its cycles, whose bound takes the whole effort: its width is
-/// not checked here (2.9 times the compensated mean).
+/// not checked here (about 3 times the compensated mean).
 #[test]
 fn start_stop_on_a_noisier_arm() {
     let name = "noisy start-stop";

@@ -192,7 +192,7 @@ pub const NOMINAL_EFFORT_NOISE_NM: f64 = 0.005;
 /// the effort for 30-45 ms), so a transient barely moves it.
 pub const EFFORT_NOISE_TIME_S: f64 = 0.5;
 /// A sample-to-sample change counts toward the measured noise up to this multiple of its mean:
-/// white noise passes (1.7% of its changes are clipped, the mean falls by 0.3%), a transient's
+/// white noise passes (1.7% of its changes are clipped, the mean falls by 0.7%), a transient's
 /// step counts as three means at most.
 pub const EFFORT_NOISE_CLIP: f64 = 3.0;
 /// The transient limits in measured noise sigmas, for an effort noisier than
