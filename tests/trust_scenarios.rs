@@ -131,14 +131,29 @@ fn free_motion_from_rest_at_full_speed() {
     free_motion("i20-free-from-rest", "30");
 }
 
+/// After an abrupt start or stop the correction is withheld and the bound is the withheld one.
+/// In the first `MOTION_LAG_S` of the transient it takes the contact as last trusted, not the
+/// lagging motion estimate's false contact: the bound's mean was 2.05 (abrupt starts) and 1.83
+/// (still-move-still) times the compensated mean before, 1.35 and 1.28 with it. At most 1.6.
+fn free_motion_after_starts(name: &str, seconds: &str) {
+    let v = free_motion_goals(name, seconds);
+    not_too_wide(name, &v);
+    let bound = num(&v, &["bound_mm", "mean"]);
+    let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
+    assert!(
+        bound <= 1.6 * comp,
+        "{name}: bound mean {bound} mm > 1.6 x compensated mean {comp} mm: {v}"
+    );
+}
+
 #[test]
 fn abrupt_starts_mid_run() {
-    free_motion("i20-abrupt-start", "12");
+    free_motion_after_starts("i20-abrupt-start", "12");
 }
 
 #[test]
 fn still_move_still_at_76_rad_per_s2() {
-    free_motion("i20-still-move-still-76", "10");
+    free_motion_after_starts("i20-still-move-still-76", "10");
 }
 
 #[test]
