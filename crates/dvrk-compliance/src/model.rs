@@ -240,9 +240,9 @@ pub const START_FROM_REST_S: f64 = 0.05;
 /// its delay, in which a lagging motion estimate reads as 0.5-3 N·m of contact in the sample and
 /// its average alike. With that false contact the withheld bound was 2-10 mm for a few tens of
 /// ms after each start or stop: the bound of `i20-still-move-still-76` was 1.85 times its mean
-/// error (now 1.29), those of 8 random abrupt starts 1.7-2.3 times (now 1.3-1.4), and four
-/// start-stops at 73-99 rad/s² (one over a surface) had bounds over the 2.5 times (now
-/// 1.6-1.8). Coverage fell by 0-2.5 points. A contact that begins with the motion is out of the
+/// error (now 1.29), those of 8 random abrupt starts 1.7-2.3 times (now 1.3-1.4), and five
+/// start-stops at 27-99 rad/s² (one over a surface) had bounds over the 2.5 times (now
+/// 1.6-2.5). Coverage fell by 0-2.5 points. A contact that begins with the motion is out of the
 /// bound for at most this long.
 pub const MOTION_LAG_S: f64 = 0.035;
 /// How long a withheld correction takes to fade back in (s).
