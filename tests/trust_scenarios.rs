@@ -195,12 +195,23 @@ fn hard_stops() {
     );
 }
 
+/// The contact goals: the shared ones, a bound that says something in contact, and the
+/// compensated mean at most `share` of raw. Returns the evaluation for more checks.
+fn contact_goals(name: &str, scenario: &str, seconds: &str, share: f64) -> Value {
+    let v = evaluate(scenario, seconds, None);
+    let (raw, comp) = common_goals(name, &v);
+    not_too_wide(name, &v);
+    assert!(
+        comp <= share * raw,
+        "{name}: compensated {comp} > {:.0}% of raw {raw}",
+        share * 100.0
+    );
+    v
+}
+
 #[test]
 fn palpation_over_a_tilted_surface() {
-    let v = evaluate("config/sim/i20-palpation.toml", "10", None);
-    let (raw, comp) = common_goals("palpation", &v);
-    not_too_wide("palpation", &v);
-    assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
+    contact_goals("palpation", "config/sim/i20-palpation.toml", "10", 0.3);
 }
 
 /// A tip sticking and slipping as it slides pressed over a surface: the shaft torque swings
@@ -212,12 +223,9 @@ fn palpation_over_a_tilted_surface() {
 /// seconds of a run are its warm-up, so the 30% is checked over 30 s.
 #[test]
 fn stick_slip_is_not_corrected_the_wrong_way() {
-    let v = evaluate("config/sim/i20-stick-slip.toml", "30", None);
-    let (raw, comp) = common_goals("stick-slip", &v);
-    not_too_wide("stick-slip", &v);
+    let v = contact_goals("stick-slip", "config/sim/i20-stick-slip.toml", "30", 0.3);
     let harm = num(&v, &["harm_mm", "max"]);
     assert!(harm <= 0.1, "stick-slip: harm_mm.max {harm}: {v}");
-    assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
 }
 
 /// The palpation on an arm noisier than the one the default file was fitted on (5 mA of current
@@ -226,10 +234,12 @@ fn stick_slip_is_not_corrected_the_wrong_way() {
 /// mean stayed at 93% of raw; now 13%.
 #[test]
 fn palpation_on_a_noisier_arm() {
-    let v = evaluate("config/sim/i20-noisy-palpation.toml", "10", None);
-    let (raw, comp) = common_goals("noisy palpation", &v);
-    not_too_wide("noisy palpation", &v);
-    assert!(comp <= 0.3 * raw, "compensated {comp} > 30% of raw {raw}");
+    contact_goals(
+        "noisy palpation",
+        "config/sim/i20-noisy-palpation.toml",
+        "10",
+        0.3,
+    );
 }
 
 /// Free start-stop motion on the noisier arm (27 rad/s² on joint 2): the limits the noise raised
@@ -255,10 +265,7 @@ fn start_stop_on_a_noisier_arm() {
 
 #[test]
 fn ultrasound_scan_in_light_contact() {
-    let v = evaluate("config/sim/i20-ultrasound-scan.toml", "12", None);
-    let (raw, comp) = common_goals("scan", &v);
-    not_too_wide("scan", &v);
-    assert!(comp <= 0.5 * raw, "compensated {comp} > 50% of raw {raw}");
+    contact_goals("scan", "config/sim/i20-ultrasound-scan.toml", "12", 0.5);
 }
 
 /// The other end of "within 10 mm of the fitted range": a push at 0.23 m, exactly 10 mm above

@@ -1135,7 +1135,7 @@ impl Compensator {
             let change_limit = TRANSIENT_EFFORT_CHANGE_NM
                 .max(EFFORT_CHANGE_NOISE_SIGMAS * effort_noise)
                 + coulomb_step;
-            let effort_step = tr.has_last_effort && (effort[j] - tr.last_effort).abs() > step_limit;
+            let effort_step = tr.has_last_effort && change > step_limit;
             tr.last_effort = effort[j];
             tr.has_last_effort = effort[j].is_finite();
             // The change over the last EFFORT_RATE_SAMPLES (the oldest in the ring).
@@ -1153,7 +1153,6 @@ impl Compensator {
             let residual = st.smoothness_residual_rad();
             let rough =
                 residual > TRANSIENT_RESIDUAL_RAD.max(TRANSIENT_RESIDUAL_RATIO * tr.residual_level);
-            let dt = t_s - tr.last_t_s;
             if st.ready() && residual.is_finite() && dt > 0.0 && dt.is_finite() {
                 let alpha = (dt / RESIDUAL_BASELINE_TIME_S).min(1.0);
                 tr.residual_level += alpha * (residual - tr.residual_level);
@@ -1185,10 +1184,9 @@ impl Compensator {
             let (tau_motion, sigma_tau, max_acc) = (tau_motion[j], sigma[j], max_acc[j]);
             let mut flags = 0;
             let ready = st.ready();
-            if ready
-                && st.velocity().abs() < STILL_VELOCITY
-                && st.acceleration().abs() < STILL_ACCELERATION
-            {
+            let (a, v) = (st.acceleration(), st.velocity());
+            let at_rest = ready && v.abs() < STILL_VELOCITY && a.abs() < STILL_ACCELERATION;
+            if at_rest {
                 tr.last_rest_s = t_s;
             }
             if !ready {
@@ -1231,8 +1229,6 @@ impl Compensator {
             if ready && w_transient < 1.0 {
                 flags |= trust::TRANSIENT;
             }
-            let a = st.acceleration();
-            let v = st.velocity();
             let w_motion = if joint.dynamics.is_some() {
                 let ratio = a.abs() / max_acc.max(1e-9);
                 if ratio > 1.0 {
@@ -1240,10 +1236,7 @@ impl Compensator {
                 }
                 ((ACCEL_CUTOFF_RATIO - ratio) / (ACCEL_CUTOFF_RATIO - 1.0)).clamp(0.0, 1.0)
             } else {
-                let still = ready
-                    && v.abs() < STILL_VELOCITY
-                    && a.abs() < STILL_ACCELERATION
-                    && w_transient >= 1.0;
+                let still = at_rest && w_transient >= 1.0;
                 if !still {
                     tr.last_moving_s = t_s;
                 }
