@@ -245,18 +245,15 @@ fn palpation_on_a_noisier_arm() {
 /// Free start-stop motion on the noisier arm (27 rad/s² on joint 2): the limits the noise raised
 /// see joint 1's start a few samples after joint 2's, and joint 1 takes its building effort for
 /// contact meanwhile unless the other joint's change holds it (0.59 mm the wrong way before).
-/// The motion is withheld in most of its cycles, whose bound takes the whole effort: its width is
-/// not checked here (about 3 times the compensated mean).
+/// The motion is withheld in most of its cycles. Its bound was 2.7 times the compensated mean
+/// while the withheld bound took the contact of the last trusted sample, which the start's
+/// lagging estimate already loaded before the detector fired; it takes one at least
+/// `TRUSTED_CONTACT_AGE_S` old now (2.35 times).
 #[test]
 fn start_stop_on_a_noisier_arm() {
     let name = "noisy start-stop";
     let v = evaluate("config/sim/i20-noisy-start-stop.toml", "10", None);
-    let harm = num(&v, &["harm_mm", "max"]);
-    assert!(harm <= 0.5, "{name}: harm_mm.max {harm} > 0.5 mm: {v}");
-    let coverage = num(&v, &["coverage"]);
-    assert!(coverage >= 0.90, "{name}: coverage {coverage} < 0.90: {v}");
-    let raw = num(&v, &["tip_error_mm", "raw", "mean"]);
-    let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
+    let (raw, comp) = common_goals(name, &v);
     assert!(
         comp <= raw + 0.02,
         "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
