@@ -248,7 +248,7 @@ fn palpation_on_a_noisier_arm() {
 /// The motion is withheld in most of its cycles. Its bound was 2.7 times the compensated mean
 /// while the withheld bound took the contact of the last trusted sample, which the start's
 /// lagging estimate already loaded before the detector fired; it takes one at least
-/// `TRUSTED_CONTACT_AGE_S` old now (2.35 times).
+/// `TRUSTED_CONTACT_AGE_S` old now (2.4 times).
 #[test]
 fn start_stop_on_a_noisier_arm() {
     let name = "noisy start-stop";
