@@ -249,8 +249,8 @@ pub const MOTION_LAG_S: f64 = 0.035;
 /// (and at most twice): a transient's start is detected some samples after the effort starts to
 /// build (6 at 1.5 kHz in `i20-noisy-start-stop`, where the noise raises the detector's limits),
 /// and the samples trusted in between carry the lagging motion estimate's false contact
-/// (0.1-0.2 N·m). Taken as the last trusted contact, it held a withheld bound 4-5 mrad wide for
-/// the 0.2 s of the stop's hold, where the joint was 2-4 mrad off. The older contact's standard
+/// (0.1-0.2 N·m). Taken as the last trusted contact, it held joint 1's withheld bound at 8 mrad
+/// for the 0.2 s of a stop's hold, where the joint was 2-4 mrad off. The older contact's standard
 /// deviation is taken at least as large as the latest's: with the older one's, a surface swept
 /// fast into a steep slope, whose load builds while withheld, was covered in 65% of its cycles
 /// instead of 75%.
@@ -1522,8 +1522,9 @@ impl Compensator {
                 if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
                     (tau_shaft.abs(), trusted_sigma)
                 } else if tr.has_trusted {
-                    // The contact as last trusted plus today's free load (not the free load of
-                    // then as well: the shaft carries one), each known to its own noise.
+                    // The contact as trusted at least `TRUSTED_CONTACT_AGE_S` before plus today's
+                    // free load (not the free load of then as well: the shaft carries one), each
+                    // known to its own noise.
                     let settled = tr.settled_trusted(t_s);
                     let last = (settled.contact + distal).abs();
                     // A contact that changed while the correction was withheld (a tip sliding
