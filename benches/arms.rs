@@ -6,6 +6,8 @@
 //! - `one`: a single-arm configuration (PSM1, boards 6-7);
 //! - `two`: one configuration with both arms (`[[arm]]` PSM1 on 6-7, PSM2 on 8-9).
 //!
+//! Both with the service's defaults: in shared mode a quadlet window of 4 per arm (4, 8).
+//!
 //! Per case it reads `serve`'s own once-a-second summary lines (skipping the first two
 //! seconds): cycles per second and missed reads per arm, the per-arm cycle p99 and, for two
 //! arms, the p99 of the whole cycle (every arm's read, correction and publish). The goal: two

@@ -150,6 +150,20 @@ fn two_arms_every_seq_in_order(test: &str, access: &str) {
         access,
         &[(&p1, [6, 7], "idle.toml"), (&p2, [8, 9], "idle.toml")],
     );
+    // Shared mode reads each arm's registers in turn through one port: its quadlet window
+    // defaults to one arm's (4) per arm.
+    let check = std::process::Command::new(sidecar_bin())
+        .args(["check-config", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let printed = String::from_utf8_lossy(&check.stdout);
+    assert!(check.status.success(), "{test}: check-config: {printed}");
+    assert_eq!(
+        printed.contains("window      8 quadlet requests in flight"),
+        access == "shared",
+        "{test}: {printed}"
+    );
     let mut serve = serve(&cfg);
     let mut last = Vec::new();
     for p in [&p1, &p2] {

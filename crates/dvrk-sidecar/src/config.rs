@@ -76,7 +76,8 @@ pub struct SidecarParams {
     /// that from its first), but the FPGA serves one packet at a time, so each request queued
     /// there delays the console's own packets behind it (reference section 8.4;
     /// RELIABILITY.md). 1: one request at a time, never widened (a lost datagram asked again
-    /// after 150 µs, the last attempt waiting `reply_timeout_ms`).
+    /// after 150 µs, the last attempt waiting `reply_timeout_ms`). A file with `[[arm]]` tables
+    /// defaults to 4 per arm, at most 16 (`default_requests_in_flight_for`).
     #[serde(default = "default_requests_in_flight")]
     pub shared_requests_in_flight: u8,
     /// The arm's board ids, in the order of the io file's boards (default: the io file's). The
@@ -103,8 +104,9 @@ struct MultiArmParams {
     rate: Rate,
     #[serde(default = "default_reply_timeout_ms")]
     reply_timeout_ms: f64,
-    #[serde(default = "default_requests_in_flight")]
-    shared_requests_in_flight: u8,
+    /// Default: [`default_requests_in_flight_for`] the number of arms.
+    #[serde(default)]
+    shared_requests_in_flight: Option<u8>,
     sim: Option<SimParams>,
     #[serde(default)]
     realtime: RealtimeParams,
@@ -144,6 +146,21 @@ fn default_reply_timeout_ms() -> f64 {
 }
 fn default_requests_in_flight() -> u8 {
     dvrk_io::port::DEFAULT_QUADLET_WINDOW
+}
+/// The quadlet window of a service that reads `arms` arms over one port when the file does not
+/// set `shared_requests_in_flight`: the one-arm default per arm, at most
+/// [`dvrk_io::port::MAX_QUADLET_WINDOW`]. Each arm's registers are read in a batch of their own,
+/// one arm after the other, so with one arm's window the whole cycle took the sum of the arms'
+/// reads: two arms 1.5-1.84 times one arm's cycle p99 on a quiet machine, 1.24-1.25 times with
+/// 8 (benches/README.md, two arms). The boards then see as many of the sidecar's requests per
+/// cycle as before (16 registers per arm) but up to twice as many queued at once
+/// (RELIABILITY.md, the window's trade-off).
+fn default_requests_in_flight_for(arms: usize) -> u8 {
+    let per_arm = usize::from(dvrk_io::port::DEFAULT_QUADLET_WINDOW);
+    let most = dvrk_io::port::MAX_QUADLET_WINDOW;
+    u8::try_from(per_arm.saturating_mul(arms))
+        .unwrap_or(most)
+        .min(most)
 }
 fn default_prefix() -> String {
     dvrk_ipc::DEFAULT_PREFIX.to_owned()
@@ -558,6 +575,9 @@ fn arm_params(path: &Path, text: &str) -> Result<(Vec<SidecarParams>, bool)> {
             m.arm.len()
         );
     }
+    let window = m
+        .shared_requests_in_flight
+        .unwrap_or_else(|| default_requests_in_flight_for(m.arm.len()));
     let params = m
         .arm
         .into_iter()
@@ -574,7 +594,7 @@ fn arm_params(path: &Path, text: &str) -> Result<(Vec<SidecarParams>, bool)> {
             prefix: a.name,
             base_frame: a.base_frame,
             reply_timeout_ms: m.reply_timeout_ms,
-            shared_requests_in_flight: m.shared_requests_in_flight,
+            shared_requests_in_flight: window,
             boards: a.boards,
             sim: match a.scenario {
                 Some(scenario) => Some(SimParams { scenario }),
@@ -1200,6 +1220,49 @@ transform = [[1.0, 0.0, 0.0, 0.1], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [
         assert!(!svc.multi);
         assert_eq!(svc.arms.len(), 1);
         assert_eq!(arm_names(&single).unwrap(), ["PSM1"]);
+    }
+
+    #[test]
+    fn the_quadlet_window_defaults_to_four_per_arm_unless_the_file_sets_it() {
+        let window = |name: &str, text: &str| {
+            let svc = ServiceConfig::load(&write_config(name, text)).unwrap();
+            let w: Vec<u8> = svc
+                .arms
+                .iter()
+                .map(|a| a.shared_requests_in_flight)
+                .collect();
+            w
+        };
+        assert_eq!(window("w2.toml", TWO_ARMS), [8, 8]);
+        let set = format!("shared_requests_in_flight = 3\n{TWO_ARMS}");
+        assert_eq!(window("w2-set.toml", &set), [3, 3]);
+        // One [[arm]] table, and a single-arm file, keep one arm's window.
+        let one = TWO_ARMS
+            .split("[[arm]]")
+            .take(2)
+            .collect::<Vec<_>>()
+            .join("[[arm]]");
+        assert_eq!(window("w1.toml", &one), [4]);
+        assert_eq!(
+            ServiceConfig::load(&repo_config().join("sidecar.toml"))
+                .unwrap()
+                .arms[0]
+                .shared_requests_in_flight,
+            4
+        );
+        // Many arms stop at the port's largest window.
+        assert_eq!(default_requests_in_flight_for(3), 12);
+        assert_eq!(default_requests_in_flight_for(5), 16);
+        assert_eq!(default_requests_in_flight_for(usize::MAX), 16);
+        // A set window is still checked.
+        let bad = format!("shared_requests_in_flight = 17\n{TWO_ARMS}");
+        let e = ServiceConfig::load(&write_config("w-bad.toml", &bad))
+            .err()
+            .unwrap();
+        assert!(
+            format!("{e:#}").contains("shared_requests_in_flight` = 17"),
+            "{e:#}"
+        );
     }
 
     #[test]

@@ -46,6 +46,14 @@ pub fn check_config(path: &Path) -> Result<()> {
         first.source,
         first.access
     )?;
+    if matches!(first.source, Source::Udp(_)) && first.access == dvrk_io::reader::AccessMode::Shared
+    {
+        crate::outln!(
+            out,
+            "  window      {} quadlet requests in flight (shared_requests_in_flight)",
+            first.shared_requests_in_flight
+        )?;
+    }
     crate::outln!(out, "  rate        {}", first.rate)?;
     // Where the service keeps its iceoryx2 state: consumers must see the same (same account,
     // same DVRK_SIDECAR_IPC_ROOT).
@@ -453,6 +461,12 @@ pub fn run(path: &Path) -> Result<()> {
                 .context("setting the reply timeout")?;
             let mut port = UdpPort::new(link);
             port.set_quadlet_window(first.shared_requests_in_flight);
+            if first.access == dvrk_io::reader::AccessMode::Shared {
+                info!(
+                    window = first.shared_requests_in_flight,
+                    "shared mode: quadlet requests in flight"
+                );
+            }
             if !discover_arms(&mut port, &svc, &addr.to_string(), &stop)? {
                 return Ok(());
             }
