@@ -1,6 +1,6 @@
 //! One full cycle in-process, as `serve` runs it: advance the simulated PSM, read its boards
 //! through the real protocol (in-process port, shared access mode: 16 quadlet round trips),
-//! convert to SI, compensate, FK raw and compensated, publish the five messages, notify.
+//! convert to SI, compensate, FK raw and compensated, publish the nine messages, notify.
 //!
 //! Publishing uses iceoryx2's `local::Service` so the benchmark measures our code and the
 //! iceoryx2 send path, not inter-process wake-ups (benches/latency measures those).
@@ -40,7 +40,7 @@ fn bench_cycle(c: &mut Criterion) {
         });
     }
     // The sidecar's own share of a cycle, without the simulated boards: compensate, FK of raw
-    // and compensated joints, fill five messages, publish them and notify (no subscriber).
+    // and compensated joints, fill the nine messages, publish them and notify (no subscriber).
     let mut source = SimSource::new(&cfg).unwrap();
     let mut sample = dvrk_io::ArmSample::default();
     let outcome = dvrk_sidecar::serve::SampleSource::read(&mut source, 1_000_000, &mut sample);
