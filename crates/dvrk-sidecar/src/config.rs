@@ -151,7 +151,7 @@ fn default_requests_in_flight() -> u8 {
 /// set `shared_requests_in_flight`: the one-arm default per arm, at most
 /// [`dvrk_io::port::MAX_QUADLET_WINDOW`]. Each arm's registers are read in a batch of their own,
 /// one arm after the other, so with one arm's window the whole cycle took the sum of the arms'
-/// reads: two arms 1.5-1.84 times one arm's cycle p99 on a quiet machine, 1.24-1.25 times with
+/// reads: two arms 1.5-1.84 times one arm's cycle p99 on a quiet machine, 1.24-1.45 times with
 /// 8 (benches/README.md, two arms). The boards then see as many of the sidecar's requests per
 /// cycle as before (16 registers per arm) but up to twice as many queued at once
 /// (RELIABILITY.md, the window's trade-off).
