@@ -273,17 +273,17 @@ pub const STILL_TORQUE_SIGMA_NM: f64 = 0.02;
 /// then fading over as long to the calm multipliers ([`CALM_CONTACT_EVIDENCE_SIGMAS`],
 /// [`CALM_FREE_EVIDENCE_SIGMAS`]).
 pub const PLAY_EVIDENCE_SIGMAS: f64 = 3.0;
-/// The multiplier of the contact torque's noise once the evidence has
-/// kept its sign for [`SIDE_FLIP_HOLD_S`] and faded in over as long again. Measured
-/// (issue 20, 2026-11-29, 279 scenarios of six sets): the wrong-way cycles the 3 guarded against
-/// come within a few samples of a change of side (a stop's first samples, where the lagging motion
-/// estimate reads the deceleration as contact; a sliding tip's swing, where the measured torque
-/// lags the shaft's load by 4-6 ms), and a steady side was hedged by a third or more of its play.
-/// With 2 on the contact term and 1 on the free arm's, each set's largest harm stayed
-/// within 0.01 mm of the 3's (0.446 mm at most, at 8 mA of current noise), and the mean compensated
-/// error fell from 0.358 to 0.276 of raw on the project's and random scenarios and from 0.199 to
-/// 0.112 of raw on the sliding and palpating ones of the issue's kinds. The same multipliers
-/// without the guard raised the largest harm to 0.54-0.83 mm.
+/// The multiplier of the contact torque's noise once the evidence has kept its sign for
+/// [`SIDE_FLIP_HOLD_S`] and faded in over as long again. Measured (issue 20, 2026-11-29, 279
+/// scenarios of six sets): the wrong-way cycles the 3 guarded against come within a few samples
+/// of a change of side (a stop's first samples, where the lagging motion estimate reads the
+/// deceleration as contact; a sliding tip's swing, where the measured torque lags the shaft's
+/// load by 4-6 ms), and a steady side was hedged by a third or more of its play. With 2 on the
+/// contact term and 1 on the free arm's, each set's largest harm stayed within 0.01 mm of the
+/// 3's (0.446 mm at most, at 8 mA of current noise), and the mean compensated error fell from
+/// 0.358 to 0.276 of raw on the project's and random scenarios and from 0.199 to 0.112 of raw on
+/// the sliding and palpating ones of the issue's kinds. The same multipliers without the guard
+/// raised the largest harm to 0.54-0.83 mm.
 pub const CALM_CONTACT_EVIDENCE_SIGMAS: f64 = 2.0;
 /// The multiplier of the free arm's evidence noise (the averaged torque's noise, or its size when
 /// larger) once calm: see [`CALM_CONTACT_EVIDENCE_SIGMAS`]. A free arm whose predicted weight and
@@ -1038,7 +1038,7 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// tau_free  = J_2 L^2 qdd - L w . du/dq_j                          (what the shaft carries
 ///                                                                   without contact: distal
 ///                                                                   inertia and weight, predicted)
-/// sigma_f   = hypot(0.1 J_2 L^2 qdd, sigma_G, 0.1 G)              (its uncertainty: the fit's
+/// sigma_f   = hypot(0.2 J_2 L^2 qdd, sigma_G, 0.15 G)              (its uncertainty: the fit's
 ///                                                                   standard error of w and more)
 /// s         = min(max(|tau_avg| - tau_min / 4, 0) / (tau_min / 4), 1)   (share of contact seen)
 /// tau_shaft = s tau_ext + tau_free                                 (what the spring carries)
