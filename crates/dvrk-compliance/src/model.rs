@@ -1011,17 +1011,23 @@ impl JointTrust {
     }
 }
 
-/// 0 before `start + hold`, 1 after `start + hold + fade`, linear in between.
+/// 0 before `start + hold`, 1 after `start + hold + fade`, linear in between (1 when `start`
+/// is `-inf`; NaN for a NaN time).
 #[inline]
-fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
-    ((t_s - start_s - hold_s) / FADE_S).clamp(0.0, 1.0)
+fn ramp(t_s: f64, start_s: f64, hold_s: f64, fade_s: f64) -> f64 {
+    ((t_s - start_s - hold_s) / fade_s).clamp(0.0, 1.0)
 }
 
-/// 0 before `start + hold`, 1 after `start + 2 hold`, linear in between (1 when `start` is
-/// `-inf`, 0 for a NaN time).
+/// [`ramp`] with the fade of a withheld correction, [`FADE_S`].
+#[inline]
+fn fade_in(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
+    ramp(t_s, start_s, hold_s, FADE_S)
+}
+
+/// [`ramp`] fading over as long as it holds, 0 for a NaN time.
 #[inline]
 fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
-    let w = ((t_s - start_s - hold_s) / hold_s).clamp(0.0, 1.0);
+    let w = ramp(t_s, start_s, hold_s, hold_s);
     if w.is_nan() { 0.0 } else { w }
 }
 
