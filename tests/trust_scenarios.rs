@@ -122,9 +122,9 @@ fn free_motion_of_the_project() {
     // (up to 7.5 mN·m) biased the backlash fit and the side's evidence.
     free_motion("free-motion", "10");
     // 30 s, as the table: since the side's evidence is taken with its calm width once
-    // it keeps its sign, the compensated mean is 0.056 mm over 10 s and the start's withheld
-    // bound (the whole play) weighs on the bound's mean (0.202 mm, over 2.5 x 0.056 + 0.05);
-    // over 30 s 0.039 and 0.108 mm.
+    // it keeps its sign, the compensated mean is 0.065 mm over 10 s and the start's withheld
+    // bound (the whole play) weighs on the bound's mean (0.209 mm, over 2.5 x 0.065 + 0.05);
+    // over 30 s 0.047 and 0.114 mm.
     free_motion("fast-free-motion", "30");
 }
 
