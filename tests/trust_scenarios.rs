@@ -232,6 +232,24 @@ fn stick_slip_is_not_corrected_the_wrong_way() {
     assert!(harm <= 0.1, "stick-slip: harm_mm.max {harm}: {v}");
 }
 
+/// A surface swept fast enough that the contact's torque and the distal part's predicted load
+/// change sides within a few tens of milliseconds of each other. Once the motion model's error
+/// below the contact floor no longer counted whole in the side's evidence, that evidence kept its
+/// sign through a contact's change of side and was taken at its calm width: 0.27 mm the wrong
+/// way, against 0.19 mm before. A change of sign of the whole evidence after a contact now holds
+/// the wide width as its own change does: 0.17 mm.
+#[test]
+fn a_contacts_change_of_side_is_not_taken_at_the_calm_width() {
+    let v = contact_goals(
+        "fast surface",
+        "config/sim/i20-fast-surface.toml",
+        "30",
+        0.3,
+    );
+    let harm = num(&v, &["harm_mm", "max"]);
+    assert!(harm <= 0.2, "fast surface: harm_mm.max {harm}: {v}");
+}
+
 /// The palpation on an arm noisier than the one the default file was fitted on (5 mA of current
 /// noise, 2.5 times): the transient limits follow the noise as measured. With the file's fixed
 /// limits the noise's own changes read as abrupt in 99.9% of the cycles and the compensated

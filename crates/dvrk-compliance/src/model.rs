@@ -938,6 +938,12 @@ struct JointTrust {
     last_contact_share: f64,
     /// The side's evidence in the last trusted-ready sample (N·m; 0 before any).
     last_evidence: f64,
+    /// The side's evidence with the whole averaged torque in it, below the contact floor too
+    /// (N·m; 0 before any).
+    last_whole_evidence: f64,
+    /// Whether the averaged torque was past the contact floor since the whole evidence's last
+    /// change of sign.
+    contact_since_whole_flip: bool,
     /// Time (s) the side's evidence last changed its sign (`-inf` before any).
     last_side_flip_s: f64,
     /// Time (s) the joint was last at rest ([`STILL_VELOCITY`], [`STILL_ACCELERATION`]).
@@ -973,6 +979,8 @@ impl Default for JointTrust {
             effort_change_mean: NOMINAL_EFFORT_NOISE_NM / SIGMA_PER_MEAN_CHANGE,
             last_contact_share: 0.0,
             last_evidence: 0.0,
+            last_whole_evidence: 0.0,
+            contact_since_whole_flip: false,
             last_side_flip_s: f64::NEG_INFINITY,
             last_rest_s: f64::NEG_INFINITY,
             motion_transient_start_s: f64::NEG_INFINITY,
@@ -1526,6 +1534,25 @@ impl Compensator {
                             tr.last_side_flip_s = t_s;
                         }
                         tr.last_evidence = evidence;
+                    }
+                    // A contact's own change of side holds the wide width too: the evidence above
+                    // takes a torque just under the floor at its static share only, so it may keep
+                    // its sign while the contact that was past the floor a moment ago turns (a
+                    // surface swept fast: 0.27 mm the wrong way in `i20-fast-surface` without
+                    // this). Only after a contact: the whole evidence of a free fast motion
+                    // changes sign with its model error, which must not hold the wide width.
+                    let whole = contact + distal;
+                    if ready && whole.is_finite() && whole != 0.0 {
+                        tr.contact_since_whole_flip |= contact_share > 0.0;
+                        if tr.last_whole_evidence != 0.0
+                            && (whole > 0.0) != (tr.last_whole_evidence > 0.0)
+                        {
+                            if tr.contact_since_whole_flip {
+                                tr.last_side_flip_s = t_s;
+                            }
+                            tr.contact_since_whole_flip = contact_share > 0.0;
+                        }
+                        tr.last_whole_evidence = whole;
                     }
                     let calm = fade_in_over(t_s, tr.last_side_flip_s, SIDE_FLIP_HOLD_S);
                     let n_contact = PLAY_EVIDENCE_SIGMAS
