@@ -568,7 +568,8 @@ fn the_tip_bound_adds_the_biases_as_a_vector_and_the_noise_as_a_2d_normal() {
     let b = tip_bound_from_parts(0.1, 1.0, &biased);
     let expected = lever * (1.0f64.cos() * 3e-3).hypot(4e-3);
     assert!((b - expected).abs() < 1e-12, "{b} {expected}");
-    // Noise only: the 2-D 95% radius, sqrt(chi2_2(0.95)) = 2.4477 sigma.
+    // Noise only: the 2-D 95% radius, sqrt(chi2_2(0.95)) = 2.4477 sigma (wider than the 1.96
+    // this one joint's noise needs; see `R95_2D`).
     let noisy = [
         BoundParts {
             bias: 0.0,
