@@ -296,6 +296,15 @@ pub const CALM_FREE_EVIDENCE_SIGMAS: f64 = 1.0;
 pub const SIDE_FLIP_HOLD_S: f64 = 0.05;
 /// The share of the file's `tau_min` below which a torque gives no evidence of contact.
 pub const PLAY_EVIDENCE_FLOOR: f64 = 0.25;
+/// Time constant (s) of the contact's remembered size in the side's evidence: for the hold
+/// after a change of side ([`SIDE_FLIP_HOLD_S`] and its fade), the averaged torque's noise is
+/// taken at least at the size of the last contact seen past the floor, decaying with this time
+/// constant. A load that swings (a tip sticking and slipping, a surface swept fast) passes
+/// through zero in its 10 ms average while the shaft still rests on its side; the momentary
+/// average then made the side's evidence look sure (0.35 mm the wrong way on a slow scan of a
+/// surface barely touched, 0.26 mm on a start-stop slide; 0.31 and 0.17 mm with it). 50 ms cost
+/// the free start-stop motions 2 points of raw, 30 ms under 0.5.
+pub const CONTACT_MEMORY_S: f64 = 0.03;
 /// Time constant (s) of the average of the shaft torque that is the evidence for the play's side.
 pub const EVIDENCE_TIME_S: f64 = 0.01;
 /// Time constant (s) of the sway of the shaft torque about that average (see
@@ -949,6 +958,9 @@ struct JointTrust {
     /// Whether the averaged torque was past the contact floor since the whole evidence's last
     /// change of sign.
     contact_since_whole_flip: bool,
+    /// The size (N·m) of the last averaged torque past the contact floor, decaying with
+    /// [`CONTACT_MEMORY_S`].
+    contact_memory: f64,
     /// Time (s) the side's evidence last changed its sign (`-inf` before any).
     last_side_flip_s: f64,
     /// Time (s) the joint was last at rest ([`STILL_VELOCITY`], [`STILL_ACCELERATION`]).
@@ -986,6 +998,7 @@ impl Default for JointTrust {
             last_evidence: 0.0,
             last_whole_evidence: 0.0,
             contact_since_whole_flip: false,
+            contact_memory: 0.0,
             last_side_flip_s: f64::NEG_INFINITY,
             last_rest_s: f64::NEG_INFINITY,
             motion_transient_start_s: f64::NEG_INFINITY,
@@ -1560,12 +1573,32 @@ impl Compensator {
                         tr.last_whole_evidence = whole;
                     }
                     let calm = fade_in_over(t_s, tr.last_side_flip_s, SIDE_FLIP_HOLD_S);
+                    // The contact's size as remembered (see `CONTACT_MEMORY_S`): it widens the
+                    // evidence only while the side has just changed.
+                    if ready {
+                        tr.contact_memory *= if dt > 0.0 && dt.is_finite() {
+                            (-dt / CONTACT_MEMORY_S).exp()
+                        } else {
+                            1.0
+                        };
+                        if contact_share > 0.0 {
+                            tr.contact_memory = tr.contact_memory.max(contact.abs());
+                        }
+                        if !tr.contact_memory.is_finite() {
+                            tr.contact_memory = 0.0;
+                        }
+                    }
+                    let contact_size = if calm < 1.0 {
+                        contact.abs().max(tr.contact_memory)
+                    } else {
+                        contact.abs()
+                    };
                     let n_contact = PLAY_EVIDENCE_SIGMAS
                         + calm * (CALM_CONTACT_EVIDENCE_SIGMAS - PLAY_EVIDENCE_SIGMAS);
                     let n_free = PLAY_EVIDENCE_SIGMAS
                         + calm * (CALM_FREE_EVIDENCE_SIGMAS - PLAY_EVIDENCE_SIGMAS);
                     let scale = (n_contact * contact_share * sigma_tau
-                        + n_free * free_share * average_sigma.max(contact.abs()))
+                        + n_free * free_share * average_sigma.max(contact_size))
                     .quad(PLAY_EVIDENCE_SIGMAS * sway_load)
                     .quad(sigma_free);
                     let m = erf(evidence.abs() / (scale * core::f64::consts::SQRT_2))
