@@ -866,6 +866,18 @@ fn variance_share(a: f64, b: f64) -> f64 {
     }
 }
 
+/// Keeps `now` in `last` when it names a side (finite, not 0) and says whether it named the
+/// other side than `last` did (`last` 0: none yet); `None`, and `last` kept, when it names none.
+#[inline]
+fn record_sign(last: &mut f64, now: f64) -> Option<bool> {
+    if !(now.is_finite() && now != 0.0) {
+        return None;
+    }
+    let flipped = *last != 0.0 && (now > 0.0) != (*last > 0.0);
+    *last = now;
+    Some(flipped)
+}
+
 /// The weight of a new sample in an exponential average of time constant `time_s` after a step
 /// `dt` (s): `dt / time_s`, at most 1; 1 (the sample alone) for a step that is not positive and
 /// finite (the first sample, a time that went back).
@@ -1547,11 +1559,8 @@ impl Compensator {
                     // multiplier for a while after it last named the other one (the wrong-way
                     // cycles come there: a motion's change read as contact for a few samples, a
                     // swinging load measured late), with the calm ones once it has kept its sign.
-                    if ready && evidence.is_finite() && evidence != 0.0 {
-                        if tr.last_evidence != 0.0 && (evidence > 0.0) != (tr.last_evidence > 0.0) {
-                            tr.last_side_flip_s = t_s;
-                        }
-                        tr.last_evidence = evidence;
+                    if ready && record_sign(&mut tr.last_evidence, evidence) == Some(true) {
+                        tr.last_side_flip_s = t_s;
                     }
                     // A contact's own change of side holds the wide width too: the evidence above
                     // takes a torque just under the floor at its static share only, so it may keep
@@ -1559,18 +1568,19 @@ impl Compensator {
                     // surface swept fast: 0.27 mm the wrong way in `i20-fast-surface` without
                     // this). Only after a contact: the whole evidence of a free fast motion
                     // changes sign with its model error, which must not hold the wide width.
-                    let whole = contact + distal;
-                    if ready && whole.is_finite() && whole != 0.0 {
-                        tr.contact_since_whole_flip |= contact_share > 0.0;
-                        if tr.last_whole_evidence != 0.0
-                            && (whole > 0.0) != (tr.last_whole_evidence > 0.0)
-                        {
-                            if tr.contact_since_whole_flip {
+                    if ready
+                        && let Some(flipped) =
+                            record_sign(&mut tr.last_whole_evidence, contact + distal)
+                    {
+                        let contact_now = contact_share > 0.0;
+                        if flipped {
+                            if tr.contact_since_whole_flip || contact_now {
                                 tr.last_side_flip_s = t_s;
                             }
-                            tr.contact_since_whole_flip = contact_share > 0.0;
+                            tr.contact_since_whole_flip = contact_now;
+                        } else {
+                            tr.contact_since_whole_flip |= contact_now;
                         }
-                        tr.last_whole_evidence = whole;
                     }
                     let calm = fade_in_over(t_s, tr.last_side_flip_s, SIDE_FLIP_HOLD_S);
                     // The contact's size as remembered (see `CONTACT_MEMORY_S`): it widens the
@@ -1583,9 +1593,6 @@ impl Compensator {
                         };
                         if contact_share > 0.0 {
                             tr.contact_memory = tr.contact_memory.max(contact.abs());
-                        }
-                        if !tr.contact_memory.is_finite() {
-                            tr.contact_memory = 0.0;
                         }
                     }
                     let contact_size = if calm < 1.0 {
