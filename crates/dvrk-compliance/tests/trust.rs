@@ -45,9 +45,14 @@ const DYN: DynamicsParams = DynamicsParams {
 };
 
 fn config(dynamics: bool) -> ComplianceConfig {
+    config_with(dynamics.then_some(DYN))
+}
+
+/// [`BASE`] with `dynamics` on both joints.
+fn config_with(dynamics: Option<DynamicsParams>) -> ComplianceConfig {
     let mut p = common::params(BASE).unwrap();
     for j in &mut p.joint {
-        j.dynamics = dynamics.then_some(DYN);
+        j.dynamics = dynamics;
     }
     ComplianceConfig::from_params(p).unwrap()
 }
@@ -703,14 +708,10 @@ fn a_withheld_bound_takes_the_free_load_once() {
         weight_sigma_n: [0.0; 3],
         reference_insertion_m: 0.15,
     };
-    let mut p = common::params(BASE).unwrap();
-    for j in &mut p.joint {
-        j.dynamics = Some(DynamicsParams {
-            distal_gravity: Some(gravity),
-            ..DYN
-        });
-    }
-    let cfg = ComplianceConfig::from_params(p).unwrap();
+    let cfg = config_with(Some(DynamicsParams {
+        distal_gravity: Some(gravity),
+        ..DYN
+    }));
     let (q, l) = ([0.1, -0.1], 0.15);
     let g = gravity.torque_nm(0, q[0], q[1], l);
     assert!(g.abs() > 0.2, "the weight's torque on joint 1: {g}");
@@ -862,11 +863,7 @@ fn a_fast_motions_model_error_does_not_name_the_side_of_the_play() {
         distal_gravity: Some(gravity),
         ..DYN
     };
-    let mut p = common::params(BASE).unwrap();
-    for j in &mut p.joint {
-        j.dynamics = Some(dynamics);
-    }
-    let cfg = ComplianceConfig::from_params(p).unwrap();
+    let cfg = config_with(Some(dynamics));
     let true_inertia = dynamics.inertia(l) + 0.01 * dynamics.inertia_kg_m2[0];
     let mut c = Compensator::new();
     let (mut corrected, mut wrong) = (0, 0);
