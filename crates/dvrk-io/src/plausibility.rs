@@ -8,7 +8,8 @@
 //! - every value is finite;
 //! - each actuator position lies within its soft limits plus a margin;
 //! - no position moved since the previous accepted sample by more than the actuator's maximum
-//!   velocity allows over the elapsed host time (plus a small noise margin);
+//!   velocity allows over the host time elapsed between the two reads' completions (plus a
+//!   small noise margin);
 //! - each measured motor current is within the host current-check limit, 1.2·Imax + 50 mA
 //!   (reference §7), plus a margin;
 //! - where potentiometers are read, pots and encoders agree as the dVRK's own I/O layer requires
@@ -266,9 +267,7 @@ impl SampleCheck {
         self.pot_over_since = [None; NUM_JOINTS];
     }
 
-    /// Checks one sample. `actuator_position` and `current_amps` are in actuator space (the
-    /// reader's [`crate::reader::ArmReader::last_actuators`]); `pots`, when read, too
-    /// ([`crate::reader::ArmReader::pots`]; NaN for an actuator without pot calibration).
+    /// Checks one sample at its own time, `s.t_ns` ([`SampleCheck::check_at`]).
     pub fn check(
         &mut self,
         s: &ArmSample,
@@ -276,9 +275,31 @@ impl SampleCheck {
         current_amps: &[f64; NUM_JOINTS],
         pots: Option<&[f64; NUM_JOINTS]>,
     ) -> Result<(), Implausible> {
+        self.check_at(s.t_ns, s, actuator_position, current_amps, pots)
+    }
+
+    /// Checks one sample read at host time `t_ns`. `actuator_position` and `current_amps` are in
+    /// actuator space (the reader's [`crate::reader::ArmReader::last_actuators`]); `pots`, when
+    /// read, too ([`crate::reader::ArmReader::pots`]; NaN for an actuator without pot
+    /// calibration).
+    ///
+    /// `t_ns` should be when the read completed, not when it was asked: the boards latch the
+    /// encoders when they answer, and a read that waited (a register asked again, the host
+    /// preempted between its clock reading and the request) has its values from late in that
+    /// wait. Timed from the requests, the cycle after a slow read would be granted the slow
+    /// read's wait as motion time: at 40 rad/s, 1 ms more lets 0.04 rad of a flipped encoder bit
+    /// through.
+    pub fn check_at(
+        &mut self,
+        t_ns: u64,
+        s: &ArmSample,
+        actuator_position: &[f64; NUM_JOINTS],
+        current_amps: &[f64; NUM_JOINTS],
+        pots: Option<&[f64; NUM_JOINTS]>,
+    ) -> Result<(), Implausible> {
         let r = self
             .static_checks(s, actuator_position, current_amps)
-            .and_then(|()| self.pot_check(s.t_ns, actuator_position, pots));
+            .and_then(|()| self.pot_check(t_ns, actuator_position, pots));
         if let Err(e) = r {
             if !matches!(e, Implausible::PotMismatch { .. }) {
                 // The pots of a sample refused for another reason prove nothing either way.
@@ -288,18 +309,18 @@ impl SampleCheck {
             return r;
         }
         let Some((t_ref, p_ref)) = self.reference else {
-            self.accept(s.t_ns, actuator_position);
+            self.accept(t_ns, actuator_position);
             return Ok(());
         };
-        match self.jump(t_ref, &p_ref, s.t_ns, actuator_position) {
+        match self.jump(t_ref, &p_ref, t_ns, actuator_position) {
             Ok(()) => {
-                self.accept(s.t_ns, actuator_position);
+                self.accept(t_ns, actuator_position);
                 Ok(())
             }
             Err(e) => {
                 // Does it agree with the previous refused sample? Then it may be real.
                 let agrees = self.candidate.is_some_and(|(t_c, p_c, _)| {
-                    self.jump(t_c, &p_c, s.t_ns, actuator_position).is_ok()
+                    self.jump(t_c, &p_c, t_ns, actuator_position).is_ok()
                 });
                 let n = if agrees {
                     self.candidate.map_or(1, |(_, _, n)| n.saturating_add(1))
@@ -308,10 +329,10 @@ impl SampleCheck {
                 };
                 if n >= RESEED_AFTER {
                     self.counters.reseeds += 1;
-                    self.accept(s.t_ns, actuator_position);
+                    self.accept(t_ns, actuator_position);
                     return Ok(());
                 }
-                self.candidate = Some((s.t_ns, *actuator_position, n));
+                self.candidate = Some((t_ns, *actuator_position, n));
                 self.count(&e);
                 Err(e)
             }
@@ -509,6 +530,28 @@ mod tests {
         assert!(matches!(e, Implausible::Jump { actuator: 0, .. }), "{e}");
         // The next sample back where the arm was is fine: the reference was kept.
         assert!(c.check(&sample(30), &at(0, 0.03), &ZERO, None).is_ok());
+    }
+
+    /// A read asked at 0 ms that completed at 10 ms (a register asked again), then one asked at
+    /// 10 ms that completed at 11 ms: 1 ms of motion, not 10, between the two samples' values.
+    #[test]
+    fn a_slow_reads_wait_is_not_motion_time_for_the_next_sample() {
+        let jump = at(0, 0.02);
+        // Timed by the requests, the flip passes: 0.021 allowed over 10 ms.
+        let mut asked = checker();
+        asked.check(&sample(0), &ZERO, &ZERO, None).unwrap();
+        assert!(asked.check(&sample(10), &jump, &ZERO, None).is_ok());
+        // Timed by the completions, it does not: 0.003 allowed over 1 ms.
+        let mut done = checker();
+        done.check_at(10_000_000, &sample(0), &ZERO, &ZERO, None)
+            .unwrap();
+        let e = done
+            .check_at(11_000_000, &sample(10), &jump, &ZERO, None)
+            .unwrap_err();
+        assert!(
+            matches!(e, Implausible::Jump { actuator: 0, dt_s, .. } if (dt_s - 1e-3).abs() < 1e-9),
+            "{e:?}"
+        );
     }
 
     #[test]

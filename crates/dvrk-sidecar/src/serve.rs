@@ -1005,8 +1005,10 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 .source
                 .pot_minus_encoder()
                 .map(|d| core::array::from_fn(|i| actuator_position[i] + d[i]));
+            // Timed by the read's completion, as the header's `sample_t_ns`: a slow read's
+            // wait is not motion time for the next cycle's jump check.
             if let Some(e) = check
-                .check(s, &actuator_position, &amps, pots.as_ref())
+                .check_at(t_sample, s, &actuator_position, &amps, pots.as_ref())
                 .err()
             {
                 read = match e {
