@@ -85,6 +85,9 @@ pub struct ArmReader<P: Port> {
     prev: Option<(u64, [f64; NUM_JOINTS])>,
     last: ActuatorState,
     counters: ReaderCounters,
+    /// Shared mode: the host clock read when the port's batch completed; None: the time given
+    /// to [`ArmReader::read`].
+    completion_clock: Option<fn() -> u64>,
 }
 
 impl<P: Port> ArmReader<P> {
@@ -112,7 +115,21 @@ impl<P: Port> ArmReader<P> {
             prev: None,
             last: ActuatorState::default(),
             counters: ReaderCounters::default(),
+            completion_clock: None,
         }
+    }
+
+    /// Shared mode only: time each sample (its `t_ns`, and the interval of its software
+    /// velocity) by `clock` read when the port's batch of quadlet reads has completed, instead of
+    /// by the time given to [`ArmReader::read`]. The boards latch each register when they
+    /// answer, so a read that waited (a register asked again, the host preempted before its
+    /// request) has its values from late in that wait: timed from the call, one cycle's
+    /// velocity would come out too small and the next one's too large. `clock` must be the
+    /// clock of the times given to `read` (never earlier than them). Exclusive mode times its
+    /// velocities by the boards' own timestamps and does not need it.
+    pub fn with_completion_clock(mut self, clock: fn() -> u64) -> Self {
+        self.completion_clock = Some(clock);
+        self
     }
     /// Exclusive mode only: use one broadcast query plus one hub read per cycle instead of one
     /// block read per board. The port must allow the query (a register write).
@@ -205,6 +222,9 @@ impl<P: Port> ArmReader<P> {
             .read_quadlets(&reqs[..n], &mut vals[..n])
             .err()
             .map(ReadError::from);
+        let t_ns = self
+            .completion_clock
+            .map_or(t_ns, |clock| clock().max(t_ns));
         // A port that leaves a register unread must say why; if it did not, the cycle is a
         // timeout of that register (an invalid sample always carries its reason).
         if first_err.is_none()

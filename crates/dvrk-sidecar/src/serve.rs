@@ -544,7 +544,12 @@ fn spawn_shutdown_guard(stop: StopFlag) {
 /// Every arm read through its own [`ArmReader`] on one shared port; with several arms, each
 /// behind a [`Backoff`].
 fn run_readers<P: Port>(svc: &ServiceConfig, port: SharedPort<P>, stop: &StopFlag) -> Result<()> {
-    let reader = |cfg: &SidecarConfig| ArmReader::new(port.clone(), cfg.io.clone(), cfg.access);
+    // Shared-mode samples timed by when the boards answered (a slow read's wait is not motion
+    // time), on the loop's own clock.
+    let reader = |cfg: &SidecarConfig| {
+        ArmReader::new(port.clone(), cfg.io.clone(), cfg.access)
+            .with_completion_clock(crate::rt::monotonic_ns)
+    };
     if svc.arms.len() > 1 {
         let sources = svc.arms.iter().map(|c| Backoff::new(reader(c))).collect();
         run_loop(svc, sources, stop)
