@@ -266,6 +266,7 @@ fn at_most_the_window_is_outstanding() {
 /// pending request only after a pause in which it collects whatever else the port sends.
 #[test]
 fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
+    use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::{Arc, Mutex};
     let reqs = shared_cycle();
     // Phase 0: drop the first request of register 5, answer everything else at once.
@@ -274,12 +275,13 @@ fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
     let max = Arc::new(Mutex::new(0usize));
     let (ph, mx) = (phase.clone(), max.clone());
     let drop_once = reqs[5];
-    let mut dropped = false;
+    let drop_armed = Arc::new(AtomicBool::new(true));
+    let armed = drop_armed.clone();
     let mut pending = Pending::new();
     let (addr, h) = board(boards_with(4), move |boards, req, replies, sock, from| {
         if *ph.lock().unwrap() == 0 {
-            if (req.node, req.addr) == drop_once && !dropped {
-                dropped = true;
+            if (req.node, req.addr) == drop_once && armed.swap(false, Ordering::SeqCst) {
+                // Dropped.
             } else {
                 send_all(sock, from, &replies);
             }
@@ -305,9 +307,25 @@ fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
         .set_quadlet_retry_wait(Some(Duration::from_millis(400)));
     let mut out = vec![None; reqs.len()];
     assert_eq!(p.quadlet_window_now(), 4);
-    p.read_quadlets(&reqs, &mut out).unwrap();
-    assert!(p.counters().quadlet_retries >= 1, "{:?}", p.counters());
-    assert_eq!(p.quadlet_window_now(), 8, "after a loss");
+    // The loss shows when a later reply of the register's board comes before its retry wait
+    // ends (once a round trip is measured, the round trip plus four deviations, at least
+    // MIN_RETRY_WAIT). On a loaded machine this board's thread can be descheduled past that:
+    // the register is then asked again by its timer, which rightly does not widen the window
+    // (a slow board is not a lossy link; seen once in ten runs beside three busy loops on two
+    // cores). So up to three tries, each with one request dropped; a port that never widens
+    // fails all three.
+    let mut window_after_loss = 0;
+    for _ in 0..3 {
+        drop_armed.store(true, Ordering::SeqCst);
+        let retries = p.counters().quadlet_retries;
+        p.read_quadlets(&reqs, &mut out).unwrap();
+        assert!(p.counters().quadlet_retries > retries, "{:?}", p.counters());
+        window_after_loss = p.quadlet_window_now();
+        if window_after_loss == 8 {
+            break;
+        }
+    }
+    assert_eq!(window_after_loss, 8, "after a loss");
     *phase.lock().unwrap() = 1;
     p.read_quadlets(&reqs, &mut out).unwrap();
     assert_eq!(
