@@ -717,6 +717,11 @@ fn probe_ten_percent_loss() {
         .ok()
         .map(|s| s.split(',').filter_map(|w| w.parse().ok()).collect())
         .unwrap_or_else(|| vec![1, 4]);
+    // PROBE_PERIOD_US: start the cycles at this period (as `serve` does), else back to back.
+    let period = std::env::var("PROBE_PERIOD_US")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .map(Duration::from_micros);
     let cycles = 3000;
     for window in windows {
         let mut rng = 22u64;
@@ -737,7 +742,12 @@ fn probe_ten_percent_loss() {
         let mut out = vec![None; reqs.len()];
         let mut times = Vec::with_capacity(cycles);
         let mut whole = 0;
-        for _ in 0..cycles {
+        let start = Instant::now();
+        for k in 0..cycles {
+            if let Some(period) = period {
+                let at = start + period * k as u32;
+                std::thread::sleep(at.saturating_duration_since(Instant::now()));
+            }
             let t0 = Instant::now();
             whole += usize::from(p.read_quadlets(&reqs, &mut out).is_ok());
             times.push(t0.elapsed());
@@ -747,7 +757,8 @@ fn probe_ten_percent_loss() {
         let c = p.counters();
         eprintln!(
             "PROBE window={window} p50_us={:.0} mean_us={:.0} p99_us={:.0} whole={:.4} \
-             repeats_per_cycle={:.2} stale_per_cycle={:.2} retry_wait_us={:.0}",
+             repeats_per_cycle={:.2} stale_per_cycle={:.2} retry_wait_us={:.0} \
+             labels_reused_unanswered={}",
             times[cycles / 2].as_secs_f64() * 1e6,
             mean.as_secs_f64() * 1e6,
             times[cycles * 99 / 100].as_secs_f64() * 1e6,
@@ -755,6 +766,7 @@ fn probe_ten_percent_loss() {
             c.quadlet_retries as f64 / cycles as f64,
             c.stale_replies as f64 / cycles as f64,
             p.quadlet_retry_wait().unwrap_or_default().as_secs_f64() * 1e6,
+            c.labels_reused_unanswered,
         );
         drop(p);
         h.join().unwrap();
@@ -870,4 +882,94 @@ fn registers_skipped_after_a_give_up_are_reported_even_if_the_late_reply_comes()
     );
     drop(p);
     h.join().unwrap();
+}
+
+/// A reply later than the reply timeout (a board that stalled and then answers what it had
+/// queued, a reply held in a switch) is never taken for another register. The label of its
+/// request is free again once the timeout has passed, but goes to other labels' registers only
+/// when nothing else is left: here, with no other loss, it is not used again at all. The board
+/// sends the held reply just before its answer to any later request that carries the label
+/// (the worst moment), or else at the last cycle; every cycle reads its own values.
+#[test]
+fn a_reply_later_than_the_reply_timeout_is_never_taken_for_another_register() {
+    // Board 6 only: its status, and encoder position and ADC of its four actuators.
+    let reqs: Vec<(u8, u16)> = shared_cycle().into_iter().filter(|r| r.0 == 6).collect();
+    let n = reqs.len();
+    let held_register = reqs[3];
+    let timeout = Duration::from_millis(20);
+    // At most 28 ([`set_values`] keeps each current below 0x10000).
+    let cycles = 25usize;
+    let cycle = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(1));
+    let c = cycle.clone();
+    let mut held: Option<(Req, Vec<u8>)> = None;
+    let mut sent_back = false;
+    let mut seen_cycle = 1;
+    let (addr, h) = board(boards_with(4), move |boards, req, replies, sock, from| {
+        let now_cycle = c.load(std::sync::atomic::Ordering::SeqCst);
+        if now_cycle != seen_cycle {
+            seen_cycle = now_cycle;
+            set_values(boards, now_cycle as i32 + 3);
+        }
+        if (req.node, req.addr) == held_register && held.is_none() {
+            held = Some((req, replies.into_iter().next().unwrap()));
+            return false;
+        }
+        if let Some((q, r)) = &held
+            && !sent_back
+            && (q.label == req.label || now_cycle == cycles)
+        {
+            sent_back = true;
+            if q.label == req.label {
+                sock.send_to(r, from).unwrap();
+                send_all(sock, from, &replies);
+            } else {
+                send_all(sock, from, &replies);
+                sock.send_to(r, from).unwrap();
+            }
+            return false;
+        }
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = timed_port(addr, 4, timeout, Duration::from_millis(2));
+    let mut out = vec![None; n];
+    let t0 = Instant::now();
+    for k in 1..=cycles {
+        cycle.store(k, std::sync::atomic::Ordering::SeqCst);
+        let mut truth = boards_with(k as i32 + 3);
+        let r = p.read_quadlets(&reqs, &mut out);
+        assert_eq!(r, Ok(()), "cycle {k}: {:?}", p.counters());
+        assert_eq!(
+            out,
+            expected(&mut truth, &reqs),
+            "cycle {k}: {:?}",
+            p.counters()
+        );
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    // The cycles outlasted the timeout (and its quarantine) several times over.
+    assert!(t0.elapsed() > timeout * 4, "{:?}", t0.elapsed());
+    assert!(p.counters().stale_replies >= 1, "{:?}", p.counters());
+    assert_eq!(
+        p.counters().labels_reused_unanswered,
+        0,
+        "{:?}",
+        p.counters()
+    );
+    drop(p);
+    let seen = h.join().unwrap();
+    let held_at = seen
+        .iter()
+        .position(|q| (q.node, q.addr) == held_register)
+        .unwrap();
+    let held_label = seen[held_at].label;
+    let reused_for_another: Vec<_> = seen[held_at + 1..]
+        .iter()
+        .filter(|q| q.label == held_label && (q.node, q.addr) != held_register)
+        .collect();
+    assert!(seen.len() > 2 * 64, "{}", seen.len());
+    assert!(
+        reused_for_another.is_empty(),
+        "label {held_label} used again for another register: {reused_for_another:?}"
+    );
 }

@@ -483,6 +483,7 @@ pub fn run(path: &Path) -> Result<()> {
                 timeouts = c.timeouts,
                 batches = c.quadlet_batches,
                 batch_deadlines = c.batch_deadlines,
+                labels_reused_unanswered = c.labels_reused_unanswered,
                 retry_wait_us = p
                     .quadlet_retry_wait()
                     .map_or(0.0, |w| w.as_secs_f64() * 1e6),

@@ -90,6 +90,10 @@ pub struct EthCounters {
     /// Batches that gave up a register at its deadline (the reply timeout from its first
     /// request, or the batch's budget), leaving it unread.
     pub batch_deadlines: u64,
+    /// Requests that had to take a label whose last request, to another register, was never
+    /// answered (every other label was in use, quarantined or its own register's): a late
+    /// reply of that request could still come and be taken for this one.
+    pub labels_reused_unanswered: u64,
 }
 
 /// State of one entry of a pipelined batch.
@@ -317,6 +321,14 @@ pub struct EthPort<L: Link> {
     /// come, late. A quadlet reply carries no address, so a late reply whose label a later
     /// request to the same node reused would be taken for that request's register.
     quarantined_until: [Instant; 64],
+    /// Labels whose last request got no reply that was taken or seen: its reply may still
+    /// come, however late (a stalled board answers what it queued when it runs again). Such a
+    /// label goes to its own register again first ([`Self::take_label`]), where a late reply
+    /// can only be an older value of the same register. Cleared when a reply with the label
+    /// is taken or arrives late.
+    unanswered_labels: u64,
+    /// What each label was last sent for: node, request kind and address ([`label_key`]).
+    label_key: [u32; 64],
     /// Labels not to take: those of the batch under way and of the one before it (whose
     /// late replies and duplicates may still come).
     avoid_labels: u64,
@@ -356,6 +368,8 @@ impl<L: Link> EthPort<L> {
             srtt_ns: None,
             rttvar_ns: 0,
             quarantined_until: [Instant::now(); 64],
+            unanswered_labels: 0,
+            label_key: [u32::MAX; 64],
             avoid_labels: 0,
             prev_batch_labels: 0,
             counters: EthCounters::default(),
@@ -486,11 +500,24 @@ impl<L: Link> EthPort<L> {
             .ok_or(PortError::BoardOutOfRange { board })
     }
 
-    /// The next label in turn that is neither quarantined nor to be avoided; when every
-    /// label is, the one whose quarantine ends first (of those not in the batch under way).
-    fn take_label(&mut self) -> u8 {
+    /// The label for a request of `key` ([`label_key`]): never one of the batch under way; of
+    /// the others, in this order (the next in turn within a class, or the one whose quarantine
+    /// ended or ends first where said):
+    /// 1. a label neither quarantined nor of the batch before, whose last request was answered;
+    /// 2. one not quarantined whose last request, unanswered, was for this very register: a
+    ///    reply of it that still comes is an older value of the register asked, never another
+    ///    register's;
+    /// 3. one of the batch before that was answered (only a duplicate of its reply may come,
+    ///    and the drain before the batch throws away what came by then);
+    /// 4. one not quarantined whose last request, unanswered, was for another register (the
+    ///    quarantine ended first);
+    /// 5. a quarantined one, this register's first, then the one whose quarantine ends first.
+    ///
+    /// Classes 4 and 5 for another register are counted (`labels_reused_unanswered`).
+    fn take_label(&mut self, key: u32) -> u8 {
         let now = Instant::now();
-        let mut pick: Option<u8> = None;
+        // (class, quarantine end, label): the best so far.
+        let mut best: Option<(u8, Instant, u8)> = None;
         for k in 0..64u8 {
             let l = self.next_label.wrapping_add(k) & LABEL_MASK;
             let bit = 1u64 << l;
@@ -498,22 +525,58 @@ impl<L: Link> EthPort<L> {
                 continue;
             }
             let until = self.quarantined_until[usize::from(l)];
-            if self.prev_batch_labels & bit == 0 && until <= now {
-                pick = Some(l);
-                break;
-            }
-            if pick.is_none_or(|p| until < self.quarantined_until[usize::from(p)]) {
-                pick = Some(l);
+            let unanswered = self.unanswered_labels & bit != 0;
+            let own = self.label_key[usize::from(l)] == key;
+            // 5 and 6: class 5 of the list, this register's and another's.
+            let class = if until > now {
+                if own { 5 } else { 6 }
+            } else if unanswered {
+                if own { 2 } else { 4 }
+            } else if self.prev_batch_labels & bit != 0 {
+                3
+            } else {
+                1
+            };
+            // Classes 1-3 take the next in turn; 4-6 the quarantine ended or ending first.
+            let better = match best {
+                None => true,
+                Some((c, u, _)) => class < c || (class == c && class >= 4 && until < u),
+            };
+            if better {
+                best = Some((class, until, l));
+                if class == 1 {
+                    break;
+                }
             }
         }
-        let l = pick.unwrap_or(self.next_label);
+        let l = match best {
+            Some((class, _, l)) => {
+                if matches!(class, 4 | 6) {
+                    self.counters.labels_reused_unanswered += 1;
+                }
+                l
+            }
+            None => self.next_label,
+        };
         self.next_label = (l + 1) & LABEL_MASK;
+        self.label_key[usize::from(l)] = key;
         l
     }
 
+    /// A reply with label `l` was taken, or came late (at `now`): no reply of its last request
+    /// is to come any more, and its quarantine ends.
+    fn label_answered(&mut self, l: u8, now: Instant) {
+        let l = l & LABEL_MASK;
+        self.unanswered_labels &= !(1u64 << l);
+        let q = &mut self.quarantined_until[usize::from(l)];
+        *q = (*q).min(now);
+    }
+
     /// The labels in `mask` were sent and not answered: they are not used again for the
-    /// link's reply timeout, so that their late replies meet no request of another register.
+    /// link's reply timeout, so that their late replies meet no request of another register,
+    /// and after it they go to their own register first ([`Self::take_label`]).
     fn quarantine(&mut self, mask: u64) {
+        self.unanswered_labels |= mask;
         let Some(r) = self.link.quadlet_retry() else {
             return;
         };
@@ -558,7 +621,7 @@ impl<L: Link> EthPort<L> {
             self.counters.resyncs += 1;
             self.counters.drained += self.link.discard_pending(&mut self.rx[..]) as u64;
         }
-        let label = self.take_label();
+        let label = self.take_label(label_key(node, addr, kind));
         let req = RequestRepr::host(node, label, u64::from(addr), kind);
         let cw = ControlWord::new(noforward, self.bus_generation);
         let n = EthRequest::emit(&mut self.tx[..], cw, &req, payload)
@@ -629,6 +692,7 @@ impl<L: Link> EthPort<L> {
             match self.validate(n, board, expect_src, label, accept, expect, out) {
                 Ok(v) => {
                     self.counters.replies_ok += 1;
+                    self.label_answered(self.last_label, Instant::now());
                     return Ok(v);
                 }
                 Err(e @ (PortError::WrongLabel { .. } | PortError::WrongSource { .. })) => {
@@ -726,6 +790,15 @@ impl<L: Link> EthPort<L> {
         // A reply is ours only if both its label and its source node match; anything else is a
         // late or duplicate reply of another request, skipped by the caller.
         if accept & (1u64 << (p.label() & LABEL_MASK)) == 0 {
+            // A late reply: if from the node its label was last sent to, that request has
+            // its answer now.
+            let l = p.label() & LABEL_MASK;
+            if self.label_key[usize::from(l)] >> 24 == u32::from(p.src_node()) {
+                // `label_answered`, on the fields (`p` borrows the receive buffer).
+                self.unanswered_labels &= !(1u64 << l);
+                let q = &mut self.quarantined_until[usize::from(l)];
+                *q = (*q).min(Instant::now());
+            }
             return Err(PortError::WrongLabel {
                 board,
                 expected: label,
@@ -1019,10 +1092,11 @@ impl<L: Link> EthPort<L> {
                     }
                     b.state[i] = Entry::Done;
                     b.answered_by[i] = l as u8;
+                    let now = Instant::now();
+                    self.label_answered(l as u8, now);
                     b.taken += 1;
                     b.answered |= board_bit(reqs[i].0);
                     self.counters.replies_ok += 1;
-                    let now = Instant::now();
                     self.rtt_sample(now.saturating_duration_since(b.sent_at[l]));
                     rto = self.batch_retry_wait(retry);
                     backoff = 0;
@@ -1290,6 +1364,17 @@ impl<L: Link> Port for EthPort<L> {
         )?;
         self.read_block(hub, HUB_ADDRESS, out)
     }
+}
+
+/// What a label was last sent for ([`EthPort::take_label`]): node, request kind and address.
+fn label_key(node: u8, addr: u16, kind: RequestKind) -> u32 {
+    let k: u32 = match kind {
+        RequestKind::QuadletRead => 0,
+        RequestKind::QuadletWrite { .. } => 1,
+        RequestKind::BlockRead { .. } => 2,
+        RequestKind::BlockWrite { .. } => 3,
+    };
+    (u32::from(node) << 24) | (k << 16) | u32::from(addr)
 }
 
 /// Requests one register of a batch may take: twice a single read's attempts. A register is
