@@ -549,10 +549,7 @@ fn a_stall_of_the_boards_is_recovered() {
         assert!(r.invalid > 0, "{case}: the stall did not show");
         // After recovery every sample is valid again (no stale reply left to fail on).
         let tail: Vec<_> = recs[n0..].iter().filter(|s| s.sample_t_ns > back).collect();
-        assert!(
-            tail.iter().filter(|s| s.valid).count() * 100 >= tail.len() * 99,
-            "{case}: reads keep failing after the stall"
-        );
+        assert_recovered(&case, &tail);
         assert!(
             Duration::from_nanos(back - t_cont) < RECOVERY_BOUND,
             "{case}: recovery took {} ms",
@@ -564,6 +561,46 @@ fn a_stall_of_the_boards_is_recovered() {
     // The status message told the age of the held sample while the boards were silent.
     let max_age = st.iter().map(|s| s.held_sample_age_ns).max().unwrap();
     assert!(max_age >= 1_500_000_000, "held age at most {max_age} ns");
+}
+
+/// The samples after a recovery (`tail`) are valid again. A reply left over from the stall
+/// would fail a read for a wrong reply (`BOARD_ERROR`, `IMPLAUSIBLE`) or keep failing it; a
+/// starved emulator (this test's processes with other tests' and builds' on two cores) misses
+/// a 5 ms reply timeout now and then, a lone cycle between valid ones. So: no invalid sample
+/// for any other reason than a timeout, and at most 1% of the tail invalid, or at most 3% if
+/// each is a lone cycle (the reason is printed either way).
+fn assert_recovered(case: &str, tail: &[&Rec]) {
+    let timeout_only = flags::BOARD_TIMEOUT | flags::HELD | flags::OVERRUN;
+    let invalid: Vec<(usize, &&Rec)> = tail.iter().enumerate().filter(|(_, s)| !s.valid).collect();
+    let shown: Vec<String> = invalid
+        .iter()
+        .take(20)
+        .map(|(i, s)| format!("#{i} {:#x}", s.flags))
+        .collect();
+    eprintln!(
+        "FAULTS case={case} tail={} invalid_in_tail={} {shown:?}",
+        tail.len(),
+        invalid.len()
+    );
+    for (i, s) in &invalid {
+        assert!(
+            s.flags & !timeout_only == 0 && s.flags & flags::BOARD_TIMEOUT != 0,
+            "{case}: sample {i} after the recovery failed for another reason than a timeout: \
+             flags {:#x}",
+            s.flags
+        );
+    }
+    let lone = invalid
+        .iter()
+        .all(|(i, _)| tail.get(i + 1).is_none_or(|s| s.valid) && (*i == 0 || tail[i - 1].valid));
+    let share = invalid.len() as f64 / tail.len().max(1) as f64;
+    assert!(
+        share <= 0.01 || (lone && share <= 0.03),
+        "{case}: reads keep failing after the stall: {} of {} samples invalid{}",
+        invalid.len(),
+        tail.len(),
+        if lone { "" } else { ", some in a row" }
+    );
 }
 
 /// The emulator is killed and a new one started on the same port.
