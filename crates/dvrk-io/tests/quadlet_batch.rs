@@ -973,3 +973,103 @@ fn a_reply_later_than_the_reply_timeout_is_never_taken_for_another_register() {
         "label {held_label} used again for another register: {reused_for_another:?}"
     );
 }
+
+/// The boards stall for 40 cycles (each cycle then asks each board once and gives up at the
+/// reply timeout: more requests queued than there are labels), then run again and answer every
+/// request they queued, at once, while the port reads on. No value of one register is ever
+/// taken for another: every value read is one its own register had. (Before the one request
+/// to a silent board kept its label, the first cycle after read board 6's status as its first
+/// encoder position.)
+#[test]
+fn a_stall_longer_than_the_label_space_leaves_no_reply_for_another_register() {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let reqs = shared_cycle();
+    let n = reqs.len();
+    // Values of cycles 1..=20 (the board's values follow the cycle modulo 20).
+    let values_of = |k: usize| boards_with((k % 20) as i32 + 1);
+    let mut own: Vec<std::collections::HashSet<u32>> = vec![Default::default(); n];
+    for k in 0..20 {
+        for (i, v) in expected(&mut values_of(k), &reqs).into_iter().enumerate() {
+            own[i].insert(v.unwrap());
+        }
+    }
+    for i in 0..n {
+        for j in 0..n {
+            if i != j && reqs[i] != reqs[j] {
+                assert!(
+                    own[i].is_disjoint(&own[j]),
+                    "{:?} and {:?}",
+                    reqs[i],
+                    reqs[j]
+                );
+            }
+        }
+    }
+    let cycle = std::sync::Arc::new(AtomicUsize::new(0));
+    let stalled = std::sync::Arc::new(AtomicBool::new(false));
+    let (c, st) = (cycle.clone(), stalled.clone());
+    let mut queued: Vec<Req> = Vec::new();
+    let (addr, h) = board(values_of(0), move |boards, req, replies, sock, from| {
+        *boards = {
+            let mut b = values_of(c.load(Ordering::SeqCst));
+            b.log = std::mem::take(&mut boards.log);
+            b
+        };
+        if st.load(Ordering::SeqCst) {
+            queued.push(req);
+            return false;
+        }
+        // Running again: what was queued is answered first, with the values of now.
+        for q in queued.drain(..) {
+            let r = boards.answer_quadlet_read(q.node, q.addr, q.label);
+            send_all(sock, from, &r);
+        }
+        send_all(sock, from, &replies);
+        false
+    });
+    let mut p = timed_port(addr, 4, Duration::from_millis(5), Duration::from_millis(1));
+    let mut out = vec![None; n];
+    let check = |p: &mut UdpPort, k: usize, out: &mut Vec<Option<u32>>| {
+        cycle.store(k, Ordering::SeqCst);
+        out.fill(None);
+        let r = p.read_quadlets(&reqs, out);
+        for (i, v) in out.iter().enumerate() {
+            if let Some(v) = v {
+                assert!(
+                    own[i].contains(v),
+                    "cycle {k}: {:?} read {v:#x}, not one of its values ({r:?}, {:?})",
+                    reqs[i],
+                    p.counters()
+                );
+            }
+        }
+        r
+    };
+    for k in 0..5 {
+        assert_eq!(check(&mut p, k, &mut out), Ok(()));
+    }
+    // 40 cycles, each asking each of the two boards at least once: more requests queued than
+    // there are labels.
+    stalled.store(true, Ordering::SeqCst);
+    let mut k = 5;
+    for _ in 0..40 {
+        assert!(
+            check(&mut p, k, &mut out).is_err(),
+            "cycle {k} read the stalled boards"
+        );
+        k += 1;
+    }
+    stalled.store(false, Ordering::SeqCst);
+    let mut whole_after = 0;
+    for _ in 0..40 {
+        whole_after += usize::from(check(&mut p, k, &mut out).is_ok());
+        k += 1;
+    }
+    assert!(
+        whole_after >= 30,
+        "{whole_after} of 40 cycles whole after the stall"
+    );
+    eprintln!("stall: then {whole_after} of 40 whole; {:?}", p.counters());
+    drop(p);
+    h.join().unwrap();
+}

@@ -321,12 +321,16 @@ pub struct EthPort<L: Link> {
     /// come, late. A quadlet reply carries no address, so a late reply whose label a later
     /// request to the same node reused would be taken for that request's register.
     quarantined_until: [Instant; 64],
-    /// Labels whose last request got no reply that was taken or seen: its reply may still
-    /// come, however late (a stalled board answers what it queued when it runs again). Such a
-    /// label goes to its own register again first ([`Self::take_label`]), where a late reply
-    /// can only be an older value of the same register. Cleared when a reply with the label
-    /// is taken or arrives late.
-    unanswered_labels: u64,
+    /// Requests sent with each label that got no reply in their batch or read: their replies
+    /// may still come, late (a stalled board answers what it queued when it runs again). A
+    /// label with some goes to its own register again first ([`Self::take_label`]), where a
+    /// late reply can only be an older value of the same register. One less for each reply
+    /// with the label that is taken or comes late from its node. Never forgotten by time: a
+    /// board stalled for seconds answers its queue when it runs again.
+    unanswered: [u16; 64],
+    /// The request being sent is the one request to a board that answered nothing in its last
+    /// batch or read ([`Self::take_label`]).
+    probe: bool,
     /// What each label was last sent for: node, request kind and address ([`label_key`]).
     label_key: [u32; 64],
     /// Labels not to take: those of the batch under way and of the one before it (whose
@@ -368,7 +372,8 @@ impl<L: Link> EthPort<L> {
             srtt_ns: None,
             rttvar_ns: 0,
             quarantined_until: [Instant::now(); 64],
-            unanswered_labels: 0,
+            unanswered: [0; 64],
+            probe: false,
             label_key: [u32::MAX; 64],
             avoid_labels: 0,
             prev_batch_labels: 0,
@@ -503,6 +508,10 @@ impl<L: Link> EthPort<L> {
     /// The label for a request of `key` ([`label_key`]): never one of the batch under way; of
     /// the others, in this order (the next in turn within a class, or the one whose quarantine
     /// ended or ends first where said):
+    /// 0. for the one request to a silent board ([`Self::probe`]), the label of its register's
+    ///    last unanswered request, quarantined or not: a stalled board then queues requests
+    ///    of one label, whose replies all answer that register when it runs again (before,
+    ///    a stall of more than 64 such requests left queued replies under every label);
     /// 1. a label neither quarantined nor of the batch before, whose last request was answered;
     /// 2. one not quarantined whose last request, unanswered, was for this very register: a
     ///    reply of it that still comes is an older value of the register asked, never another
@@ -525,10 +534,12 @@ impl<L: Link> EthPort<L> {
                 continue;
             }
             let until = self.quarantined_until[usize::from(l)];
-            let unanswered = self.unanswered_labels & bit != 0;
+            let unanswered = self.unanswered[usize::from(l)] > 0;
             let own = self.label_key[usize::from(l)] == key;
             // 5 and 6: class 5 of the list, this register's and another's.
-            let class = if until > now {
+            let class = if self.probe && own && unanswered {
+                0
+            } else if until > now {
                 if own { 5 } else { 6 }
             } else if unanswered {
                 if own { 2 } else { 4 }
@@ -537,10 +548,15 @@ impl<L: Link> EthPort<L> {
             } else {
                 1
             };
-            // Classes 1-3 take the next in turn; 4-6 the quarantine ended or ending first.
+            // Classes 1-3 take the next in turn; 4-6 the quarantine ended or ending first; 0
+            // the one asked last.
             let better = match best {
                 None => true,
-                Some((c, u, _)) => class < c || (class == c && class >= 4 && until < u),
+                Some((c, u, _)) => {
+                    class < c
+                        || (class == c && class >= 4 && until < u)
+                        || (class == c && class == 0 && until > u)
+                }
             };
             if better {
                 best = Some((class, until, l));
@@ -563,27 +579,28 @@ impl<L: Link> EthPort<L> {
         l
     }
 
-    /// A reply with label `l` was taken, or came late (at `now`): no reply of its last request
-    /// is to come any more, and its quarantine ends.
+    /// A reply with label `l` was taken (at `now`): its quarantine ends, and one unanswered
+    /// request less is counted, none if at most one was (a lost request, or the one this
+    /// reply answered). A silent board's label asked many times keeps the rest counted until
+    /// their replies come.
     fn label_answered(&mut self, l: u8, now: Instant) {
-        let l = l & LABEL_MASK;
-        self.unanswered_labels &= !(1u64 << l);
-        let q = &mut self.quarantined_until[usize::from(l)];
-        *q = (*q).min(now);
+        let l = usize::from(l & LABEL_MASK);
+        self.quarantined_until[l] = self.quarantined_until[l].min(now);
+        self.unanswered[l] = self.unanswered[l].saturating_sub(1);
     }
 
     /// The labels in `mask` were sent and not answered: they are not used again for the
     /// link's reply timeout, so that their late replies meet no request of another register,
     /// and after it they go to their own register first ([`Self::take_label`]).
     fn quarantine(&mut self, mask: u64) {
-        self.unanswered_labels |= mask;
-        let Some(r) = self.link.quadlet_retry() else {
-            return;
-        };
-        let until = Instant::now() + r.reply_timeout;
+        let now = Instant::now();
+        let retry = self.link.quadlet_retry();
         for l in 0..64usize {
             if mask & (1u64 << l) != 0 {
-                self.quarantined_until[l] = until;
+                self.unanswered[l] = self.unanswered[l].saturating_add(1);
+                if let Some(r) = retry {
+                    self.quarantined_until[l] = now + r.reply_timeout;
+                }
             }
         }
     }
@@ -790,14 +807,16 @@ impl<L: Link> EthPort<L> {
         // A reply is ours only if both its label and its source node match; anything else is a
         // late or duplicate reply of another request, skipped by the caller.
         if accept & (1u64 << (p.label() & LABEL_MASK)) == 0 {
-            // A late reply: if from the node its label was last sent to, that request has
-            // its answer now.
+            // A late reply: if from the node its label was last sent to, one of its unanswered
+            // requests has its answer now.
             let l = p.label() & LABEL_MASK;
             if self.label_key[usize::from(l)] >> 24 == u32::from(p.src_node()) {
-                // `label_answered`, on the fields (`p` borrows the receive buffer).
-                self.unanswered_labels &= !(1u64 << l);
-                let q = &mut self.quarantined_until[usize::from(l)];
-                *q = (*q).min(Instant::now());
+                let u = &mut self.unanswered[usize::from(l)];
+                *u = u.saturating_sub(1);
+                if *u == 0 {
+                    let q = &mut self.quarantined_until[usize::from(l)];
+                    *q = (*q).min(Instant::now());
+                }
             }
             return Err(PortError::WrongLabel {
                 board,
@@ -1023,7 +1042,10 @@ impl<L: Link> EthPort<L> {
                     } else {
                         (now + rto).min(b.deadline[i])
                     };
-                    match b.ask(self, i, addr, now, due) {
+                    self.probe = silent;
+                    let asked = b.ask(self, i, addr, now, due);
+                    self.probe = false;
+                    match asked {
                         Ok(()) => {
                             b.asked |= bit;
                             in_flight += 1;
@@ -1217,6 +1239,8 @@ impl<L: Link> Port for EthPort<L> {
     /// costs more than the timeout per read.
     fn read_quadlet(&mut self, board: u8, addr: u16) -> Result<u32, PortError> {
         let node = self.node(board)?;
+        // After a read without any reply, this one request is a silent board's.
+        let probe = !self.link_answers;
         let retry = self.link.quadlet_retry().filter(|_| self.link_answers);
         let attempts = retry.map_or(1, |r| r.attempts.max(1));
         let retry = retry.map(|r| {
@@ -1229,7 +1253,9 @@ impl<L: Link> Port for EthPort<L> {
         let mut attempt = 1;
         loop {
             self.avoid_labels = accept;
+            self.probe = probe;
             let sent = self.send_request(node, addr, RequestKind::QuadletRead, &[], self.noforward);
+            self.probe = false;
             self.avoid_labels = 0;
             let label = match sent {
                 Ok(l) => l,
