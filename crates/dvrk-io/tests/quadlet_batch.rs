@@ -773,6 +773,39 @@ fn probe_ten_percent_loss() {
     }
 }
 
+/// The board's side of a test that counts cycles: `cycle` is the test's cycle, `seen` the last
+/// one the board saw. A new cycle gives the boards its values ([`set_values`] of the cycle + 3).
+/// Returns the cycle and whether it is new.
+fn follow_cycle(
+    cycle: &std::sync::atomic::AtomicUsize,
+    seen: &mut usize,
+    boards: &mut Boards,
+) -> (usize, bool) {
+    let now = cycle.load(std::sync::atomic::Ordering::SeqCst);
+    let new = now != *seen;
+    if new {
+        *seen = now;
+        set_values(boards, now as i32 + 3);
+    }
+    (now, new)
+}
+
+/// The label of the first request for `register` the board saw, and the later requests that
+/// carried that label again.
+fn label_used_again(seen: &[Req], register: (u8, u16)) -> (u8, Vec<Req>) {
+    let at = seen
+        .iter()
+        .position(|q| (q.node, q.addr) == register)
+        .unwrap();
+    let label = seen[at].label;
+    let again = seen[at + 1..]
+        .iter()
+        .filter(|q| q.label == label)
+        .copied()
+        .collect();
+    (label, again)
+}
+
 /// A reply held back by the board for several cycles (longer than one batch, shorter than the
 /// reply timeout) is never taken for another register: the label of a request without reply is
 /// not used again within the reply timeout, though 64 labels wrap in four cycles. The held reply
@@ -788,19 +821,15 @@ fn the_label_of_an_unanswered_request_is_not_reused_within_the_reply_timeout() {
     let mut sent_back = false;
     let mut seen_cycle = 1;
     let (addr, h) = board(boards_with(3), move |boards, req, replies, sock, from| {
-        let now_cycle = c.load(std::sync::atomic::Ordering::SeqCst);
-        if now_cycle != seen_cycle {
-            seen_cycle = now_cycle;
-            set_values(boards, now_cycle as i32 + 3);
-            if now_cycle == 5 && !sent_back {
-                // The fifth cycle's first request: answer it, then the reply held since the
-                // first cycle arrives.
-                sent_back = true;
-                let fresh = boards.answer_quadlet_read(req.node, req.addr, req.label);
-                send_all(sock, from, &fresh);
-                sock.send_to(&held.as_ref().unwrap().1, from).unwrap();
-                return false;
-            }
+        let (now_cycle, new) = follow_cycle(&c, &mut seen_cycle, boards);
+        if new && now_cycle == 5 && !sent_back {
+            // The fifth cycle's first request: answer it, then the reply held since the first
+            // cycle arrives.
+            sent_back = true;
+            let fresh = boards.answer_quadlet_read(req.node, req.addr, req.label);
+            send_all(sock, from, &fresh);
+            sock.send_to(&held.as_ref().unwrap().1, from).unwrap();
+            return false;
         }
         if (req.node, req.addr) == held_register && held.is_none() {
             held = Some((req, replies.into_iter().next().unwrap()));
@@ -824,17 +853,10 @@ fn the_label_of_an_unanswered_request_is_not_reused_within_the_reply_timeout() {
     assert!(p.counters().stale_replies >= 1, "{:?}", p.counters());
     drop(p);
     let seen = h.join().unwrap();
-    let held_at = seen
-        .iter()
-        .position(|q| (q.node, q.addr) == held_register)
-        .unwrap();
-    let held_label = seen[held_at].label;
-    let first_again = seen[held_at + 1..]
-        .iter()
-        .position(|q| q.label == held_label);
+    let (held_label, again) = label_used_again(&seen, held_register);
     // Labels wrap after 64 requests; these cycles made more than that.
     assert!(seen.len() > 64, "{}", seen.len());
-    assert_eq!(first_again, None, "label {held_label} used again: {seen:?}");
+    assert!(again.is_empty(), "label {held_label} used again: {seen:?}");
 }
 
 /// A register given up at its deadline makes its board's registers not asked yet unread; if
@@ -905,11 +927,7 @@ fn a_reply_later_than_the_reply_timeout_is_never_taken_for_another_register() {
     let mut sent_back = false;
     let mut seen_cycle = 1;
     let (addr, h) = board(boards_with(4), move |boards, req, replies, sock, from| {
-        let now_cycle = c.load(std::sync::atomic::Ordering::SeqCst);
-        if now_cycle != seen_cycle {
-            seen_cycle = now_cycle;
-            set_values(boards, now_cycle as i32 + 3);
-        }
+        let (now_cycle, _) = follow_cycle(&c, &mut seen_cycle, boards);
         if (req.node, req.addr) == held_register && held.is_none() {
             held = Some((req, replies.into_iter().next().unwrap()));
             return false;
@@ -958,14 +976,10 @@ fn a_reply_later_than_the_reply_timeout_is_never_taken_for_another_register() {
     );
     drop(p);
     let seen = h.join().unwrap();
-    let held_at = seen
+    let (held_label, again) = label_used_again(&seen, held_register);
+    let reused_for_another: Vec<_> = again
         .iter()
-        .position(|q| (q.node, q.addr) == held_register)
-        .unwrap();
-    let held_label = seen[held_at].label;
-    let reused_for_another: Vec<_> = seen[held_at + 1..]
-        .iter()
-        .filter(|q| q.label == held_label && (q.node, q.addr) != held_register)
+        .filter(|q| (q.node, q.addr) != held_register)
         .collect();
     assert!(seen.len() > 2 * 64, "{}", seen.len());
     assert!(

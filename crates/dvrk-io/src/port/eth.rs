@@ -589,6 +589,20 @@ impl<L: Link> EthPort<L> {
         self.unanswered[l] = self.unanswered[l].saturating_sub(1);
     }
 
+    /// A reply with label `l` came from node `src` outside its batch or read: if its label was
+    /// last sent to that node, one of the label's unanswered requests has its answer now, and
+    /// with none left its quarantine ends.
+    fn late_reply(&mut self, l: u8, src: u8) {
+        let l = usize::from(l & LABEL_MASK);
+        if self.label_key[l] >> 24 != u32::from(src) {
+            return;
+        }
+        self.unanswered[l] = self.unanswered[l].saturating_sub(1);
+        if self.unanswered[l] == 0 {
+            self.quarantined_until[l] = self.quarantined_until[l].min(Instant::now());
+        }
+    }
+
     /// The labels in `mask` were sent and not answered: they are not used again for the
     /// link's reply timeout, so that their late replies meet no request of another register,
     /// and after it they go to their own register first ([`Self::take_label`]).
@@ -807,21 +821,12 @@ impl<L: Link> EthPort<L> {
         // A reply is ours only if both its label and its source node match; anything else is a
         // late or duplicate reply of another request, skipped by the caller.
         if accept & (1u64 << (p.label() & LABEL_MASK)) == 0 {
-            // A late reply: if from the node its label was last sent to, one of its unanswered
-            // requests has its answer now.
-            let l = p.label() & LABEL_MASK;
-            if self.label_key[usize::from(l)] >> 24 == u32::from(p.src_node()) {
-                let u = &mut self.unanswered[usize::from(l)];
-                *u = u.saturating_sub(1);
-                if *u == 0 {
-                    let q = &mut self.quarantined_until[usize::from(l)];
-                    *q = (*q).min(Instant::now());
-                }
-            }
+            let (got, src) = (p.label(), p.src_node());
+            self.late_reply(got, src);
             return Err(PortError::WrongLabel {
                 board,
                 expected: label,
-                got: p.label(),
+                got,
             });
         }
         let src = p.src_node();
