@@ -882,6 +882,68 @@ pub fn peaks(rows: &[[f64; 7]]) -> (f64, f64) {
     (v, a)
 }
 
+/// The excitation slowed until its peak velocity and acceleration of joints 1-2 are within
+/// [`EXCITATION_LIMIT_SHARE`] of the PSM's move limits (1.57 rad/s, 1.57 rad/s²); returns the
+/// speed scale and the trajectory.
+///
+/// Slowing is not an exact time scaling: each depth keeps its duration, so a slower excitation
+/// plays an earlier part of the multi-sine and fades it out at another point of it, and its peaks
+/// do not fall steadily with the scale. The peaks are measured on each slowed trajectory, from a
+/// first guess (the full-speed peaks, 10% above) down in steps of 1%, and the first scale whose
+/// peaks hold is taken.
+pub fn excitation_within_limits(
+    targs: &super::dynamics_cmd::TrajectoryArgs,
+) -> anyhow::Result<(f64, Vec<[f64; 7]>)> {
+    use super::dynamics_cmd::trajectory_scaled;
+    let limit = std::f64::consts::FRAC_PI_2 * EXCITATION_LIMIT_SHARE;
+    let (v1, a1) = peaks(&trajectory_scaled(targs, 1.0)?);
+    let guess = (limit / v1).min((limit / a1).sqrt());
+    let mut scale = (1.1 * guess).min(1.0);
+    while scale > 0.05 {
+        let traj = trajectory_scaled(targs, scale)?;
+        let (v, a) = peaks(&traj);
+        if v <= limit && a <= limit {
+            return Ok((scale, traj));
+        }
+        scale *= 0.99;
+    }
+    bail!("the excitation could not be slowed within the PSM's move limits")
+}
+
+/// The excitation's time, advanced once per `servo_jp` by the wall time since the last one but
+/// never by more than 1.5 console periods (the interval between two consecutive `measured_js`
+/// stamps, taken within 1..=50 ms; 10 ms until two are seen). A stall of this process pauses
+/// the excitation instead of making the console jump the setpoint by the time lost.
+#[derive(Debug, Default)]
+struct ExcitationClock {
+    t_s: f64,
+    last_sent: Option<Instant>,
+    last_stamp_ns: Option<u64>,
+    period_s: Option<f64>,
+}
+
+impl ExcitationClock {
+    /// One valid `measured_js`'s stamp (ns, non-decreasing).
+    fn stamp(&mut self, t_ns: u64) {
+        if let Some(prev) = self.last_stamp_ns
+            && t_ns > prev
+        {
+            self.period_s = Some(((t_ns - prev) as f64 * 1e-9).clamp(1e-3, 0.05));
+        }
+        self.last_stamp_ns = Some(t_ns);
+    }
+
+    /// The excitation time (s) of the `servo_jp` sent at `now`.
+    fn advance(&mut self, now: Instant) -> f64 {
+        if let Some(last) = self.last_sent {
+            let cap = 1.5 * self.period_s.unwrap_or(0.01);
+            self.t_s += now.duration_since(last).as_secs_f64().min(cap);
+        }
+        self.last_sent = Some(now);
+        self.t_s
+    }
+}
+
 /// `calibrate dynamics --robot ros2:ARM`: the excitation through `servo_jp`, rows from the
 /// console's `measured_js`.
 pub fn run_dynamics(
@@ -889,7 +951,7 @@ pub fn run_dynamics(
     arm: &str,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
-    use super::dynamics_cmd::{TrajectoryArgs, to_csv, trajectory_scaled};
+    use super::dynamics_cmd::{TrajectoryArgs, to_csv};
     super::dynamics_cmd::check_schedule(&a.depths, a.seconds_per_depth)?;
     if !(a.effort_limit_nm.is_finite() && a.effort_limit_nm > 0.0 && a.effort_limit_nm <= 3.0) {
         bail!(
@@ -907,10 +969,7 @@ pub fn run_dynamics(
         rate_hz: 1000.0,
         center: vec![0.0, 0.0],
     };
-    let (v1, a1) = peaks(&trajectory_scaled(&targs, 1.0)?);
-    let vmax = std::f64::consts::FRAC_PI_2 * EXCITATION_LIMIT_SHARE;
-    let scale = (vmax / v1).min((vmax / a1).sqrt()).min(1.0);
-    let traj = trajectory_scaled(&targs, scale)?;
+    let (scale, traj) = excitation_within_limits(&targs)?;
     let (vp, ap) = peaks(&traj);
     let duration = traj.last().map_or(0.0, |r| r[0]);
     let domain = dvrk_bridge::console::ros_domain_id()?;
@@ -937,6 +996,7 @@ pub fn run_dynamics(
     let mut wrist: Option<[f64; 3]> = None;
     let mut moving: Option<MoveWait> = None;
     let mut started: Option<Instant> = None;
+    let mut clock = ExcitationClock::default();
     let mut servos = 0u64;
     let t_start = Instant::now();
     let reason = 'run: loop {
@@ -950,6 +1010,7 @@ pub fn run_dynamics(
         if let Err(r) = watch.events(&polled, moving.as_mut()) {
             break 'run Some(r);
         }
+        let mut fresh = false;
         for m in &polled.measured_js {
             let s = match watch.sample(m, now) {
                 Err(r) => break 'run Some(r),
@@ -957,6 +1018,7 @@ pub fn run_dynamics(
                 Ok(Some(s)) => s,
             };
             let w = *wrist.get_or_insert([s.aux[0], s.aux[1], s.aux[2]]);
+            clock.stamp(s.t_ns);
             match (started, &moving) {
                 (None, None) => {
                     // the move to the start of the excitation
@@ -969,25 +1031,30 @@ pub fn run_dynamics(
                     moving = Some(MoveWait::new(&client, now, &d, a.ratio));
                     client.move_jp(&[first[1], first[2], first[3], w[0], w[1], w[2]])?;
                 }
-                (Some(t0), _) => {
+                (Some(_), _) => {
                     let t0n = *t0_ns.get_or_insert(s.t_ns);
                     rows.push(dvrk_compliance::DynamicsSample {
                         t_s: s.t_ns.saturating_sub(t0n) as f64 * 1e-9,
                         position: s.position,
                         effort_nm: [s.effort[0], s.effort[1]],
                     });
-                    let i = (now.duration_since(t0).as_secs_f64() * 1000.0) as usize;
-                    let Some(r) = traj.get(i) else {
-                        break 'run None;
-                    };
-                    client.servo_jp_with_velocity(
-                        &[r[1], r[2], r[3], w[0], w[1], w[2]],
-                        &[r[4], r[5], r[6], 0.0, 0.0, 0.0],
-                    )?;
-                    servos += 1;
+                    fresh = true;
                 }
                 (None, Some(_)) => {}
             }
+        }
+        // one servo_jp per poll that brought a measured_js: however many came at once (after
+        // this process was starved), the trajectory moves on by at most one console period
+        if fresh && let Some(w) = wrist {
+            let i = (clock.advance(now) * 1000.0) as usize;
+            let Some(r) = traj.get(i) else {
+                break 'run None;
+            };
+            client.servo_jp_with_velocity(
+                &[r[1], r[2], r[3], w[0], w[1], w[2]],
+                &[r[4], r[5], r[6], 0.0, 0.0, 0.0],
+            )?;
+            servos += 1;
         }
         if let Err(r) = watch.silence(now) {
             break 'run Some(r);
@@ -1031,5 +1098,61 @@ pub fn run_dynamics(
             "dynamics aborted: {r}; motion commands stopped; the {} rows collected are kept",
             rows.len()
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::dynamics_cmd::TrajectoryArgs;
+
+    #[test]
+    fn a_stall_pauses_the_excitation_instead_of_jumping_it() {
+        let t0 = Instant::now();
+        let ms = |m: u64| t0 + Duration::from_millis(m);
+        let mut c = ExcitationClock::default();
+        // measured_js every 10 ms of console time, a servo_jp after each
+        let mut t = Vec::new();
+        for k in 0..5u64 {
+            c.stamp(1_000_000_000 + k * 10_000_000);
+            t.push(c.advance(ms(10 * k)));
+        }
+        assert_eq!(t[0], 0.0);
+        for w in t.windows(2) {
+            assert!((w[1] - w[0] - 0.010).abs() < 1e-9, "{t:?}");
+        }
+        // this process starved for 200 ms: the queued measured_js come at once, one servo_jp
+        for k in 5..25u64 {
+            c.stamp(1_000_000_000 + k * 10_000_000);
+        }
+        let after = c.advance(ms(240));
+        assert!((after - t[4] - 0.015).abs() < 1e-9, "{after}");
+        // then on at the console's pace again
+        c.stamp(1_250_000_000);
+        assert!((c.advance(ms(250)) - after - 0.010).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_console_excitation_stays_within_the_move_limits_at_any_schedule() {
+        let limit = std::f64::consts::FRAC_PI_2 * EXCITATION_LIMIT_SHARE;
+        for seconds in [2.0, 4.0, 6.0, 8.0, 12.0, 20.0, 30.0, 60.0] {
+            let targs = TrajectoryArgs {
+                out: "unused.csv".into(),
+                depths: vec![0.1, 0.15],
+                seconds_per_depth: seconds,
+                rate_hz: 1000.0,
+                center: vec![0.0, 0.0],
+            };
+            let (scale, traj) = excitation_within_limits(&targs).unwrap();
+            let (v, a) = peaks(&traj);
+            assert!(scale > 0.2 && scale <= 1.0, "{seconds} s: scale {scale}");
+            assert!(
+                v <= limit && a <= limit,
+                "{seconds} s: {v} rad/s, {a} rad/s²"
+            );
+            // not slowed more than needed: one of the two peaks is near its limit
+            eprintln!("{seconds} s: scale {scale:.3}, {v:.3} rad/s, {a:.3} rad/s²");
+            assert!(v > 0.7 * limit || a > 0.7 * limit, "{seconds} s: {v}, {a}");
+        }
     }
 }
