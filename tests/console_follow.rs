@@ -3,7 +3,8 @@
 //! DDS, in a domain of its own) drives both what `serve` reads and what the console says;
 //! `serve` runs with `instrument = "console"`; `echo` reads what it publishes. The test acts as
 //! the console's operator through the stand-in's stdin: homing, swap to an instrument with and
-//! without parameters, removal, ERROR, base-frame change, disable, and the console gone.
+//! without parameters, removal, ERROR, base-frame change, disable, and the console gone; and
+//! `serve` stopped and continued (Ctrl-Z, fg) still follows.
 
 mod common;
 
@@ -198,6 +199,20 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
             && (p[1] - e.y).abs() < 1e-3
             && (p[2] - e.z).abs() < 1e-3
     });
+    // 7b. serve stopped and continued (Ctrl-Z then fg): it still follows the console. The stop
+    // interrupts RustDDS's event loop, which then ends for good; the follower restarts it.
+    let pid = serve.child.as_ref().unwrap().id().to_string();
+    for sig in ["-STOP", "-CONT"] {
+        let ok = Command::new("kill").args([sig, &pid]).status().unwrap();
+        assert!(ok.success(), "kill {sig} {pid}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    say("tool=CADIERE_FORCEPS:400049[..]");
+    until(
+        &status,
+        "an instrument swap after a stop and continue",
+        |v| v["source"]["instrument"] == "CADIERE_FORCEPS:400049[..]",
+    );
     // 8. disabled: raw valid, the correction withheld (ARM_NOT_ENABLED)
     say("disable");
     let v = until(&ccp, "ARM_NOT_ENABLED", |v| {

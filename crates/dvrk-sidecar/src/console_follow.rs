@@ -27,6 +27,12 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 /// events only on change, so "heard" is refreshed by the poses).
 pub const STALE_NS: u64 = 1_000_000_000;
 
+/// Silent this long (ns) after it was heard, the console's DDS participant is made anew.
+pub const RESTART_AFTER_NS: u64 = 2_000_000_000;
+
+/// Wait before a second restart while still silent; tripled after each, up to 60 s.
+const FIRST_RESTART_WAIT: Duration = Duration::from_secs(5);
+
 /// The console's operating state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[repr(u8)]
@@ -260,6 +266,8 @@ pub fn spawn(
             let mut next_wait_log = started + Duration::from_secs(2);
             let mut last_tool: Option<String> = None;
             let mut was_heard = false;
+            let mut restart_wait = FIRST_RESTART_WAIT;
+            let mut next_restart = started;
             while !stop.raised() {
                 w = Watched {
                     undecodable: w.undecodable,
@@ -321,6 +329,32 @@ pub fn spawn(
                 }
                 if changed {
                     out.write(&view);
+                }
+                // Heard before, silent now: a new DDS participant. RustDDS's event loop ends
+                // for good when its poll is interrupted (EINTR), which a stop and continue of
+                // this process (Ctrl-Z then fg, SIGSTOP/SIGCONT) does; nothing else reports it.
+                if was_heard
+                    && now.saturating_sub(view.heard_ns) > RESTART_AFTER_NS
+                    && std::time::Instant::now() >= next_restart
+                {
+                    let silent_s = now.saturating_sub(view.heard_ns) as f64 * 1e-9;
+                    match ConsoleWatcher::new(&arm, domain, &[]) {
+                        Ok(fresh) => {
+                            watcher = fresh;
+                            (cp, local) = (Vec::new(), Vec::new());
+                            tracing::warn!(
+                                "console: nothing heard from {arm} for {silent_s:.0} s; DDS participant restarted (samples flagged CONSOLE_UNKNOWN until it is heard again)"
+                            );
+                        }
+                        Err(e) => tracing::warn!(
+                            "console: nothing heard from {arm} for {silent_s:.0} s; restarting the DDS participant failed: {e}"
+                        ),
+                    }
+                    restart_wait = (restart_wait * 3).min(Duration::from_secs(60));
+                    next_restart = std::time::Instant::now() + restart_wait;
+                }
+                if w.heard {
+                    restart_wait = FIRST_RESTART_WAIT;
                 }
                 if !was_heard && std::time::Instant::now() >= next_wait_log {
                     tracing::warn!(
