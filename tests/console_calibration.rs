@@ -8,7 +8,8 @@
 //! - `divot` and `dynamics` run the same way and their files are read by `evaluate` and `fit`;
 //! - each abort cause (effort spike, e-stop, FAULT, silence, invalid data, refused move,
 //!   Ctrl-C) ends the run non-zero with the reason, keeps the rows, and no more than two motion
-//!   commands reach the console after the fault;
+//!   commands reach the console after the fault; Ctrl-Z aborts the same way (with its hold)
+//!   instead of suspending a run in mid-motion;
 //! - a DISABLED arm is refused with its state named and nothing sent; `--enable` enables and
 //!   homes it; `--dry-run` sends nothing.
 
@@ -600,6 +601,53 @@ fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
         "{cmds:?}"
     );
     assert_eq!(cmds.last(), Some(&"hold"), "{cmds:?}");
+}
+
+#[test]
+fn ctrl_z_aborts_with_a_hold_instead_of_suspending() {
+    let _slot = slot();
+    let test = "console_ctrl_z";
+    let d = domain(14);
+    let mut console = stand_in(test, d, &[]);
+    let out = scratch(test).join("sweep.csv");
+    let mut p = Proc::spawn(
+        "calibrate",
+        Command::new(sidecar_bin())
+            .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
+            .args(["--joints", "1", "--depths", "0.12", "--yes", "--out"])
+            .arg(&out)
+            .env("ROS_DOMAIN_ID", d.to_string())
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    // the sweep has begun: its second move_jp
+    let sweeping = common::eventually(Duration::from_secs(90), || {
+        let log = console_log(&console.log);
+        (log.iter().filter(|(_, k, _)| k == "motion").count() >= 2).then_some(())
+    });
+    assert!(sweeping.is_some(), "{:?}", console_log(&console.log));
+    std::thread::sleep(Duration::from_millis(500));
+    p.signal(libc::SIGTSTP);
+    let st = p
+        .wait_timeout(Duration::from_secs(20))
+        .expect("Ctrl-Z ends the run instead of suspending it");
+    let err = p.stderr_text();
+    assert!(!st.success(), "{err}");
+    assert!(err.contains("Ctrl-Z"), "{err}");
+    assert!(err.contains("rows collected are kept"), "{err}");
+    // the hold reaches the console: DDS outlived the signal
+    let held = common::eventually(Duration::from_secs(5), || {
+        let log = console_log(&console.log);
+        let last = log
+            .iter()
+            .rev()
+            .find(|(_, k, _)| k == "command" || k == "motion");
+        last.filter(|(_, _, d)| d == "hold").map(|_| ())
+    });
+    console.proc.terminate();
+    assert!(held.is_some(), "{:?}", console_log(&console.log));
 }
 
 #[test]

@@ -185,8 +185,7 @@ impl Endpoints {
         if !interfaces.is_empty() {
             builder = builder.with_only_networks(interfaces.iter().copied());
         }
-        let participant = builder
-            .build()
+        let participant = crate::with_signals_blocked(|| builder.build())
             .map_err(|e| setup("participant of domain", &domain.to_string(), &e))?;
         let qos = ConsoleQos::State.policies();
         let publisher = participant

@@ -141,8 +141,7 @@ impl DdsParticipant {
         if !opts.interfaces.is_empty() {
             builder = builder.with_only_networks(opts.interfaces.iter().copied());
         }
-        let participant = builder
-            .build()
+        let participant = crate::with_signals_blocked(|| builder.build())
             .map_err(|e| setup("participant of domain", &opts.domain.to_string(), &e))?;
         let qos = opts.qos.policies();
         let publisher = participant

@@ -244,6 +244,31 @@ pub fn validate_arm(arm: &str) -> Result<(), BridgeError> {
     }
 }
 
+/// Runs `f` (which builds a DDS participant) with every blockable signal blocked in this thread,
+/// so the threads RustDDS starts there (event loop, discovery) inherit that mask and a handled
+/// signal (Ctrl-C, SIGTERM, the calibration's Ctrl-Z) is always delivered to one of the
+/// program's own threads. RustDDS's event loop ends for good when its poll is interrupted
+/// (EINTR), and a handled signal delivered to it would do that: DDS then goes silent, and a
+/// calibration's last `hold` is never sent. A stop and continue (SIGSTOP/SIGCONT, an unhandled
+/// Ctrl-Z then `fg`) interrupts every thread whatever its mask; `serve` restarts its participant
+/// after a silence for that.
+pub(crate) fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
+    // SAFETY: both sets are initialised by sigfillset/pthread_sigmask before they are read;
+    // pthread_sigmask only changes this thread's mask, restored below whatever `f` returns.
+    let mut old: libc::sigset_t = unsafe { std::mem::zeroed() };
+    unsafe {
+        let mut all: libc::sigset_t = std::mem::zeroed();
+        libc::sigfillset(&mut all);
+        libc::pthread_sigmask(libc::SIG_BLOCK, &all, &mut old);
+    }
+    let out = f();
+    // SAFETY: `old` holds the mask read above.
+    unsafe {
+        libc::pthread_sigmask(libc::SIG_SETMASK, &old, std::ptr::null_mut());
+    }
+    out
+}
+
 /// What [`run_record`] writes.
 #[derive(Debug, Clone)]
 pub struct RecordOptions {

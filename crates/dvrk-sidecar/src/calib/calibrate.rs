@@ -407,8 +407,16 @@ fn progress_bar(quiet: bool, what: &str) -> indicatif::ProgressBar {
 /// Runs `calibrate`.
 pub fn run_calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, Arc::clone(&stop)).context("installing Ctrl-C handler")?;
+    // Ctrl-Z (SIGTSTP) aborts as Ctrl-C does: a calibration moving an arm is never suspended
+    // in mid-motion (its last servo_jp would stay with the console, and the stop would end
+    // RustDDS's event loop, so no hold could follow).
+    for sig in [
+        signal_hook::consts::SIGINT,
+        signal_hook::consts::SIGTERM,
+        signal_hook::consts::SIGTSTP,
+    ] {
+        signal_hook::flag::register(sig, Arc::clone(&stop))
+            .context("installing the Ctrl-C and Ctrl-Z handlers")?;
     }
     run_procedure(&args.procedure, &stop)
 }

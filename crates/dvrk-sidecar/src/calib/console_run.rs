@@ -131,7 +131,7 @@ impl std::fmt::Display for Stop {
                 )
             }
             Stop::MoveInterrupted => write!(f, "a move_jp ended with goal_reached false"),
-            Stop::Interrupted => write!(f, "stopped by Ctrl-C (signal)"),
+            Stop::Interrupted => write!(f, "stopped by Ctrl-C, Ctrl-Z or SIGTERM (signal)"),
         }
     }
 }
@@ -825,7 +825,7 @@ pub fn run_procedure(
     match run.stop {
         None => Ok(()),
         Some(Stop::Interrupted) => bail!(
-            "{name} stopped by Ctrl-C; the {} rows collected are kept",
+            "{name} stopped by Ctrl-C, Ctrl-Z or SIGTERM; the {} rows collected are kept",
             run.records.len()
         ),
         Some(reason) => bail!(
