@@ -1095,6 +1095,56 @@ fn record_follows_a_restarted_serve() {
     }
 }
 
+#[test]
+fn a_bridge_whose_dds_died_exits_with_the_reason() {
+    // RustDDS ends its event loop when a stop and continue interrupts its poll; the bridge must
+    // say so and exit (systemd restarts it) instead of publishing into nothing.
+    let test = "bridge-dds-stopped";
+    let prefix = unique_prefix(test);
+    let cfg = write_config(test, "sim", "shared", &prefix, "divot-push.toml");
+    let mut serve = serve(&cfg);
+    let domain = (unique_domain() + 5).to_string();
+    let mut bridge = bridge_proc(
+        &[
+            "--prefix",
+            "PSM1",
+            "--shm-prefix",
+            &prefix,
+            "--domain",
+            &domain,
+            "--interface",
+            "127.0.0.1",
+        ],
+        None,
+    );
+    std::thread::sleep(Duration::from_secs(3));
+    if bridge.child.as_mut().unwrap().try_wait().unwrap().is_some() {
+        panic!(
+            "the bridge ended before the test stopped it: {}",
+            bridge.stderr_text()
+        );
+    }
+    // A stop can miss the poll (the event loop was busy, not waiting): try again, up to 20 times.
+    let mut status = None;
+    for _ in 0..20 {
+        bridge.signal(libc::SIGSTOP);
+        std::thread::sleep(Duration::from_millis(50));
+        bridge.signal(libc::SIGCONT);
+        status = bridge.wait_timeout(Duration::from_millis(500));
+        if status.is_some() {
+            break;
+        }
+    }
+    serve.terminate();
+    let Some(status) = status else {
+        let (_, log) = bridge.terminate();
+        panic!("still running after 20 stops and continues: {log}");
+    };
+    let log = bridge.stderr_text();
+    assert!(!status.success(), "{log}");
+    assert!(log.contains("DDS stopped"), "{log}");
+}
+
 /// A two-arm service under `base` (arms `base/PSM1` and `base/PSM2`, as `[[arm]]` tables): the
 /// configuration `--config` reads and, with `run`, the board emulator of both arms (`sim --arms
 /// PSM1,PSM2`, PSM1 in a divot push, PSM2 palpating, over UDP on loopback) and one `serve` of

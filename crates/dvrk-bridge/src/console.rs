@@ -185,8 +185,9 @@ impl Endpoints {
         if !interfaces.is_empty() {
             builder = builder.with_only_networks(interfaces.iter().copied());
         }
-        let participant = crate::with_signals_blocked(|| builder.build())
-            .map_err(|e| setup("participant of domain", &domain.to_string(), &e))?;
+        let (participant, _) = crate::with_signals_blocked(|| builder.build());
+        let participant =
+            participant.map_err(|e| setup("participant of domain", &domain.to_string(), &e))?;
         let qos = ConsoleQos::State.policies();
         let publisher = participant
             .create_publisher(&qos)

@@ -116,6 +116,7 @@ pub struct DdsParticipant {
     // Field order is drop order: the publisher before the participant.
     publisher: rustdds::Publisher,
     participant: DomainParticipant,
+    threads: crate::DdsThreads,
 }
 
 impl core::fmt::Debug for DdsParticipant {
@@ -141,7 +142,9 @@ impl DdsParticipant {
         if !opts.interfaces.is_empty() {
             builder = builder.with_only_networks(opts.interfaces.iter().copied());
         }
-        let participant = crate::with_signals_blocked(|| builder.build())
+        let (participant, threads) = crate::with_signals_blocked(|| builder.build());
+        tracing::debug!("DDS participant: {} threads started", threads.count());
+        let participant = participant
             .map_err(|e| setup("participant of domain", &opts.domain.to_string(), &e))?;
         let qos = opts.qos.policies();
         let publisher = participant
@@ -152,7 +155,13 @@ impl DdsParticipant {
             profile: opts.qos,
             publisher,
             participant,
+            threads,
         })
+    }
+
+    /// RustDDS's threads of this participant still run (see [`crate::DdsThreads`]).
+    pub fn alive(&self) -> bool {
+        self.threads.alive()
     }
 
     /// The QoS every writer offers.

@@ -105,6 +105,12 @@ pub enum BridgeError {
     /// error is the one reported).
     #[error("the recording's writer stopped")]
     WriterStopped,
+    #[error(
+        "DDS stopped: RustDDS's event loop has ended (an interrupted poll, e.g. after this \
+         process was stopped and continued: Ctrl-Z then fg, SIGSTOP/SIGCONT); nothing more \
+         would reach ROS 2, so the bridge exits (under systemd it is restarted)"
+    )]
+    DdsStopped,
 
     /// A thread could not be started.
     #[error("starting the thread of {arm}: {source}")]

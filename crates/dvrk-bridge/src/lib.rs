@@ -252,7 +252,8 @@ pub fn validate_arm(arm: &str) -> Result<(), BridgeError> {
 /// calibration's last `hold` is never sent. A stop and continue (SIGSTOP/SIGCONT, an unhandled
 /// Ctrl-Z then `fg`) interrupts every thread whatever its mask; `serve` restarts its participant
 /// after a silence for that.
-pub(crate) fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
+pub(crate) fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> (T, DdsThreads) {
+    let before = task_ids();
     // SAFETY: both sets are initialised by sigfillset/pthread_sigmask before they are read;
     // pthread_sigmask only changes this thread's mask, restored below whatever `f` returns.
     let mut old: libc::sigset_t = unsafe { std::mem::zeroed() };
@@ -266,7 +267,45 @@ pub(crate) fn with_signals_blocked<T>(f: impl FnOnce() -> T) -> T {
     unsafe {
         libc::pthread_sigmask(libc::SIG_SETMASK, &old, std::ptr::null_mut());
     }
-    out
+    let tids = task_ids()
+        .into_iter()
+        .filter(|t| !before.contains(t))
+        .collect();
+    (out, DdsThreads { tids })
+}
+
+/// The threads that building a DDS participant started (RustDDS's event loop and discovery),
+/// by thread id, to tell whether they still run: RustDDS ends its event loop on an interrupted
+/// poll without a word, after which nothing is sent or received. Built where no other thread
+/// of the program starts at the same time (the bridge builds its participant before its arms'
+/// threads).
+#[derive(Debug, Clone, Default)]
+pub struct DdsThreads {
+    tids: Vec<u32>,
+}
+
+impl DdsThreads {
+    /// Every thread the build started still runs (true where /proc is not there to tell).
+    pub fn alive(&self) -> bool {
+        self.tids
+            .iter()
+            .all(|t| std::path::Path::new(&format!("/proc/self/task/{t}")).exists())
+    }
+
+    /// How many threads the build started.
+    pub fn count(&self) -> usize {
+        self.tids.len()
+    }
+}
+
+/// This process's thread ids (empty without /proc).
+fn task_ids() -> Vec<u32> {
+    std::fs::read_dir("/proc/self/task")
+        .map(|d| {
+            d.filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// What [`run_record`] writes.

@@ -162,13 +162,22 @@ pub fn run_ros2_bridge(
                 })
             }
         })?;
+        let mut dds_stopped = false;
         while !stop.load(Ordering::Relaxed) && !handles.iter().any(|h| h.is_finished()) {
             readers.poll();
+            if !participant.alive() {
+                dds_stopped = true;
+                break;
+            }
             thread::sleep(POLL);
         }
         halt.store(true, Ordering::Relaxed);
         readers.poll();
-        join_arms(handles)
+        let reports = join_arms(handles)?;
+        if dds_stopped {
+            return Err(BridgeError::DdsStopped);
+        }
+        Ok(reports)
     })?;
     Ok(reports)
 }
