@@ -912,8 +912,10 @@ pub fn excitation_within_limits(
 
 /// The excitation's time, advanced once per `servo_jp` by the wall time since the last one but
 /// never by more than 1.5 console periods (the interval between two consecutive `measured_js`
-/// stamps, taken within 1..=50 ms; 10 ms until two are seen). A stall of this process pauses
-/// the excitation instead of making the console jump the setpoint by the time lost.
+/// stamps, each taken within 1..=50 ms, averaged with a weight of 0.1 for the newest so a
+/// jittery publisher does not slow the excitation; 10 ms until two are seen). A stall of this
+/// process pauses the excitation instead of making the console jump the setpoint by the time
+/// lost.
 #[derive(Debug, Default)]
 struct ExcitationClock {
     t_s: f64,
@@ -928,7 +930,8 @@ impl ExcitationClock {
         if let Some(prev) = self.last_stamp_ns
             && t_ns > prev
         {
-            self.period_s = Some(((t_ns - prev) as f64 * 1e-9).clamp(1e-3, 0.05));
+            let d = ((t_ns - prev) as f64 * 1e-9).clamp(1e-3, 0.05);
+            self.period_s = Some(self.period_s.map_or(d, |p| p + 0.1 * (d - p)));
         }
         self.last_stamp_ns = Some(t_ns);
     }
@@ -1129,7 +1132,23 @@ mod tests {
         assert!((after - t[4] - 0.015).abs() < 1e-9, "{after}");
         // then on at the console's pace again
         c.stamp(1_250_000_000);
-        assert!((c.advance(ms(250)) - after - 0.010).abs() < 1e-9);
+        let back = c.advance(ms(250));
+        assert!((back - after - 0.010).abs() < 1e-9);
+        // stamps 5 and 15 ms apart (a jittery publisher), received every 10 ms: the cap stays
+        // near 1.5 x 10 ms, so the excitation keeps the wall clock's pace
+        let mut t_ns = 1_250_000_000;
+        let mut last = back;
+        for k in 0..40u64 {
+            t_ns += if k % 2 == 0 { 5_000_000 } else { 15_000_000 };
+            c.stamp(t_ns);
+            let now = c.advance(ms(260 + 10 * k));
+            assert!(
+                (now - last - 0.010).abs() < 1e-9,
+                "step {k}: {}",
+                now - last
+            );
+            last = now;
+        }
     }
 
     #[test]
