@@ -9,7 +9,8 @@
 //! - each abort cause (effort spike, e-stop, FAULT, silence, invalid data, refused move,
 //!   Ctrl-C) ends the run non-zero with the reason, keeps the rows, and no more than two motion
 //!   commands reach the console after the fault; Ctrl-Z aborts the same way (with its hold)
-//!   instead of suspending a run in mid-motion;
+//!   instead of suspending a run in mid-motion; a SIGSTOP and SIGCONT, which end RustDDS's
+//!   event loop, abort on silence and the hold goes through a new participant;
 //! - a DISABLED arm is refused with its state named and nothing sent; `--enable` enables and
 //!   homes it; `--dry-run` sends nothing.
 
@@ -648,6 +649,61 @@ fn ctrl_z_aborts_with_a_hold_instead_of_suspending() {
     });
     console.proc.terminate();
     assert!(held.is_some(), "{:?}", console_log(&console.log));
+}
+
+#[test]
+fn a_stopped_and_continued_calibrate_still_sends_its_hold() {
+    // SIGSTOP and SIGCONT (not Ctrl-Z, which aborts) end RustDDS's event loop: the run aborts
+    // on silence and sends its hold through a new participant.
+    let _slot = slot();
+    let test = "console_sigstop";
+    let d = domain(15);
+    let mut console = stand_in(test, d, &[]);
+    let out = scratch(test).join("sweep.csv");
+    let mut p = Proc::spawn(
+        "calibrate",
+        Command::new(sidecar_bin())
+            .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
+            .args(["--joints", "1", "--depths", "0.12", "--yes", "--out"])
+            .arg(&out)
+            .env("ROS_DOMAIN_ID", d.to_string())
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let sweeping = common::eventually(Duration::from_secs(90), || {
+        let log = console_log(&console.log);
+        (log.iter().filter(|(_, k, _)| k == "motion").count() >= 2).then_some(())
+    });
+    assert!(sweeping.is_some(), "{:?}", console_log(&console.log));
+    // a stop can miss the event loop's poll (it was not waiting): again, up to 20 times
+    let mut status = None;
+    for _ in 0..20 {
+        p.signal(libc::SIGSTOP);
+        std::thread::sleep(Duration::from_millis(50));
+        p.signal(libc::SIGCONT);
+        status = p.wait_timeout(Duration::from_secs(8));
+        if status.is_some() {
+            break;
+        }
+    }
+    let Some(st) = status else {
+        let (_, err) = p.terminate();
+        console.proc.terminate();
+        panic!("still running after 20 stops and continues: {err}");
+    };
+    let err = p.stderr_text();
+    assert!(!st.success(), "{err}");
+    assert!(err.contains("measured_js silent"), "{err}");
+    assert!(err.contains("hold sent and acknowledged"), "{err}");
+    console.proc.terminate();
+    let log = console_log(&console.log);
+    let last = log
+        .iter()
+        .rev()
+        .find(|(_, k, _)| k == "command" || k == "motion");
+    assert_eq!(last.map(|(_, _, d)| d.as_str()), Some("hold"), "{log:?}");
 }
 
 #[test]

@@ -158,6 +158,7 @@ struct Endpoints {
     publisher: rustdds::Publisher,
     subscriber: rustdds::Subscriber,
     participant: DomainParticipant,
+    threads: crate::DdsThreads,
 }
 
 type Writer = DataWriter<CdrBody, CdrBodyAdapter>;
@@ -185,7 +186,7 @@ impl Endpoints {
         if !interfaces.is_empty() {
             builder = builder.with_only_networks(interfaces.iter().copied());
         }
-        let (participant, _) = crate::with_signals_blocked(|| builder.build());
+        let (participant, threads) = crate::with_signals_blocked(|| builder.build());
         let participant =
             participant.map_err(|e| setup("participant of domain", &domain.to_string(), &e))?;
         let qos = ConsoleQos::State.policies();
@@ -200,6 +201,7 @@ impl Endpoints {
             publisher,
             subscriber,
             participant,
+            threads,
         })
     }
 
@@ -417,6 +419,12 @@ impl ConsoleClient {
         self.domain
     }
 
+    /// RustDDS's threads of this client still run (see [`crate::DdsThreads`]): after they end,
+    /// nothing is sent or received.
+    pub fn dds_alive(&self) -> bool {
+        self.ep.threads.alive()
+    }
+
     /// The console's command readers have matched our writers (a command written before that
     /// would be lost: the readers are VOLATILE).
     pub fn commands_matched(&mut self) -> bool {
@@ -557,6 +565,18 @@ impl ConsoleClient {
         self.w.clear();
         crtk::encode_empty(&mut self.w);
         self.hold.send(&self.w)
+    }
+
+    /// `hold`, then waits up to `max_wait` for the console's readers to acknowledge it (for a
+    /// participant about to be dropped); `Ok(false)` when they did not in time (or the wait
+    /// failed).
+    pub fn hold_acknowledged(&mut self, max_wait: Duration) -> Result<bool, BridgeError> {
+        self.hold()?;
+        Ok(self
+            .hold
+            .inner
+            .wait_for_acknowledgments(max_wait)
+            .unwrap_or(false))
     }
 
     /// `state_command` (`enable`, `disable`, `home`, `unhome`, `pause`, `resume`).

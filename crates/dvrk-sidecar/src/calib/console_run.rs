@@ -456,13 +456,44 @@ impl MoveWait {
 
 /// After an abort: one `hold` where the arm is, unless the arm already left ENABLED (a hold
 /// would be refused); nothing else follows.
+///
+/// If this process's DDS has stopped (RustDDS ends its event loop when a stop and continue,
+/// SIGSTOP then SIGCONT, interrupts its poll), the hold goes through a new participant, once the
+/// console's command readers match it (up to [`HOLD_MATCH_WAIT`]).
 fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
-    if let Some(r) = reason
-        && !matches!(r, Stop::StateLeft { .. })
-    {
+    let Some(r) = reason else { return };
+    if matches!(r, Stop::StateLeft { .. }) {
+        return;
+    }
+    if client.dds_alive() {
         let _ = client.hold();
+        return;
+    }
+    eprintln!(
+        "this process's DDS has stopped (RustDDS's event loop ended: was the process stopped and \
+         continued?); joining DDS domain {} anew to send the hold",
+        client.domain()
+    );
+    let fresh = ConsoleClient::new(client.arm(), client.domain(), &[]);
+    let sent = fresh.is_ok_and(|mut c| {
+        let matched =
+            dvrk_bridge::console::wait_until(HOLD_MATCH_WAIT, Duration::from_millis(5), || {
+                c.commands_matched()
+            });
+        matched && c.hold_acknowledged(Duration::from_secs(1)).unwrap_or(false)
+    });
+    if sent {
+        eprintln!("hold sent and acknowledged by the console");
+    } else {
+        eprintln!(
+            "the hold could not be sent: the console keeps the last command; hold the arm from the \
+             console"
+        );
     }
 }
+
+/// How long a new participant may take to meet the console's command readers for the hold.
+const HOLD_MATCH_WAIT: Duration = Duration::from_secs(5);
 
 fn set_ratio(client: &mut ConsoleClient, ratio: f64) -> anyhow::Result<()> {
     if client.ratio_matched() {
