@@ -30,8 +30,41 @@ pub const STALE_NS: u64 = 1_000_000_000;
 /// Silent this long (ns) after it was heard, the console's DDS participant is made anew.
 pub const RESTART_AFTER_NS: u64 = 2_000_000_000;
 
-/// Wait before a second restart while still silent; tripled after each, up to 60 s.
-const FIRST_RESTART_WAIT: Duration = Duration::from_secs(5);
+/// When to make the console's DDS participant anew: once silent for [`RESTART_AFTER_NS`]
+/// after it was heard, then 5 s after that restart, 15 s, 45 s and every 60 s while the console
+/// stays silent; hearing it starts the sequence again.
+#[derive(Debug, Clone, Copy)]
+struct RestartSchedule {
+    wait: Duration,
+    next: std::time::Instant,
+}
+
+impl RestartSchedule {
+    const FIRST_WAIT: Duration = Duration::from_secs(5);
+    const LONGEST_WAIT: Duration = Duration::from_secs(60);
+
+    fn new(now: std::time::Instant) -> Self {
+        Self {
+            wait: Self::FIRST_WAIT,
+            next: now,
+        }
+    }
+
+    /// A restart is due: heard before, silent for `silent_ns`, and the wait since the last one
+    /// is over.
+    fn due(&self, was_heard: bool, silent_ns: u64, now: std::time::Instant) -> bool {
+        was_heard && silent_ns > RESTART_AFTER_NS && now >= self.next
+    }
+
+    fn restarted(&mut self, now: std::time::Instant) {
+        self.next = now + self.wait;
+        self.wait = (self.wait * 3).min(Self::LONGEST_WAIT);
+    }
+
+    fn heard(&mut self) {
+        self.wait = Self::FIRST_WAIT;
+    }
+}
 
 /// The console's operating state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -266,8 +299,7 @@ pub fn spawn(
             let mut next_wait_log = started + Duration::from_secs(2);
             let mut last_tool: Option<String> = None;
             let mut was_heard = false;
-            let mut restart_wait = FIRST_RESTART_WAIT;
-            let mut next_restart = started;
+            let mut restarts = RestartSchedule::new(started);
             while !stop.raised() {
                 w = Watched {
                     undecodable: w.undecodable,
@@ -333,10 +365,11 @@ pub fn spawn(
                 // Heard before, silent now: a new DDS participant. RustDDS's event loop ends
                 // for good when its poll is interrupted (EINTR), which a stop and continue of
                 // this process (Ctrl-Z then fg, SIGSTOP/SIGCONT) does; nothing else reports it.
-                if was_heard
-                    && now.saturating_sub(view.heard_ns) > RESTART_AFTER_NS
-                    && std::time::Instant::now() >= next_restart
-                {
+                if restarts.due(
+                    was_heard,
+                    now.saturating_sub(view.heard_ns),
+                    std::time::Instant::now(),
+                ) {
                     let silent_s = now.saturating_sub(view.heard_ns) as f64 * 1e-9;
                     match ConsoleWatcher::new(&arm, domain, &[]) {
                         Ok(fresh) => {
@@ -350,11 +383,10 @@ pub fn spawn(
                             "console: nothing heard from {arm} for {silent_s:.0} s; restarting the DDS participant failed: {e}"
                         ),
                     }
-                    restart_wait = (restart_wait * 3).min(Duration::from_secs(60));
-                    next_restart = std::time::Instant::now() + restart_wait;
+                    restarts.restarted(std::time::Instant::now());
                 }
                 if w.heard {
-                    restart_wait = FIRST_RESTART_WAIT;
+                    restarts.heard();
                 }
                 if !was_heard && std::time::Instant::now() >= next_wait_log {
                     tracing::warn!(
@@ -374,6 +406,31 @@ pub fn spawn(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn restarts_come_after_2_s_of_silence_then_5_15_45_and_every_60_s() {
+        let t0 = std::time::Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        let mut r = RestartSchedule::new(t0);
+        // never heard: never restarted; heard, silent 1 s: not yet
+        assert!(!r.due(false, 10_000_000_000, at(10)));
+        assert!(!r.due(true, 1_000_000_000, at(10)));
+        // silent from t = 10 s (more than 2 s at 13 s): restarts at 13, 18, 33, 78, 138, 198 s
+        let mut times = Vec::new();
+        for s in 12..200u64 {
+            if r.due(true, (s - 10) * 1_000_000_000, at(s)) {
+                times.push(s);
+                r.restarted(at(s));
+            }
+        }
+        assert_eq!(times, [13, 18, 33, 78, 138, 198]);
+        // heard again: the next silence starts the sequence over
+        r.heard();
+        assert!(r.due(true, 2_100_000_000, at(300)));
+        r.restarted(at(300));
+        assert!(!r.due(true, 6_000_000_000, at(304)));
+        assert!(r.due(true, 7_000_000_000, at(305)));
+    }
 
     #[test]
     fn a_view_round_trips_through_the_seqlock() {
