@@ -604,14 +604,12 @@ fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
     assert_eq!(cmds.last(), Some(&"hold"), "{cmds:?}");
 }
 
-#[test]
-fn ctrl_z_aborts_with_a_hold_instead_of_suspending() {
-    let _slot = slot();
-    let test = "console_ctrl_z";
-    let d = domain(14);
-    let mut console = stand_in(test, d, &[]);
+/// A stand-in console on domain `d` and `calibrate torque-offset` of joint 1 through it, once
+/// the sweep has begun (its second move_jp).
+fn sweep_started(test: &str, d: u16) -> (StandIn, Proc) {
+    let console = stand_in(test, d, &[]);
     let out = scratch(test).join("sweep.csv");
-    let mut p = Proc::spawn(
+    let p = Proc::spawn(
         "calibrate",
         Command::new(sidecar_bin())
             .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
@@ -623,12 +621,26 @@ fn ctrl_z_aborts_with_a_hold_instead_of_suspending() {
             .stdout(Stdio::null())
             .stderr(Stdio::piped()),
     );
-    // the sweep has begun: its second move_jp
     let sweeping = common::eventually(Duration::from_secs(90), || {
         let log = console_log(&console.log);
         (log.iter().filter(|(_, k, _)| k == "motion").count() >= 2).then_some(())
     });
     assert!(sweeping.is_some(), "{:?}", console_log(&console.log));
+    (console, p)
+}
+
+/// The last command or motion command of the stand-in's log.
+fn last_command(log: &[(f64, String, String)]) -> Option<&str> {
+    log.iter()
+        .rev()
+        .find(|(_, k, _)| k == "command" || k == "motion")
+        .map(|(_, _, d)| d.as_str())
+}
+
+#[test]
+fn ctrl_z_aborts_with_a_hold_instead_of_suspending() {
+    let _slot = slot();
+    let (mut console, mut p) = sweep_started("console_ctrl_z", domain(14));
     std::thread::sleep(Duration::from_millis(500));
     p.signal(libc::SIGTSTP);
     let st = p
@@ -640,12 +652,7 @@ fn ctrl_z_aborts_with_a_hold_instead_of_suspending() {
     assert!(err.contains("rows collected are kept"), "{err}");
     // the hold reaches the console: DDS outlived the signal
     let held = common::eventually(Duration::from_secs(5), || {
-        let log = console_log(&console.log);
-        let last = log
-            .iter()
-            .rev()
-            .find(|(_, k, _)| k == "command" || k == "motion");
-        last.filter(|(_, _, d)| d == "hold").map(|_| ())
+        (last_command(&console_log(&console.log)) == Some("hold")).then_some(())
     });
     console.proc.terminate();
     assert!(held.is_some(), "{:?}", console_log(&console.log));
@@ -656,39 +663,8 @@ fn a_stopped_and_continued_calibrate_still_sends_its_hold() {
     // SIGSTOP and SIGCONT (not Ctrl-Z, which aborts) end RustDDS's event loop: the run aborts
     // on silence and sends its hold through a new participant.
     let _slot = slot();
-    let test = "console_sigstop";
-    let d = domain(15);
-    let mut console = stand_in(test, d, &[]);
-    let out = scratch(test).join("sweep.csv");
-    let mut p = Proc::spawn(
-        "calibrate",
-        Command::new(sidecar_bin())
-            .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
-            .args(["--joints", "1", "--depths", "0.12", "--yes", "--out"])
-            .arg(&out)
-            .env("ROS_DOMAIN_ID", d.to_string())
-            .env("RUST_LOG", "warn")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    );
-    let sweeping = common::eventually(Duration::from_secs(90), || {
-        let log = console_log(&console.log);
-        (log.iter().filter(|(_, k, _)| k == "motion").count() >= 2).then_some(())
-    });
-    assert!(sweeping.is_some(), "{:?}", console_log(&console.log));
-    // a stop can miss the event loop's poll (it was not waiting): again, up to 20 times
-    let mut status = None;
-    for _ in 0..20 {
-        p.signal(libc::SIGSTOP);
-        std::thread::sleep(Duration::from_millis(50));
-        p.signal(libc::SIGCONT);
-        status = p.wait_timeout(Duration::from_secs(8));
-        if status.is_some() {
-            break;
-        }
-    }
-    let Some(st) = status else {
+    let (mut console, mut p) = sweep_started("console_sigstop", domain(15));
+    let Some(st) = p.stop_and_continue_until_exit(20, Duration::from_secs(8)) else {
         let (_, err) = p.terminate();
         console.proc.terminate();
         panic!("still running after 20 stops and continues: {err}");
@@ -699,11 +675,7 @@ fn a_stopped_and_continued_calibrate_still_sends_its_hold() {
     assert!(err.contains("hold sent and acknowledged"), "{err}");
     console.proc.terminate();
     let log = console_log(&console.log);
-    let last = log
-        .iter()
-        .rev()
-        .find(|(_, k, _)| k == "command" || k == "motion");
-    assert_eq!(last.map(|(_, _, d)| d.as_str()), Some("hold"), "{log:?}");
+    assert_eq!(last_command(&log), Some("hold"), "{log:?}");
 }
 
 #[test]

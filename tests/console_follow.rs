@@ -201,12 +201,10 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
     });
     // 7b. serve stopped and continued (Ctrl-Z then fg): it still follows the console. The stop
     // interrupts RustDDS's event loop, which then ends for good; the follower restarts it.
-    let pid = serve.child.as_ref().unwrap().id().to_string();
-    for sig in ["-STOP", "-CONT"] {
-        let ok = Command::new("kill").args([sig, &pid]).status().unwrap();
-        assert!(ok.success(), "kill {sig} {pid}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    serve.signal(libc::SIGSTOP);
+    std::thread::sleep(Duration::from_millis(50));
+    serve.signal(libc::SIGCONT);
+    std::thread::sleep(Duration::from_millis(50));
     say("tool=CADIERE_FORCEPS:400049[..]");
     until(
         &status,

@@ -1124,17 +1124,7 @@ fn a_bridge_whose_dds_died_exits_with_the_reason() {
             bridge.stderr_text()
         );
     }
-    // A stop can miss the poll (the event loop was busy, not waiting): try again, up to 20 times.
-    let mut status = None;
-    for _ in 0..20 {
-        bridge.signal(libc::SIGSTOP);
-        std::thread::sleep(Duration::from_millis(50));
-        bridge.signal(libc::SIGCONT);
-        status = bridge.wait_timeout(Duration::from_millis(500));
-        if status.is_some() {
-            break;
-        }
-    }
+    let status = bridge.stop_and_continue_until_exit(20, Duration::from_millis(500));
     serve.terminate();
     let Some(status) = status else {
         let (_, log) = bridge.terminate();

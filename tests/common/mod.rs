@@ -149,6 +149,25 @@ impl Proc {
         }
     }
 
+    /// Stops the process for 50 ms and continues it, up to `tries` times, until it exits
+    /// within `wait` of a continue; its exit status, or `None` if it never did. (A stop can
+    /// miss RustDDS's event loop, which is ended only when the stop interrupts its poll.)
+    pub fn stop_and_continue_until_exit(
+        &mut self,
+        tries: usize,
+        wait: Duration,
+    ) -> Option<ExitStatus> {
+        for _ in 0..tries {
+            self.signal(libc::SIGSTOP);
+            std::thread::sleep(Duration::from_millis(50));
+            self.signal(libc::SIGCONT);
+            if let Some(st) = self.wait_timeout(wait) {
+                return Some(st);
+            }
+        }
+        None
+    }
+
     /// Everything the process wrote to stderr (after it exited).
     pub fn stderr_text(&mut self) -> String {
         let mut s = String::new();
