@@ -878,3 +878,115 @@ fn rows_from_the_sidecar_service_match_the_consoles() {
     );
     assert!(worst < 0.05, "{worst}");
 }
+
+/// The stand-in of another author: `tests/bridge/cyclone_console.py`, a console's CRTK topics
+/// written with Cyclone DDS (the DDS under ROS 2's rmw_cyclonedds) and an arm model of its own,
+/// unlike `sim --crtk` in DDS, in arm and in controller: a PD of 5 N·m/rad (soft: the arm lags
+/// its setpoint and settles slowly), a weight torque of `0.12 sin(q2)` on joint 2 that its
+/// controller carries, a tool_type without the model range. Started DISABLED and not homed:
+/// `--enable` asks it to enable and home, then the sweep runs, and every row's effort is the
+/// stand-in's weight torque.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn a_console_written_with_cyclone_dds_is_enabled_homed_and_swept() {
+    if !common::require_python(&["cyclonedds"]) {
+        return;
+    }
+    let _slot = slot();
+    let dir = scratch("console_cyclone");
+    let d = domain(4);
+    let log = dir.join("console.jsonl");
+    let mut console = Proc::spawn(
+        "cyclone console",
+        Command::new("python3")
+            .arg(repo().join("tests/bridge/cyclone_console.py"))
+            .args(["--domain", &d.to_string(), "--start", "disabled"])
+            .args(["--kp", "5", "--seconds", "600"])
+            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(Stdio::piped()),
+    );
+    let sweep = dir.join("sweep.csv");
+    let (ok, err, secs) = run(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "2",
+            "--depths",
+            "0.12",
+            "--out",
+            sweep.to_str().unwrap(),
+            "--yes",
+            "--enable",
+            "--prompt-pause-s",
+            "0",
+            "--quiet",
+        ],
+        Duration::from_secs(600),
+    );
+    let (_, console_err) = console.terminate();
+    assert!(
+        ok,
+        "torque-offset through the Cyclone DDS console failed after {secs:.0} s: {err}\n\
+         console: {console_err}"
+    );
+
+    // Joint 2 from -0.5 to 0.5 rad in 5-degree steps, up and back: 24 rows, each the weight.
+    let text = std::fs::read_to_string(&sweep).unwrap();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    eprintln!(
+        "torque-offset through the Cyclone DDS console: {} rows in {secs:.0} s",
+        rows.len()
+    );
+    assert!(rows.len() >= 20, "{} rows: {text}", rows.len());
+    for r in &rows {
+        let (q, effort) = (r[3], r[4]);
+        let weight = -0.12 * q.sin();
+        assert!(
+            (effort - weight).abs() < 0.003,
+            "row at {q} rad: effort {effort} N·m, the stand-in's weight torque {weight}"
+        );
+    }
+
+    // The console saw enable, then home, then motion; it refused nothing.
+    let log: Vec<serde_json::Value> = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let commands: Vec<&str> = log.iter().filter_map(|v| v["cmd"].as_str()).collect();
+    assert_eq!(
+        commands[..2],
+        ["state_command", "state_command"],
+        "{commands:?}"
+    );
+    let said: Vec<&str> = log.iter().filter_map(|v| v["command"].as_str()).collect();
+    assert_eq!(said, ["enable", "home"]);
+    let homed_at = log
+        .iter()
+        .position(|v| v["event"] == "operating_state" && v["homed"] == true)
+        .expect("never homed");
+    let first_motion = log
+        .iter()
+        .position(|v| v["cmd"] == "move_jp" || v["cmd"] == "servo_jp")
+        .expect("no motion");
+    assert!(homed_at < first_motion, "moved before homing: {log:?}");
+    for v in &log {
+        assert!(
+            v["event"] != "warning" && v["event"] != "error",
+            "the console refused a command: {v}"
+        );
+    }
+}

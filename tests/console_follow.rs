@@ -48,6 +48,49 @@ fn position(v: &serde_json::Value) -> [f64; 3] {
     [0, 1, 2].map(|i| p[i].as_f64().unwrap_or(f64::NAN))
 }
 
+/// `serve` of the emulated arm at `boards` with `instrument = "console"`, following the console
+/// of DDS `domain`, with parameter sets for two instruments (the layout `fit --add` writes):
+/// the large needle driver and the Cadière forceps. Returns it and its topics' prefix.
+fn follower(dir: &std::path::Path, name: &str, boards: &str, domain: u16) -> (Proc, String) {
+    // parameter sets for two instruments (the layout `fit --add` writes)
+    let params = dir.join("params.toml");
+    let text = std::fs::read_to_string(repo().join("config/compliance/sim-psm.toml")).unwrap();
+    let body = text
+        .replace("[[joint]]", "[[set.joint]]")
+        .replace("[joint.", "[set.joint.");
+    std::fs::write(
+        &params,
+        format!(
+            "[[set]]\ninstrument = \"LARGE_NEEDLE_DRIVER:400006\"\n{body}\n\
+             [[set]]\ninstrument = \"CADIERE_FORCEPS:400049\"\n{body}\n"
+        ),
+    )
+    .unwrap();
+    let prefix = format!("{name}{}/PSM1", std::process::id());
+    let cfg = dir.join("sidecar.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "source = \"udp:{boards}\"\naccess = \"shared\"\nio = \"{}\"\narm = \"classic\"\n\
+             instrument = \"console\"\ncompliance = \"{}\"\nrate = 1500\nprefix = \"{prefix}\"\n",
+            repo().join("config/io/psm-classic.toml").display(),
+            params.display()
+        ),
+    )
+    .unwrap();
+    let serve = Proc::spawn(
+        "serve",
+        Command::new(sidecar_bin())
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env("ROS_DOMAIN_ID", domain.to_string())
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    (serve, prefix)
+}
+
 #[test]
 fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
     let test = "console_follow";
@@ -81,42 +124,7 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
         stdin.flush().unwrap();
     };
 
-    // parameter sets for two instruments (the layout `fit --add` writes)
-    let params = dir.join("params.toml");
-    let text = std::fs::read_to_string(repo().join("config/compliance/sim-psm.toml")).unwrap();
-    let body = text
-        .replace("[[joint]]", "[[set.joint]]")
-        .replace("[joint.", "[set.joint.");
-    std::fs::write(
-        &params,
-        format!(
-            "[[set]]\ninstrument = \"LARGE_NEEDLE_DRIVER:400006\"\n{body}\n\
-             [[set]]\ninstrument = \"CADIERE_FORCEPS:400049\"\n{body}\n"
-        ),
-    )
-    .unwrap();
-    let prefix = format!("cf{}/PSM1", std::process::id());
-    let cfg = dir.join("sidecar.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "source = \"udp:{boards}\"\naccess = \"shared\"\nio = \"{}\"\narm = \"classic\"\n\
-             instrument = \"console\"\ncompliance = \"{}\"\nrate = 1500\nprefix = \"{prefix}\"\n",
-            repo().join("config/io/psm-classic.toml").display(),
-            params.display()
-        ),
-    )
-    .unwrap();
-    let mut serve = Proc::spawn(
-        "serve",
-        Command::new(sidecar_bin())
-            .args(["serve", "--config"])
-            .arg(&cfg)
-            .env("ROS_DOMAIN_ID", domain.to_string())
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    );
+    let (mut serve, prefix) = follower(&dir, "cf", &boards, domain);
     let js = format!("{prefix}/measured_js");
     let cjs = format!("{prefix}/compensated/measured_js");
     let cp = format!("{prefix}/measured_cp");
@@ -234,4 +242,93 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
         log.contains("CADIERE_FORCEPS") && log.contains("no instrument"),
         "{log}"
     );
+}
+
+/// The same following with a console of another author: `tests/bridge/cyclone_console.py`, the
+/// console's CRTK topics written with Cyclone DDS (the DDS under ROS 2's rmw_cyclonedds) and an
+/// arm of its own; the arm `serve` reads is the emulator's. Homing, the instrument (a tool_type
+/// without the model range), its removal, a base frame of its own (its `measured_cp` and
+/// `local/measured_cp` of the same stamp) and FAULT are followed.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn serve_follows_a_console_written_with_cyclone_dds() {
+    if !common::require_python(&["cyclonedds"]) {
+        return;
+    }
+    let dir = scratch("console_follow_cyclone");
+    let domain = 150 + (std::process::id() % 40) as u16;
+    let port = common::free_udp_port();
+    let mut emulator = common::emulator(port, "idle.toml");
+    let mut console = Proc::spawn(
+        "cyclone console",
+        Command::new("python3")
+            .arg(repo().join("tests/bridge/cyclone_console.py"))
+            .args(["--domain", &domain.to_string(), "--start", "enabled"])
+            .args(["--seconds", "300"])
+            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    );
+    let mut stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
+    let mut say = |line: &str| {
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+    };
+    let (mut serve, prefix) = follower(&dir, "cyc", &format!("127.0.0.1:{port}"), domain);
+    let js = format!("{prefix}/measured_js");
+    let cp = format!("{prefix}/measured_cp");
+    let local = format!("{prefix}/local/measured_cp");
+    let ccp = format!("{prefix}/compensated/local/measured_cp");
+    let status = format!("{prefix}/compensated/status");
+
+    until(&js, "not homed", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"NOT_HOMED".to_owned())
+    });
+    say("home");
+    // (the name as the console's index writes it, with its model range)
+    let st = until(&status, "homed, the needle driver's parameters", |v| {
+        v["source"]["instrument"] == "LARGE_NEEDLE_DRIVER:400006[..]"
+            && v["source"]["homed"] == true
+    });
+    assert_eq!(st["source"]["parameter_set"], 1, "{st}");
+    until(&ccp, "valid and corrected", |v| {
+        v["header"]["valid"] == true
+            && !flags(v)
+                .iter()
+                .any(|f| f.contains("HOMED") || f.contains("UNKNOWN") || f == "NO_CALIBRATION")
+    });
+    // its base frame (a translation): measured_cp = local/measured_cp + base
+    say("base 0.3 -0.2 0.1");
+    let l = position(&latest(&local).unwrap());
+    until(&cp, "the console's base frame", |v| {
+        let p = position(v);
+        !flags(v).contains(&"BASE_FRAME_STALE".to_owned())
+            && (p[0] - l[0] - 0.3).abs() < 1e-3
+            && (p[1] - l[1] + 0.2).abs() < 1e-3
+            && (p[2] - l[2] - 0.1).abs() < 1e-3
+    });
+    say("tool");
+    until(&ccp, "NO_INSTRUMENT", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"NO_INSTRUMENT".to_owned())
+    });
+    say("tool LARGE_NEEDLE_DRIVER:400006");
+    until(&ccp, "the instrument back", |v| {
+        v["header"]["valid"] == true
+    });
+    say("state FAULT");
+    let v = until(&ccp, "ARM_NOT_ENABLED", |v| {
+        flags(v).contains(&"ARM_NOT_ENABLED".to_owned())
+    });
+    assert!(
+        !flags(&v).iter().any(|f| f.starts_with("CORRECTION_ACTIVE")),
+        "{v}"
+    );
+    drop(stdin);
+    console.terminate();
+    serve.terminate();
+    emulator.terminate();
 }

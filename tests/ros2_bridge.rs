@@ -27,26 +27,6 @@ use std::time::Duration;
 use common::*;
 use serde_json::Value;
 
-fn python_has(module: &str) -> bool {
-    Command::new("python3")
-        .args(["-c", &format!("import {module}")])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
-/// The modules build.rs found (or CI requires): fails the test when one is missing now.
-fn require_python(modules: &[&str]) -> bool {
-    let missing: Vec<&str> = modules.iter().copied().filter(|m| !python_has(m)).collect();
-    assert!(
-        missing.is_empty(),
-        "python3 lacks {missing:?}: run .ci/python-deps (pip install cyclonedds mcap \
-         mcap-ros2-support), then touch build.rs"
-    );
-    true
-}
-
 /// `realtime - monotonic` of this host in ns, to check the bridge's stamps.
 fn clock_offset_ns() -> i64 {
     let read = |id| {
@@ -96,28 +76,6 @@ fn stamp_ns(header: &Value) -> i64 {
 /// A per-test DDS domain id (0..=232), so parallel runs do not see each other.
 fn unique_domain() -> u16 {
     20 + (std::process::id() % 200) as u16
-}
-
-/// Cyclone DDS on the loopback interface only, discovering peers by unicast on 127.0.0.1.
-fn cyclone_uri(dir: &Path) -> String {
-    let xml = r#"<?xml version="1.0" encoding="UTF-8" ?>
-<CycloneDDS xmlns="https://cdds.io/config">
-  <Domain id="any">
-    <General>
-      <Interfaces><NetworkInterface name="lo"/></Interfaces>
-      <AllowMulticast>false</AllowMulticast>
-    </General>
-    <Discovery>
-      <ParticipantIndex>auto</ParticipantIndex>
-      <MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>
-      <Peers><Peer address="127.0.0.1"/></Peers>
-    </Discovery>
-  </Domain>
-</CycloneDDS>
-"#;
-    let path = dir.join("cyclonedds.xml");
-    std::fs::write(&path, xml).unwrap();
-    format!("file://{}", path.display())
 }
 
 /// `dvrk-sidecar ros2-bridge ARGS`, with `ROS_DOMAIN_ID` set to `ros_domain_id` or removed.

@@ -1,0 +1,364 @@
+#!/usr/bin/env python3
+"""A dVRK console's CRTK interface for one PSM, written with Cyclone DDS (the DDS under ROS 2's
+rmw_cyclonedds) and an arm model of its own: an independent stand-in for `dvrk_system`, to
+check that `dvrk-sidecar` works with a console that is not the project's own `sim --crtk`.
+
+The DDS type names are those the ROS 2 rmw layers register (`sensor_msgs::msg::dds_::JointState_`,
+`crtk_msgs::msg::dds_::OperatingState_`), the topics the console's (`rt/PSM1/measured_js`, ...),
+the QoS cisst-ros's: periodic state RELIABLE, KEEP_LAST 100, VOLATILE; events RELIABLE,
+KEEP_LAST 100, TRANSIENT_LOCAL; command readers RELIABLE.
+
+The arm: yaw, pitch and insertion, each a mass under a PD controller of its own gain (`--kp`,
+critically damped), with a weight torque of its own (`tau_g = g sin(q)`), measured effort =
+the controller's output + noise. `move_jp` follows a cosine profile at `trajectory_j/set_ratio`
+of the PSM's speed (busy true, then busy false and `goal_reached` true); `servo_jp` sets the
+setpoint; `hold` stops where the arm is; `state_command` `enable` and `home` bring it to
+ENABLED and homed (after `--home-s`). `measured_js` at `--rate` Hz (6 joints), `measured_cp`
+and `local/measured_cp` at the same rate, `tool_type` once (TRANSIENT_LOCAL).
+
+Standard input takes lines while it runs (the operator's and the console's own doings): `tool
+NAME` publishes a tool_type (`tool` alone: removed), `state S` an operating state (e.g. FAULT),
+`home` and `unhome` set and clear homing, `base X Y Z` moves the base frame (m).
+
+Standard output: one JSON object per line, for each command received
+({"t": s, "cmd": "servo_jp", "position": [...]}) and each event sent ({"t": s, "event": ...}).
+
+Usage: cyclone_console.py --domain N [--arm PSM1] [--rate 100] [--kp 40] [--start disabled|enabled|homed]
+                          [--tool NAME] [--home-s 1.0] [--noise-nm 0.002] [--seconds 600]
+"""
+
+import argparse
+import json
+import math
+import random
+import select
+import sys
+import time
+from dataclasses import dataclass
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import float64, int32, sequence, uint8, uint32
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader, InvalidSample
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time
+    frame_id: str
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64
+    y: float64
+    z: float64
+    w: float64
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point
+    orientation: Quaternion
+
+
+@dataclass
+class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
+    header: Header
+    pose: Pose
+
+
+@dataclass
+class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+    header: Header
+    name: sequence[str]
+    position: sequence[float64]
+    velocity: sequence[float64]
+    effort: sequence[float64]
+
+
+@dataclass
+class OperatingState(IdlStruct, typename="crtk_msgs::msg::dds_::OperatingState_"):
+    header: Header
+    state: str
+    is_homed: bool
+    is_busy: bool
+
+
+@dataclass
+class StringStamped(IdlStruct, typename="crtk_msgs::msg::dds_::StringStamped_"):
+    header: Header
+    data: str
+
+
+@dataclass
+class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+    data: str
+
+
+@dataclass
+class Bool(IdlStruct, typename="std_msgs::msg::dds_::Bool_"):
+    data: bool
+
+
+@dataclass
+class Float64(IdlStruct, typename="std_msgs::msg::dds_::Float64_"):
+    data: float64
+
+
+@dataclass
+class Empty(IdlStruct, typename="std_msgs::msg::dds_::Empty_"):
+    # what rosidl generates for a message without fields
+    structure_needs_at_least_one_member: uint8
+
+
+NAMES = ["outer_yaw", "outer_pitch", "outer_insertion", "outer_roll", "outer_wrist_pitch",
+         "outer_wrist_yaw"]
+# the PSM's speed and acceleration for move_jp at ratio 1 (rad/s, rad/s, m/s)
+VMAX = [math.pi / 2, math.pi / 2, 0.2]
+LIMITS = [(-1.5, 1.5), (-0.9, 0.9), (0.0, 0.24)]
+# masses (kg m², kg m², kg) and weight torques (N m, N m, N)
+INERTIA = [0.05, 0.05, 0.2]
+WEIGHT = [0.08, -0.12, 0.3]
+
+
+class Arm:
+    def __init__(self, kp, noise):
+        self.q = [0.0, 0.0, 0.12]
+        self.v = [0.0, 0.0, 0.0]
+        self.sp = list(self.q)
+        self.kp = kp
+        self.noise = noise
+        self.effort = [0.0, 0.0, 0.0]
+
+    def step(self, dt):
+        for j in range(3):
+            # kp in N m/rad for the rotary joints, scaled by the mass for insertion
+            kp = self.kp * INERTIA[j] / INERTIA[0]
+            kd = 2.0 * math.sqrt(kp * INERTIA[j])
+            g = WEIGHT[j] * (math.sin(self.q[j]) if j < 2 else 1.0)
+            u = kp * (self.sp[j] - self.q[j]) - kd * self.v[j] + g
+            a = (u - g) / INERTIA[j]
+            self.v[j] += a * dt
+            self.q[j] += self.v[j] * dt
+            self.effort[j] = u
+
+    def measured_effort(self):
+        return [e + random.gauss(0.0, self.noise) for e in self.effort] + [0.0, 0.0, 0.0]
+
+
+def stamp():
+    t = time.time()
+    return Header(Time(int(t), int((t - int(t)) * 1e9)), "")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--domain", type=int, required=True)
+    ap.add_argument("--arm", default="PSM1")
+    ap.add_argument("--rate", type=float, default=100.0)
+    ap.add_argument("--kp", type=float, default=40.0)
+    ap.add_argument("--start", choices=["disabled", "enabled", "homed"], default="homed")
+    ap.add_argument("--tool", default="LARGE_NEEDLE_DRIVER:400006")
+    ap.add_argument("--home-s", type=float, default=1.0)
+    ap.add_argument("--noise-nm", type=float, default=0.002)
+    ap.add_argument("--seconds", type=float, default=600.0)
+    a = ap.parse_args()
+
+    dp = DomainParticipant(a.domain)
+    rel = Policy.Reliability.Reliable(duration(seconds=1))
+    state_qos = Qos(rel, Policy.History.KeepLast(100), Policy.Durability.Volatile)
+    event_qos = Qos(rel, Policy.History.KeepLast(100), Policy.Durability.TransientLocal)
+    cmd_qos = Qos(rel, Policy.History.KeepLast(10), Policy.Durability.Volatile)
+
+    def writer(name, ty, qos):
+        return DataWriter(dp, Topic(dp, f"rt/{a.arm}/{name}", ty), qos)
+
+    def reader(name, ty):
+        return DataReader(dp, Topic(dp, f"rt/{a.arm}/{name}", ty), cmd_qos)
+
+    js_w = writer("measured_js", JointState, state_qos)
+    cp_w = writer("measured_cp", PoseStamped, state_qos)
+    lcp_w = writer("local/measured_cp", PoseStamped, state_qos)
+    os_w = writer("operating_state", OperatingState, event_qos)
+    goal_w = writer("goal_reached", Bool, event_qos)
+    tool_w = writer("tool_type", String, event_qos)
+    warn_w = writer("warning", String, event_qos)
+    err_w = writer("error", String, event_qos)
+    readers = {
+        "move_jp": reader("move_jp", JointState),
+        "servo_jp": reader("servo_jp", JointState),
+        "hold": reader("hold", Empty),
+        "state_command": reader("state_command", StringStamped),
+        "set_ratio": reader("trajectory_j/set_ratio", Float64),
+    }
+
+    t0 = time.monotonic()
+
+    def log(obj):
+        obj["t"] = round(time.monotonic() - t0, 4)
+        print(json.dumps(obj), flush=True)
+
+    state = {"disabled": "DISABLED"}.get(a.start, "ENABLED")
+    homed = a.start == "homed"
+    busy = False
+
+    def publish_state():
+        os_w.write(OperatingState(stamp(), state, homed, busy))
+        log({"event": "operating_state", "state": state, "homed": homed, "busy": busy})
+
+    publish_state()
+    tool_w.write(String(a.tool))
+    log({"event": "tool_type", "tool": a.tool})
+
+    arm = Arm(a.kp, a.noise_nm)
+    ratio = 0.2
+    move = None  # (start setpoint, target, start time, duration)
+    homing_until = None
+    base = [0.1, 0.2, 0.05]
+    period = 1.0 / a.rate
+    substeps = max(1, int(round(period / 0.0005)))
+    next_t = time.monotonic()
+    while time.monotonic() - t0 < a.seconds:
+        # operator lines
+        while select.select([sys.stdin], [], [], 0)[0]:
+            line = sys.stdin.readline()
+            if not line:
+                break
+            words = line.split()
+            if not words:
+                continue
+            if words[0] == "tool":
+                tool_w.write(String(words[1] if len(words) > 1 else ""))
+                log({"event": "tool_type", "tool": words[1] if len(words) > 1 else ""})
+            elif words[0] == "state":
+                state = words[1]
+                move = None
+                busy = False
+                publish_state()
+            elif words[0] == "unhome":
+                homed = False
+                publish_state()
+            elif words[0] == "home":
+                homed = True
+                publish_state()
+            elif words[0] == "base":
+                base = [float(x) for x in words[1:4]]
+                log({"event": "base", "base": base})
+
+        # commands
+        for name, r in readers.items():
+            for s in r.take(N=100):
+                if isinstance(s, InvalidSample):
+                    continue  # a writer went away (its disposal), no command
+                if name == "set_ratio":
+                    log({"cmd": name, "ratio": s.data})
+                    if 0.0 < s.data <= 1.0:
+                        ratio = s.data
+                    continue
+                if name == "state_command":
+                    log({"cmd": name, "command": s.data})
+                    if s.data == "enable" and state != "FAULT":
+                        state = "ENABLED"
+                        publish_state()
+                    elif s.data == "disable":
+                        state = "DISABLED"
+                        move = None
+                        busy = False
+                        publish_state()
+                    elif s.data == "home" and state == "ENABLED":
+                        busy = True
+                        publish_state()
+                        homing_until = time.monotonic() + a.home_s
+                    continue
+                if name == "hold":
+                    log({"cmd": name})
+                    if state == "ENABLED":
+                        if move is not None:
+                            goal_w.write(Bool(False))
+                            busy = False
+                            publish_state()
+                        move = None
+                        arm.sp = list(arm.q)
+                    continue
+                pos = list(s.position[:3])
+                log({"cmd": name, "position": pos})
+                if state != "ENABLED" or not homed or len(pos) < 3:
+                    warn_w.write(String(f"{a.arm}: {name} refused, arm not ready"))
+                    log({"event": "warning", "refused": name})
+                    continue
+                if any(not (lo <= p <= hi) for p, (lo, hi) in zip(pos, LIMITS)):
+                    err_w.write(String(f"{a.arm}: {name} outside the joint limits"))
+                    log({"event": "error", "refused": name})
+                    state = "FAULT"
+                    move = None
+                    busy = False
+                    publish_state()
+                    continue
+                if name == "servo_jp":
+                    move = None
+                    arm.sp = pos
+                else:
+                    d = max(abs(p - s0) / (v * ratio) for p, s0, v in zip(pos, arm.sp, VMAX))
+                    move = (list(arm.sp), pos, time.monotonic(), max(d * 1.5, 0.05))
+                    busy = True
+                    publish_state()
+
+        now = time.monotonic()
+        if homing_until is not None and now >= homing_until:
+            homing_until = None
+            homed = True
+            busy = False
+            publish_state()
+        if move is not None:
+            s0, target, start, dur = move
+            f = min(1.0, (now - start) / dur)
+            c = 0.5 - 0.5 * math.cos(math.pi * f)
+            arm.sp = [x + c * (y - x) for x, y in zip(s0, target)]
+            if f >= 1.0:
+                move = None
+                busy = False
+                goal_w.write(Bool(True))
+                log({"event": "goal_reached", "value": True})
+                publish_state()
+        if state == "ENABLED":
+            for _ in range(substeps):
+                arm.step(period / substeps)
+
+        h = stamp()
+        js_w.write(JointState(h, NAMES, list(arm.q) + [0.0, 0.0, 0.0],
+                              list(arm.v) + [0.0, 0.0, 0.0], arm.measured_effort()))
+        # the tip in the RCM frame (a point on the shaft at the insertion) and in the base frame
+        y, p, l = arm.q
+        tip = [l * math.sin(y) * math.cos(p), -l * math.sin(p), -l * math.cos(y) * math.cos(p)]
+        q_id = Quaternion(0.0, 0.0, 0.0, 1.0)
+        lcp_w.write(PoseStamped(h, Pose(Point(*tip), q_id)))
+        cp_w.write(PoseStamped(h, Pose(Point(*[t + b for t, b in zip(tip, base)]), q_id)))
+
+        next_t += period
+        delay = next_t - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        else:
+            next_t = time.monotonic()
+
+
+if __name__ == "__main__":
+    main()
