@@ -318,12 +318,18 @@ pub fn spawn(
                 let now = dvrk_ipc::clock::monotonic_ns();
                 let mut changed = false;
                 if w.heard {
-                    view.heard_ns = now;
-                    changed = true;
+                    let silent_ns = now.saturating_sub(view.heard_ns);
                     if !was_heard {
                         tracing::info!("console: hearing {arm} on DDS domain {domain}");
                         was_heard = true;
+                    } else if silent_ns > STALE_NS {
+                        tracing::info!(
+                            "console: hearing {arm} again after {:.1} s of silence",
+                            silent_ns as f64 * 1e-9
+                        );
                     }
+                    view.heard_ns = now;
+                    changed = true;
                 }
                 if let Some(s) = &w.operating_state {
                     let (st, homed) = (OpState::parse(&s.state), s.is_homed);
