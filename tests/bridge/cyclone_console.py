@@ -14,7 +14,8 @@ the controller's output + noise. `move_jp` follows a cosine profile at `trajecto
 of the PSM's speed (busy true, then busy false and `goal_reached` true); `servo_jp` sets the
 setpoint; `hold` stops where the arm is; `state_command` `enable` and `home` bring it to
 ENABLED and homed (after `--home-s`). `measured_js` at `--rate` Hz (6 joints), `measured_cp`
-and `local/measured_cp` at the same rate, `tool_type` once (TRANSIENT_LOCAL).
+and `local/measured_cp` at the same rate, each message stamped as it is written (microseconds
+apart, unlike the dVRK console's), `tool_type` once (TRANSIENT_LOCAL).
 
 Standard input takes lines while it runs (the operator's and the console's own doings): `tool
 NAME` publishes a tool_type (`tool` alone: removed), `state S` an operating state (e.g. FAULT),
@@ -342,15 +343,16 @@ def main():
             for _ in range(substeps):
                 arm.step(period / substeps)
 
-        h = stamp()
-        js_w.write(JointState(h, NAMES, list(arm.q) + [0.0, 0.0, 0.0],
+        # each message stamped as it is written (the dVRK console gives all three the time of
+        # their joint reading; a console of another kind may not)
+        js_w.write(JointState(stamp(), NAMES, list(arm.q) + [0.0, 0.0, 0.0],
                               list(arm.v) + [0.0, 0.0, 0.0], arm.measured_effort()))
         # the tip in the RCM frame (a point on the shaft at the insertion) and in the base frame
         y, p, l = arm.q
         tip = [l * math.sin(y) * math.cos(p), -l * math.sin(p), -l * math.cos(y) * math.cos(p)]
         q_id = Quaternion(0.0, 0.0, 0.0, 1.0)
-        lcp_w.write(PoseStamped(h, Pose(Point(*tip), q_id)))
-        cp_w.write(PoseStamped(h, Pose(Point(*[t + b for t, b in zip(tip, base)]), q_id)))
+        lcp_w.write(PoseStamped(stamp(), Pose(Point(*tip), q_id)))
+        cp_w.write(PoseStamped(stamp(), Pose(Point(*[t + b for t, b in zip(tip, base)]), q_id)))
 
         next_t += period
         delay = next_t - time.monotonic()

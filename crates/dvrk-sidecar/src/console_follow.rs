@@ -12,8 +12,9 @@
 //! - operating state: not homed: every sample invalid (`NOT_HOMED`); DISABLED, PAUSED or
 //!   FAULT: raw valid, the correction withheld (`ARM_NOT_ENABLED`); nothing heard from the
 //!   console (yet, or for [`STALE_NS`]): as configured, flagged `CONSOLE_UNKNOWN`;
-//! - base frame: `measured_cp × local/measured_cp⁻¹` of the same stamp, followed as it
-//!   changes; older than [`STALE_NS`]: the last one, flagged `BASE_FRAME_STALE`.
+//! - base frame: `measured_cp × local/measured_cp⁻¹` of the same stamp (within
+//!   [`PAIR_TOLERANCE_NS`]), followed as it changes; older than [`STALE_NS`]: the last one,
+//!   flagged `BASE_FRAME_STALE`.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering, fence};
@@ -249,7 +250,20 @@ impl Shared {
     }
 }
 
-/// `measured_cp × local/measured_cp⁻¹` for the newest pair with the same stamp.
+/// A pose's stamp in ns (a negative second, which no console sends, counts as 0).
+fn stamp_ns(p: &PoseStampedMsg) -> u64 {
+    u64::try_from(p.stamp.sec).unwrap_or(0) * 1_000_000_000 + u64::from(p.stamp.nanosec)
+}
+
+/// How far apart (ns) the stamps of a `measured_cp` and a `local/measured_cp` may be to count as
+/// one instant. The dVRK console stamps both with the time of the joint reading they come from,
+/// so they are equal; a console that stamps each message as it writes it (a stand-in, a bridge)
+/// puts microseconds between them. Half a period of a 1 kHz console: poses of two cycles never
+/// pair, and the tip moves little in that time (50 µm at 0.1 m/s at most).
+pub const PAIR_TOLERANCE_NS: u64 = 500_000;
+
+/// `measured_cp × local/measured_cp⁻¹` for the newest `measured_cp` that has a
+/// `local/measured_cp` within [`PAIR_TOLERANCE_NS`] of its stamp (the closest one).
 pub fn base_from_pairs(cp: &[PoseStampedMsg], local: &[PoseStampedMsg]) -> Option<[f64; 7]> {
     let iso = |p: &PoseStampedMsg| {
         let q = p.orientation_xyzw;
@@ -265,7 +279,15 @@ pub fn base_from_pairs(cp: &[PoseStampedMsg], local: &[PoseStampedMsg]) -> Optio
         if c.stamp == Default::default() {
             continue; // a zero stamp is invalid data
         }
-        if let Some(l) = local.iter().rev().find(|l| l.stamp == c.stamp)
+        let t = stamp_ns(c);
+        let closest = local
+            .iter()
+            .rev()
+            .filter(|l| l.stamp != Default::default())
+            .map(|l| (stamp_ns(l).abs_diff(t), l))
+            .filter(|(d, _)| *d <= PAIR_TOLERANCE_NS)
+            .min_by_key(|(d, _)| *d);
+        if let Some((_, l)) = closest
             && let (Some(ci), Some(li)) = (iso(c), iso(l))
         {
             let b = ci * li.inverse();
@@ -535,5 +557,33 @@ mod tests {
         assert!((got.translation.vector - base.translation.vector).norm() < 1e-12);
         assert!(got.rotation.angle_to(&base.rotation) < 1e-12);
         assert!(base_from_pairs(&cp[1..], &lo).is_none());
+    }
+
+    #[test]
+    fn poses_stamped_microseconds_apart_pair_and_those_of_two_cycles_do_not() {
+        use dvrk_bridge::cdr::RosTime;
+        let msg = |x: f64, nanosec| PoseStampedMsg {
+            stamp: RosTime { sec: 7, nanosec },
+            frame_id: String::new(),
+            position: [x, 0.0, 0.0],
+            orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+        };
+        // a console that stamps each message as it writes it: 40 µs apart, either order
+        let cp = vec![msg(0.25, 1_000_040)];
+        let b = base_from_pairs(&cp, &[msg(0.05, 1_000_000)]).unwrap();
+        assert!((b[0] - 0.2).abs() < 1e-12, "{b:?}");
+        let b = base_from_pairs(&cp, &[msg(0.05, 1_000_080)]).unwrap();
+        assert!((b[0] - 0.2).abs() < 1e-12, "{b:?}");
+        // the closest local wins
+        let b = base_from_pairs(&cp, &[msg(0.05, 1_000_000), msg(0.04, 1_400_000)]).unwrap();
+        assert!((b[0] - 0.2).abs() < 1e-12, "{b:?}");
+        // two cycles of a 1 kHz console (1 ms apart) do not pair
+        assert!(base_from_pairs(&cp, &[msg(0.05, 2_000_040)]).is_none());
+        // a zero stamp is invalid data, on either side
+        let zero = PoseStampedMsg {
+            stamp: RosTime::default(),
+            ..msg(0.05, 0)
+        };
+        assert!(base_from_pairs(&cp, std::slice::from_ref(&zero)).is_none());
     }
 }
