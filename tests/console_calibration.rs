@@ -53,7 +53,9 @@ impl Drop for Slot {
     }
 }
 
-/// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221).
+/// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
+/// 4-9 (the fault cases), 10-17; each test has its own (a shared domain crosses two tests'
+/// consoles and commands).
 fn domain(offset: u16) -> u16 {
     150 + (std::process::id() % 60) as u16 + offset
 }
@@ -897,7 +899,7 @@ fn a_console_written_with_cyclone_dds_is_enabled_homed_and_swept() {
     }
     let _slot = slot();
     let dir = scratch("console_cyclone");
-    let d = domain(4);
+    let d = domain(16);
     let log = dir.join("console.jsonl");
     let mut console = Proc::spawn(
         "cyclone console",
@@ -989,4 +991,65 @@ fn a_console_written_with_cyclone_dds_is_enabled_homed_and_swept() {
             "the console refused a command: {v}"
         );
     }
+}
+
+/// A console whose event writers are VOLATILE (unlike the dVRK console's TRANSIENT_LOCAL ones)
+/// and that publishes no event after this command joins: the command cannot learn the arm's
+/// state, sends nothing, and says why (the writers' QoS by topic and policy) and what to do.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn a_console_with_volatile_events_is_named_and_nothing_is_sent() {
+    if !common::require_python(&["cyclonedds"]) {
+        return;
+    }
+    let _slot = slot();
+    let dir = scratch("console_volatile");
+    let d = domain(17);
+    let log = dir.join("console.jsonl");
+    let mut console = Proc::spawn(
+        "cyclone console",
+        Command::new("python3")
+            .arg(repo().join("tests/bridge/cyclone_console.py"))
+            .args([
+                "--domain",
+                &d.to_string(),
+                "--events-volatile",
+                "--silent-start",
+            ])
+            .args(["--seconds", "120"])
+            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(Stdio::piped()),
+    );
+    let out = dir.join("sweep.csv");
+    let (ok, err, _) = run(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(120),
+    );
+    console.terminate();
+    assert!(!ok, "ran without knowing the arm's state: {err}");
+    for what in [
+        "/PSM1/operating_state: Durability",
+        "TRANSIENT_LOCAL",
+        "No operating_state",
+    ] {
+        assert!(err.contains(what), "no {what:?} in: {err}");
+    }
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        !text.contains("\"cmd\""),
+        "commands reached the console: {text}"
+    );
 }

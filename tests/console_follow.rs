@@ -337,3 +337,67 @@ fn serve_follows_a_console_written_with_cyclone_dds() {
     serve.terminate();
     emulator.terminate();
 }
+
+/// A console whose event writers are VOLATILE (a version, a bridge or a stand-in unlike the
+/// dVRK console's TRANSIENT_LOCAL ones) matches no TRANSIENT_LOCAL reader; `serve` hears it
+/// through its live companion readers, from its next change on: the instrument swapped and the
+/// arm homed and then faulted after `serve` started are followed.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn serve_follows_a_console_with_volatile_events_from_its_next_change() {
+    if !common::require_python(&["cyclonedds"]) {
+        return;
+    }
+    let dir = scratch("console_follow_volatile");
+    let domain = 190 + (std::process::id() % 40) as u16;
+    let port = common::free_udp_port();
+    let mut emulator = common::emulator(port, "idle.toml");
+    let mut console = Proc::spawn(
+        "cyclone console",
+        Command::new("python3")
+            .arg(repo().join("tests/bridge/cyclone_console.py"))
+            .args(["--domain", &domain.to_string(), "--start", "enabled"])
+            .args(["--events-volatile", "--silent-start", "--seconds", "300"])
+            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    );
+    let mut stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
+    let mut say = |line: &str| {
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+    };
+    let (mut serve, prefix) = follower(&dir, "vol", &format!("127.0.0.1:{port}"), domain);
+    let ccp = format!("{prefix}/compensated/local/measured_cp");
+    let status = format!("{prefix}/compensated/status");
+    // heard (its poses), its state not yet (it published none since serve joined): invalid,
+    // the state unknown
+    until(&status, "the console heard", |v| {
+        v["source"]["console_heard"] == true
+    });
+    let v = until(&format!("{prefix}/measured_js"), "its state unknown", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"CONSOLE_UNKNOWN".to_owned())
+    });
+    assert!(flags(&v).contains(&"NOT_HOMED".to_owned()), "{v}");
+    say("tool CADIERE_FORCEPS:400049");
+    say("home");
+    let st = until(&status, "the swap and the homing", |v| {
+        v["source"]["instrument"] == "CADIERE_FORCEPS:400049[..]" && v["source"]["homed"] == true
+    });
+    assert_eq!(st["source"]["parameter_set"], 2, "{st}");
+    until(&ccp, "valid and corrected", |v| {
+        v["header"]["valid"] == true
+    });
+    say("state FAULT");
+    until(&ccp, "ARM_NOT_ENABLED", |v| {
+        flags(v).contains(&"ARM_NOT_ENABLED".to_owned())
+    });
+    drop(stdin);
+    console.terminate();
+    serve.terminate();
+    emulator.terminate();
+}

@@ -24,16 +24,21 @@ NAME` publishes a tool_type (`tool` alone: removed), `state S` an operating stat
 Standard output: one JSON object per line, for each command received
 ({"t": s, "cmd": "servo_jp", "position": [...]}) and each event sent ({"t": s, "event": ...}).
 
+`--events-volatile` gives the event writers VOLATILE durability (unlike the dVRK console's);
+`--silent-start` publishes no event at start (a reader of VOLATILE events that joined late
+knows nothing until the next change).
+
 Usage: cyclone_console.py --domain N [--arm PSM1] [--rate 100] [--kp 40] [--start disabled|enabled|homed]
                           [--tool NAME] [--home-s 1.0] [--noise-nm 0.002] [--seconds 600]
+                          [--events-volatile] [--silent-start]
 """
 
 import argparse
 import json
 import math
+import os
 import random
 import select
-import sys
 import time
 from dataclasses import dataclass
 
@@ -181,12 +186,15 @@ def main():
     ap.add_argument("--home-s", type=float, default=1.0)
     ap.add_argument("--noise-nm", type=float, default=0.002)
     ap.add_argument("--seconds", type=float, default=600.0)
+    ap.add_argument("--events-volatile", action="store_true")
+    ap.add_argument("--silent-start", action="store_true")
     a = ap.parse_args()
 
     dp = DomainParticipant(a.domain)
     rel = Policy.Reliability.Reliable(duration(seconds=1))
     state_qos = Qos(rel, Policy.History.KeepLast(100), Policy.Durability.Volatile)
-    event_qos = Qos(rel, Policy.History.KeepLast(100), Policy.Durability.TransientLocal)
+    event_qos = Qos(rel, Policy.History.KeepLast(100),
+                    Policy.Durability.Volatile if a.events_volatile else Policy.Durability.TransientLocal)
     cmd_qos = Qos(rel, Policy.History.KeepLast(10), Policy.Durability.Volatile)
 
     def writer(name, ty, qos):
@@ -225,9 +233,10 @@ def main():
         os_w.write(OperatingState(stamp(), state, homed, busy))
         log({"event": "operating_state", "state": state, "homed": homed, "busy": busy})
 
-    publish_state()
-    tool_w.write(String(a.tool))
-    log({"event": "tool_type", "tool": a.tool})
+    if not a.silent_start:
+        publish_state()
+        tool_w.write(String(a.tool))
+        log({"event": "tool_type", "tool": a.tool})
 
     arm = Arm(a.kp, a.noise_nm)
     ratio = 0.2
@@ -237,12 +246,16 @@ def main():
     period = 1.0 / a.rate
     substeps = max(1, int(round(period / 0.0005)))
     next_t = time.monotonic()
+    pending, stdin_open = "", True
     while time.monotonic() - t0 < a.seconds:
-        # operator lines
-        while select.select([sys.stdin], [], [], 0)[0]:
-            line = sys.stdin.readline()
-            if not line:
-                break
+        # operator lines (read from the descriptor: a buffered readline would keep a second
+        # line that arrived with the first out of select's sight)
+        if stdin_open and select.select([0], [], [], 0)[0]:
+            chunk = os.read(0, 4096)
+            stdin_open = bool(chunk)
+            pending += chunk.decode()
+        while "\n" in pending:
+            line, pending = pending.split("\n", 1)
             words = line.split()
             if not words:
                 continue

@@ -242,29 +242,65 @@ impl Endpoints {
         })
     }
 
+    /// A reader of `suffix`; for an event topic, with its live companion (see [`TopicReader`]).
     fn reader(
         &self,
         suffix: &str,
         ty: &str,
         qos: ConsoleQos,
-    ) -> Result<Named<Reader>, BridgeError> {
+    ) -> Result<Named<TopicReader>, BridgeError> {
         let (name, topic) = self.topic(suffix, ty, qos)?;
-        let r = self
-            .subscriber
-            .create_datareader_no_key::<RawBody, RawAdapter>(&topic, Some(qos.policies()))
-            .map_err(|e| setup("reader", &name, &e))?;
+        let create = |q: QosPolicies| {
+            self.subscriber
+                .create_datareader_no_key::<RawBody, RawAdapter>(&topic, Some(q))
+                .map_err(|e| setup("reader", &name, &e))
+        };
+        let inner = create(qos.policies())?;
+        let live = if qos == ConsoleQos::Event {
+            Some(create(
+                QosPolicyBuilder::new()
+                    .reliability(Reliability::BestEffort)
+                    .history(History::KeepLast { depth: 100 })
+                    .durability(Durability::Volatile)
+                    .build(),
+            )?)
+        } else {
+            None
+        };
         Ok(Named {
             name,
-            inner: r,
+            inner: TopicReader {
+                reader: inner,
+                live,
+                incompatible: None,
+            },
             matched: 0,
         })
     }
 }
 
+/// A reader, and for an event topic a live companion. The console's event writers are
+/// TRANSIENT_LOCAL, so a reader that joins late still gets the current state; but a writer
+/// must offer at least the durability a reader asks for, and a console (a version, a bridge, a
+/// stand-in) whose event writers are VOLATILE (or BEST_EFFORT) would match no TRANSIENT_LOCAL,
+/// RELIABLE reader: its state and instrument changes would never arrive. The companion asks for
+/// the least, VOLATILE and BEST_EFFORT, so it matches any writer; its samples are taken only
+/// while the main reader has matched no writer (a writer of the console's QoS reaches both, and
+/// would otherwise be heard twice). On a lossy link a BEST_EFFORT reader may miss an event the
+/// writer sent; the console's own writers never come to it.
+struct TopicReader {
+    reader: Reader,
+    live: Option<Reader>,
+    /// What the main reader found incompatible in a writer it could not match (the policy),
+    /// for the error that says why nothing arrives.
+    incompatible: Option<String>,
+}
+
 struct Named<T> {
     name: String,
     inner: T,
-    /// Readers matched (writers only), from the writer's status events.
+    /// Readers matched (for a writer), or writers matched (for a reader's main reader), from the
+    /// status events.
     matched: i32,
 }
 
@@ -289,13 +325,46 @@ impl Named<Writer> {
     }
 }
 
-impl Named<Reader> {
+impl Named<TopicReader> {
     /// Every sample waiting, oldest first. A reader error ends the drain (the next poll tries
     /// again); undecodable samples are counted by the caller.
     fn drain(&mut self, out: &mut Vec<RawBody>) {
-        while let Ok(Some(s)) = self.inner.take_next_sample() {
+        use rustdds::StatusEvented;
+        while let Some(status) = self.inner.reader.try_recv_status() {
+            match status {
+                rustdds::DataReaderStatus::SubscriptionMatched { current, .. } => {
+                    self.matched = current.count();
+                }
+                rustdds::DataReaderStatus::RequestedIncompatibleQos { last_policy_id, .. } => {
+                    self.inner.incompatible = Some(format!("{last_policy_id:?}"));
+                }
+                _ => {}
+            }
+        }
+        while let Ok(Some(s)) = self.inner.reader.take_next_sample() {
             out.push(s.into_value());
         }
+        let take_live = self.matched == 0;
+        if let Some(live) = &mut self.inner.live {
+            while let Ok(Some(s)) = live.take_next_sample() {
+                if take_live {
+                    out.push(s.into_value());
+                }
+            }
+        }
+    }
+
+    /// Why the main reader matched no writer, if a writer's QoS was incompatible:
+    /// `"/PSM1/operating_state: Durability"` (the ROS 2 topic name and the policy).
+    fn incompatible(&self) -> Option<String> {
+        (self.matched == 0)
+            .then(|| {
+                self.inner
+                    .incompatible
+                    .as_ref()
+                    .map(|p| format!("{}: {p}", self.name.trim_start_matches("rt")))
+            })
+            .flatten()
     }
 }
 
@@ -343,12 +412,12 @@ pub struct ConsoleClient {
     hold: Named<Writer>,
     state_command: Named<Writer>,
     set_ratio: Named<Writer>,
-    measured_js: Named<Reader>,
-    operating_state: Named<Reader>,
-    goal_reached: Named<Reader>,
-    warning: Named<Reader>,
-    error: Named<Reader>,
-    tool_type: Named<Reader>,
+    measured_js: Named<TopicReader>,
+    operating_state: Named<TopicReader>,
+    goal_reached: Named<TopicReader>,
+    warning: Named<TopicReader>,
+    error: Named<TopicReader>,
+    tool_type: Named<TopicReader>,
     ep: Endpoints,
     domain: u16,
     seq: u64,
@@ -432,6 +501,24 @@ impl ConsoleClient {
             && self.servo_jp.matched()
             && self.state_command.matched()
             && self.hold.matched()
+    }
+
+    /// The topics whose writer this client could not match, with the QoS policy at fault
+    /// (`"/PSM1/operating_state: Durability"`): a writer that offers less than the console's QoS.
+    /// A VOLATILE event writer is still heard through the live companion reader
+    /// ([`TopicReader`]), but only from its next change on.
+    pub fn incompatible_writers(&self) -> Vec<String> {
+        [
+            &self.measured_js,
+            &self.operating_state,
+            &self.goal_reached,
+            &self.warning,
+            &self.error,
+            &self.tool_type,
+        ]
+        .iter()
+        .filter_map(|r| r.incompatible())
+        .collect()
     }
 
     /// The console's `trajectory_j/set_ratio` reader has matched.
@@ -617,10 +704,10 @@ pub struct Watched {
 /// A read-only client of one arm of the console: its state events, its instrument and its two
 /// tip poses. It writes nothing (a service that follows the console never commands it).
 pub struct ConsoleWatcher {
-    operating_state: Named<Reader>,
-    tool_type: Named<Reader>,
-    measured_cp: Named<Reader>,
-    local_measured_cp: Named<Reader>,
+    operating_state: Named<TopicReader>,
+    tool_type: Named<TopicReader>,
+    measured_cp: Named<TopicReader>,
+    local_measured_cp: Named<TopicReader>,
     ep: Endpoints,
     buf: Vec<RawBody>,
 }
@@ -733,7 +820,7 @@ pub struct ConsoleServer {
     error: Named<Writer>,
     status: Named<Writer>,
     tool_type: Named<Writer>,
-    readers: Vec<(usize, Named<Reader>)>,
+    readers: Vec<(usize, Named<TopicReader>)>,
     ep: Endpoints,
     buf: Vec<RawBody>,
     w: CdrWriter,

@@ -930,6 +930,11 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
         if !heard {
             result.flags |= flags::CONSOLE_UNKNOWN;
         } else {
+            if v.state == OpState::Unknown {
+                // heard (its poses), but no operating state yet: a console whose events are
+                // VOLATILE says it only when it changes
+                result.flags |= flags::CONSOLE_UNKNOWN;
+            }
             if !v.homed {
                 result.valid = false;
                 result.flags |= flags::NOT_HOMED;

@@ -178,6 +178,18 @@ pub fn connect(arm: &str) -> anyhow::Result<ConsoleClient> {
     .map(|(_, w)| *w)
     .collect::<Vec<_>>()
     .join(", ");
+    let incompatible = c.incompatible_writers();
+    if !incompatible.is_empty() {
+        bail!(
+            "the console of {arm} on DDS domain {domain} answers, but with writers whose QoS \
+             this client cannot match: {} (the dVRK console's events are RELIABLE and \
+             TRANSIENT_LOCAL, so that a program started later learns the current state). No \
+             {missing} within 10 s. Heard from a VOLATILE writer, the state arrives only when it \
+             changes: change it in the console (e.g. disable, then enable and home) while this \
+             command waits, or give the console's event writers TRANSIENT_LOCAL durability",
+            incompatible.join(", ")
+        );
+    }
     bail!(
         "no dVRK console answers for {arm} on DDS domain {domain} (ROS_DOMAIN_ID) within 10 s: \
          no {missing}. Is `dvrk_system` running with this arm, on this domain, reachable from \
