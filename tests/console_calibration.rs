@@ -54,7 +54,7 @@ impl Drop for Slot {
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-17; each test has its own (a shared domain crosses two tests'
+/// 4-9 (the fault cases), 10-18; each test has its own (a shared domain crosses two tests'
 /// consoles and commands).
 fn domain(offset: u16) -> u16 {
     150 + (std::process::id() % 60) as u16 + offset
@@ -1052,4 +1052,73 @@ fn a_console_with_volatile_events_is_named_and_nothing_is_sent() {
         !text.contains("\"cmd\""),
         "commands reached the console: {text}"
     );
+}
+
+/// An abort against the Cyclone DDS console: its weight torque on joint 2 (0.12 sin q2, 0.057
+/// N·m at the sweep's first position) is above an effort limit of 0.03 N·m, so the run stops
+/// and sends one `hold`, an `std_msgs/Empty` the console of another author decodes.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn an_abort_sends_a_hold_that_a_cyclone_dds_console_reads() {
+    if !common::require_python(&["cyclonedds"]) {
+        return;
+    }
+    let _slot = slot();
+    let dir = scratch("console_cyclone_hold");
+    let d = domain(18);
+    let log = dir.join("console.jsonl");
+    let mut console = Proc::spawn(
+        "cyclone console",
+        Command::new("python3")
+            .arg(repo().join("tests/bridge/cyclone_console.py"))
+            .args(["--domain", &d.to_string(), "--seconds", "120"])
+            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(Stdio::piped()),
+    );
+    let out = dir.join("sweep.csv");
+    let (ok, err, _) = run(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "2",
+            "--depths",
+            "0.12",
+            "--effort-limit-nm",
+            "0.03",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+            "--prompt-pause-s",
+            "0",
+        ],
+        Duration::from_secs(120),
+    );
+    // the hold is written before calibrate exits; give the console a moment to log it
+    let held = common::eventually(Duration::from_secs(5), || {
+        std::fs::read_to_string(&log)
+            .unwrap()
+            .lines()
+            .any(|l| l.contains("\"cmd\": \"hold\""))
+            .then_some(())
+    });
+    console.terminate();
+    assert!(!ok, "not aborted: {err}");
+    assert!(err.contains("above --effort-limit-nm 0.03"), "{err}");
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(held.is_some(), "no hold reached the console: {text}");
+    let after: Vec<&str> = text
+        .lines()
+        .skip_while(|l| !l.contains("\"cmd\": \"hold\""))
+        .skip(1)
+        .filter(|l| l.contains("\"cmd\""))
+        .collect();
+    assert!(after.is_empty(), "commands after the hold: {after:?}");
 }

@@ -293,6 +293,14 @@ fn serve_follows_a_console_written_with_cyclone_dds() {
     until(&js, "not homed", |v| {
         v["header"]["valid"] == false && flags(v).contains(&"NOT_HOMED".to_owned())
     });
+    // not homed, not corrected: the compensated sample says no correction is active
+    let v = until(&ccp, "not homed, not corrected", |v| {
+        flags(v).contains(&"NOT_HOMED".to_owned())
+    });
+    assert!(
+        !flags(&v).iter().any(|f| f.starts_with("CORRECTION_ACTIVE")),
+        "{v}"
+    );
     say("home");
     // (the name as the console's index writes it, with its model range)
     let st = until(&status, "homed, the needle driver's parameters", |v| {

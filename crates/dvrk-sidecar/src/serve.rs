@@ -936,7 +936,9 @@ impl<'a, Src: SampleSource, Svc: iceoryx2::service::Service> Pipeline<'a, Src, S
                 result.flags |= flags::CONSOLE_UNKNOWN;
             }
             if !v.homed {
+                // encoders not referenced: no correction either (nor its flags on the sample)
                 result.valid = false;
+                result.withhold_correction(&sample.position);
                 result.flags |= flags::NOT_HOMED;
             }
             if v.state != OpState::Enabled {
@@ -1226,9 +1228,15 @@ fn run_loop<Src: SampleSource>(
     let housekeeping = spawn_housekeeping(summary_rx, names, stop.clone())?;
 
     for cfg in &svc.arms {
+        // With the instrument from the console, the configured one holds only until it is heard.
+        let instrument = if cfg.instrument_from_console {
+            format!("from the console (until heard: {})", cfg.instrument.name)
+        } else {
+            cfg.instrument.name.to_owned()
+        };
         info!(
             source = %cfg.source, access = ?cfg.access, rate = %cfg.rate, prefix = %cfg.prefix,
-            instrument = cfg.instrument.name, "serving"
+            instrument, "serving"
         );
     }
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
