@@ -119,10 +119,7 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
             .stderr(Stdio::null()),
     );
     let mut stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
-    let mut say = |line: &str| {
-        writeln!(stdin, "{line}").unwrap();
-        stdin.flush().unwrap();
-    };
+    let mut say = |line: &str| say_to(&mut stdin, line);
 
     let (mut serve, prefix) = follower(&dir, "cf", &boards, domain);
     let js = format!("{prefix}/measured_js");
@@ -249,11 +246,39 @@ fn serve_follows_the_consoles_homing_instrument_state_and_base_frame() {
     );
 }
 
+/// The Cyclone DDS console stand-in (`tests/bridge/cyclone_console.py`) on DDS `domain`, for
+/// 300 s, with `args`; its stdin (the operator's lines) open.
+fn cyclone_console(
+    dir: &std::path::Path,
+    domain: u16,
+    args: &[&str],
+) -> (Proc, std::process::ChildStdin) {
+    let mut console = Proc::spawn(
+        "cyclone console",
+        Command::new("python3")
+            .arg(repo().join("tests/bridge/cyclone_console.py"))
+            .args(["--domain", &domain.to_string(), "--seconds", "300"])
+            .args(args)
+            .env("CYCLONEDDS_URI", common::cyclone_uri(dir))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    );
+    let stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
+    (console, stdin)
+}
+
+/// One operator line to a console stand-in.
+fn say_to(stdin: &mut std::process::ChildStdin, line: &str) {
+    writeln!(stdin, "{line}").unwrap();
+    stdin.flush().unwrap();
+}
+
 /// The same following with a console of another author: `tests/bridge/cyclone_console.py`, the
 /// console's CRTK topics written with Cyclone DDS (the DDS under ROS 2's rmw_cyclonedds) and an
 /// arm of its own; the arm `serve` reads is the emulator's. Homing, the instrument (a tool_type
-/// without the model range), its removal, a base frame of its own (its `measured_cp` and
-/// `local/measured_cp` of the same stamp) and FAULT are followed.
+/// without the model range), its removal, a base frame of its own (from its `measured_cp` and
+/// `local/measured_cp`, stamped microseconds apart) and FAULT are followed.
 #[cfg_attr(
     not(has_py_cyclonedds),
     ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
@@ -267,22 +292,8 @@ fn serve_follows_a_console_written_with_cyclone_dds() {
     let domain = 150 + (std::process::id() % 40) as u16;
     let port = common::free_udp_port();
     let mut emulator = common::emulator(port, "idle.toml");
-    let mut console = Proc::spawn(
-        "cyclone console",
-        Command::new("python3")
-            .arg(repo().join("tests/bridge/cyclone_console.py"))
-            .args(["--domain", &domain.to_string(), "--start", "enabled"])
-            .args(["--seconds", "300"])
-            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
-            .stdin(Stdio::piped())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null()),
-    );
-    let mut stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
-    let mut say = |line: &str| {
-        writeln!(stdin, "{line}").unwrap();
-        stdin.flush().unwrap();
-    };
+    let (mut console, mut stdin) = cyclone_console(&dir, domain, &["--start", "enabled"]);
+    let mut say = |line: &str| say_to(&mut stdin, line);
     let (mut serve, prefix) = follower(&dir, "cyc", &format!("127.0.0.1:{port}"), domain);
     let js = format!("{prefix}/measured_js");
     let cp = format!("{prefix}/measured_cp");
@@ -363,22 +374,12 @@ fn serve_follows_a_console_with_volatile_events_from_its_next_change() {
     let domain = 190 + (std::process::id() % 40) as u16;
     let port = common::free_udp_port();
     let mut emulator = common::emulator(port, "idle.toml");
-    let mut console = Proc::spawn(
-        "cyclone console",
-        Command::new("python3")
-            .arg(repo().join("tests/bridge/cyclone_console.py"))
-            .args(["--domain", &domain.to_string(), "--start", "enabled"])
-            .args(["--events-volatile", "--silent-start", "--seconds", "300"])
-            .env("CYCLONEDDS_URI", common::cyclone_uri(&dir))
-            .stdin(Stdio::piped())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null()),
+    let (mut console, mut stdin) = cyclone_console(
+        &dir,
+        domain,
+        &["--start", "enabled", "--events-volatile", "--silent-start"],
     );
-    let mut stdin = console.child.as_mut().unwrap().stdin.take().unwrap();
-    let mut say = |line: &str| {
-        writeln!(stdin, "{line}").unwrap();
-        stdin.flush().unwrap();
-    };
+    let mut say = |line: &str| say_to(&mut stdin, line);
     let (mut serve, prefix) = follower(&dir, "vol", &format!("127.0.0.1:{port}"), domain);
     let ccp = format!("{prefix}/compensated/local/measured_cp");
     let status = format!("{prefix}/compensated/status");
