@@ -253,6 +253,9 @@ fn cyclone_console(
     domain: u16,
     args: &[&str],
 ) -> (Proc, std::process::ChildStdin) {
+    // fails with what to install when cyclonedds is missing (the tests run only where
+    // build.rs found it, or under CI, where it must be)
+    common::require_python(&["cyclonedds"]);
     let mut console = Proc::spawn(
         "cyclone console",
         Command::new("python3")
@@ -285,9 +288,6 @@ fn say_to(stdin: &mut std::process::ChildStdin, line: &str) {
 )]
 #[test]
 fn serve_follows_a_console_written_with_cyclone_dds() {
-    if !common::require_python(&["cyclonedds"]) {
-        return;
-    }
     let dir = scratch("console_follow_cyclone");
     let domain = 150 + (std::process::id() % 40) as u16;
     let port = common::free_udp_port();
@@ -367,9 +367,6 @@ fn serve_follows_a_console_written_with_cyclone_dds() {
 )]
 #[test]
 fn serve_follows_a_console_with_volatile_events_from_its_next_change() {
-    if !common::require_python(&["cyclonedds"]) {
-        return;
-    }
     let dir = scratch("console_follow_volatile");
     let domain = 190 + (std::process::id() % 40) as u16;
     let port = common::free_udp_port();

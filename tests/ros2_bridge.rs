@@ -423,9 +423,7 @@ fn missing_cycles(seqs: &[u64]) -> u64 {
 )]
 #[test]
 fn cyclone_dds_reads_the_compensated_pose_and_jaw_as_echo_shows_them() {
-    if !require_python(&["cyclonedds"]) {
-        return;
-    }
+    require_python(&["cyclonedds"]);
     let (missing, span, log) = cyclone_round("ros2bridge", true);
     // Best effort over UDP: a reader that is starved of CPU misses samples
     // (seen here: 0-30 % of them with the tests of this file in parallel at load 7 on 2 cores),
@@ -455,9 +453,7 @@ fn cyclone_dds_reads_the_compensated_pose_and_jaw_as_echo_shows_them() {
 )]
 #[test]
 fn cyclone_dds_reliable_receives_every_cycle() {
-    if !require_python(&["cyclonedds"]) {
-        return;
-    }
+    require_python(&["cyclonedds"]);
     let (missing, _, log) = cyclone_round("ros2bridge-rel", false);
     assert!(log.contains("RELIABLE KEEP_LAST 100"), "{log}");
     // Every cycle the bridge took reached the reader: no cycle is missing unless the bridge
@@ -525,9 +521,7 @@ fn check_covariance(cov: &[f64], status: &Value, what: &str) -> f64 {
 )]
 #[test]
 fn cyclone_dds_reads_the_pose_with_the_covariance_of_its_cycle() {
-    if !require_python(&["cyclonedds"]) {
-        return;
-    }
+    require_python(&["cyclonedds"]);
     let test = "ros2-cov";
     let prefix = unique_prefix(test);
     let cfg = write_config(test, "sim", "shared", &prefix, "divot-push.toml");
@@ -708,9 +702,7 @@ fn cyclone_dds_reads_the_pose_with_the_covariance_of_its_cycle() {
 )]
 #[test]
 fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
-    if !require_python(&["mcap", "mcap_ros2"]) {
-        return;
-    }
+    require_python(&["mcap", "mcap_ros2"]);
     let prefix = unique_prefix("record");
     let cfg = write_config("record", "sim", "shared", &prefix, "divot-push.toml");
     // The simulator's fitted parameters (with a dynamics model): the paper's, without one,
@@ -963,9 +955,7 @@ fn record_writes_mcap_that_the_ros2_decoder_reads_back_as_echo_shows() {
 )]
 #[test]
 fn record_rate_keeps_one_cycle_per_period() {
-    if !require_python(&["mcap", "mcap_ros2"]) {
-        return;
-    }
+    require_python(&["mcap", "mcap_ros2"]);
     let prefix = unique_prefix("record-rate");
     let cfg = write_config("record-rate", "sim", "shared", &prefix, "divot-push.toml");
     let mut serve = serve(&cfg);
@@ -1006,9 +996,7 @@ fn record_rate_keeps_one_cycle_per_period() {
 )]
 #[test]
 fn record_follows_a_restarted_serve() {
-    if !require_python(&["mcap", "mcap_ros2"]) {
-        return;
-    }
+    require_python(&["mcap", "mcap_ros2"]);
     let prefix = unique_prefix("record-restart");
     let cfg = write_config(
         "record-restart",
@@ -1164,9 +1152,7 @@ fn rate_hz(samples: &[&Value]) -> f64 {
 )]
 #[test]
 fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
-    if !require_python(&["cyclonedds"]) {
-        return;
-    }
+    require_python(&["cyclonedds"]);
     let test = "ros2multi";
     let (cfg, base, serves) = two_arm_service(test, true);
     // Both arms in shared memory, every cycle in order, each its own arm (echo, another process).
@@ -1271,9 +1257,7 @@ fn a_default_reader_on_ros_domain_id_receives_both_arms_at_100_hz() {
 )]
 #[test]
 fn best_effort_serves_best_effort_readers_and_incompatible_readers_are_logged() {
-    if !require_python(&["cyclonedds"]) {
-        return;
-    }
+    require_python(&["cyclonedds"]);
     let test = "ros2-qos";
     let prefix = unique_prefix(test);
     let cfg = write_config(test, "sim", "shared", &prefix, "divot-push.toml");
@@ -1360,9 +1344,7 @@ fn best_effort_serves_best_effort_readers_and_incompatible_readers_are_logged() 
 )]
 #[test]
 fn record_config_records_both_arms() {
-    if !require_python(&["mcap", "mcap_ros2"]) {
-        return;
-    }
+    require_python(&["mcap", "mcap_ros2"]);
     let test = "record-multi";
     let (cfg, _, serves) = two_arm_service(test, true);
     let out = scratch(test).join("both.mcap");
@@ -1545,9 +1527,7 @@ fn bad_domains_and_arm_options_are_refused_by_name() {
 )]
 #[test]
 fn a_stalled_reliable_reader_does_not_stall_the_bridge() {
-    if !require_python(&["cyclonedds"]) {
-        return;
-    }
+    require_python(&["cyclonedds"]);
     let test = "ros2-stall";
     let prefix = unique_prefix(test);
     let cfg = write_config(test, "sim", "shared", &prefix, "divot-push.toml");

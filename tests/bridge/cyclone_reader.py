@@ -2,9 +2,9 @@
 """Reads ROS 2 topics of `dvrk-sidecar ros2-bridge` with Cyclone DDS (an independent DDS
 implementation, the one under ROS 2's rmw_cyclonedds) and prints one JSON object per sample.
 
-The IDL types are declared here from the ROS 2 message definitions, with the DDS type names the
-ROS 2 rmw layers register (`geometry_msgs::msg::dds_::PoseStamped_`), so a match proves that a
-ROS 2 node would receive them.
+The IDL types (ros2_types.py, beside this file) are declared from the ROS 2 message definitions,
+with the DDS type names the ROS 2 rmw layers register (`geometry_msgs::msg::dds_::PoseStamped_`),
+so a match proves that a ROS 2 node would receive them.
 
 Types: pose (geometry_msgs/PoseStamped), pose-cov (geometry_msgs/PoseWithCovarianceStamped: the
 pose, then "covariance", its 36 doubles row-major), joints (sensor_msgs/JointState).
@@ -22,76 +22,14 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, sequence, uint32
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32
-    nanosec: uint32
-
-
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time
-    frame_id: str
-
-
-@dataclass
-class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@dataclass
-class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
-    x: float64
-    y: float64
-    z: float64
-    w: float64
-
-
-@dataclass
-class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
-    position: Point
-    orientation: Quaternion
-
-
-@dataclass
-class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
-    header: Header
-    pose: Pose
-
-
-@dataclass
-class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
-    pose: Pose
-    covariance: array[float64, 36]
-
-
-@dataclass
-class PoseWithCovarianceStamped(IdlStruct,
-                                typename="geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"):
-    header: Header
-    pose: PoseWithCovariance
-
-
-@dataclass
-class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
-    header: Header
-    name: sequence[str]
-    position: sequence[float64]
-    velocity: sequence[float64]
-    effort: sequence[float64]
+from ros2_types import JointState, PoseStamped, PoseWithCovarianceStamped
 
 
 def to_json(kind, s):

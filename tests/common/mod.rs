@@ -389,15 +389,15 @@ pub fn python_has(module: &str) -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// The modules build.rs found (or CI requires): fails the test when one is missing now.
-pub fn require_python(modules: &[&str]) -> bool {
+/// The modules build.rs found (or CI requires): fails the test, with what to install, when one
+/// is missing now.
+pub fn require_python(modules: &[&str]) {
     let missing: Vec<&str> = modules.iter().copied().filter(|m| !python_has(m)).collect();
     assert!(
         missing.is_empty(),
         "python3 lacks {missing:?}: run .ci/python-deps (pip install cyclonedds mcap \
          mcap-ros2-support), then touch build.rs"
     );
-    true
 }
 
 /// Cyclone DDS on the loopback interface only, discovering peers by unicast on 127.0.0.1.

@@ -357,14 +357,11 @@ impl Named<TopicReader> {
     /// Why the main reader matched no writer, if a writer's QoS was incompatible:
     /// `"/PSM1/operating_state: Durability"` (the ROS 2 topic name and the policy).
     fn incompatible(&self) -> Option<String> {
-        (self.matched == 0)
-            .then(|| {
-                self.inner
-                    .incompatible
-                    .as_ref()
-                    .map(|p| format!("{}: {p}", self.name.trim_start_matches("rt")))
-            })
-            .flatten()
+        if self.matched != 0 {
+            return None;
+        }
+        let policy = self.inner.incompatible.as_ref()?;
+        Some(format!("{}: {policy}", self.name.trim_start_matches("rt")))
     }
 }
 
