@@ -48,11 +48,9 @@ fn position(v: &serde_json::Value) -> [f64; 3] {
     [0, 1, 2].map(|i| p[i].as_f64().unwrap_or(f64::NAN))
 }
 
-/// `serve` of the emulated arm at `boards` with `instrument = "console"`, following the console
-/// of DDS `domain`, with parameter sets for two instruments (the layout `fit --add` writes):
-/// the large needle driver and the Cadière forceps. Returns it and its topics' prefix.
-fn follower(dir: &std::path::Path, name: &str, boards: &str, domain: u16) -> (Proc, String) {
-    // parameter sets for two instruments (the layout `fit --add` writes)
+/// Parameter sets for two instruments (the layout `fit --add` writes), the large needle driver
+/// and the Cadière forceps, each the simulator's file.
+fn two_instrument_params(dir: &std::path::Path) -> std::path::PathBuf {
     let params = dir.join("params.toml");
     let text = std::fs::read_to_string(repo().join("config/compliance/sim-psm.toml")).unwrap();
     let body = text
@@ -66,6 +64,14 @@ fn follower(dir: &std::path::Path, name: &str, boards: &str, domain: u16) -> (Pr
         ),
     )
     .unwrap();
+    params
+}
+
+/// `serve` of the emulated arm at `boards` with `instrument = "console"`, following the console
+/// of DDS `domain`, with parameter sets for two instruments (the layout `fit --add` writes):
+/// the large needle driver and the Cadière forceps. Returns it and its topics' prefix.
+fn follower(dir: &std::path::Path, name: &str, boards: &str, domain: u16) -> (Proc, String) {
+    let params = two_instrument_params(dir);
     let prefix = format!("{name}{}/PSM1", std::process::id());
     let cfg = dir.join("sidecar.toml");
     std::fs::write(
@@ -404,6 +410,118 @@ fn serve_follows_a_console_with_volatile_events_from_its_next_change() {
     });
     drop(stdin);
     console.terminate();
+    serve.terminate();
+    emulator.terminate();
+}
+
+/// Every arm of a console in one service, with consoles of another author: two Cyclone DDS
+/// stand-ins on one domain (PSM1 homed with the needle driver, PSM2 not homed with the Cadière
+/// forceps) and one `serve` of both arms of `sim --arms PSM1,PSM2`, each `instrument =
+/// "console"` with its `console_arm`. Each arm follows its own console only: PSM2's homing, its
+/// instrument's removal and its FAULT leave PSM1's samples valid and corrected, and PSM1 keeps
+/// its own instrument's parameters throughout.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn one_serve_follows_each_arm_of_its_own_cyclone_dds_console() {
+    let dir = scratch("console_follow_two_arms");
+    let domain = 60 + (std::process::id() % 40) as u16;
+    let port = common::free_udp_port();
+    let c = repo().join("config");
+    let mut emulator = common::emulator_with(
+        "127.0.0.1",
+        port,
+        &[
+            "--arms",
+            "PSM1,PSM2",
+            "--scenario",
+            c.join("sim/idle.toml").to_str().unwrap(),
+        ],
+    );
+    let (mut console1, _stdin1) = cyclone_console(&dir, domain, &["--arm", "PSM1"]);
+    let (mut console2, mut stdin2) = cyclone_console(
+        &dir,
+        domain,
+        &[
+            "--arm",
+            "PSM2",
+            "--start",
+            "enabled",
+            "--tool",
+            "CADIERE_FORCEPS:400049",
+        ],
+    );
+    let mut say2 = |line: &str| say_to(&mut stdin2, line);
+    let params = two_instrument_params(&dir);
+    let p1 = common::unique_prefix("two_consoles_1");
+    let p2 = common::unique_prefix("two_consoles_2");
+    let mut text = format!("source = \"udp:127.0.0.1:{port}\"\naccess = \"shared\"\nrate = 1500\n");
+    for (name, boards, console_arm) in [(&p1, "6, 7", "PSM1"), (&p2, "8, 9", "PSM2")] {
+        text.push_str(&format!(
+            "\n[[arm]]\nname = \"{name}\"\nboards = [{boards}]\nio = \"{}\"\nkind = \"classic\"\n\
+             instrument = \"console\"\nconsole_arm = \"{console_arm}\"\ncompliance = \"{}\"\n",
+            c.join("io/psm-classic.toml").display(),
+            params.display()
+        ));
+    }
+    let cfg = dir.join("sidecar.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let mut serve = Proc::spawn(
+        "serve",
+        Command::new(sidecar_bin())
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env("ROS_DOMAIN_ID", domain.to_string())
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let ccp1 = format!("{p1}/compensated/local/measured_cp");
+    let ccp2 = format!("{p2}/compensated/local/measured_cp");
+    let status1 = format!("{p1}/compensated/status");
+    let status2 = format!("{p2}/compensated/status");
+    // PSM1 homed with the needle driver (set 1), PSM2 not homed with the forceps (set 2)
+    let st = until(&status1, "PSM1 homed, its needle driver", |v| {
+        v["source"]["instrument"] == "LARGE_NEEDLE_DRIVER:400006[..]"
+            && v["source"]["homed"] == true
+    });
+    assert_eq!(st["source"]["parameter_set"], 1, "{st}");
+    let st = until(&status2, "PSM2 not homed, its forceps", |v| {
+        v["source"]["instrument"] == "CADIERE_FORCEPS:400049[..]" && v["source"]["homed"] == false
+    });
+    assert_eq!(st["source"]["parameter_set"], 2, "{st}");
+    until(&ccp1, "PSM1 valid", |v| v["header"]["valid"] == true);
+    until(&ccp2, "PSM2 not homed", |v| {
+        v["header"]["valid"] == false && flags(v).contains(&"NOT_HOMED".to_owned())
+    });
+    // PSM1 stays valid and corrected through whatever PSM2's console does
+    let psm1_as_before = || {
+        let v = latest(&ccp1).expect("PSM1 publishes");
+        assert!(
+            v["header"]["valid"] == true
+                && flags(&v).iter().any(|f| f.starts_with("CORRECTION_ACTIVE")),
+            "PSM1 after a change of PSM2's console: {v}"
+        );
+        let st = latest(&status1).expect("PSM1's status");
+        assert_eq!(st["source"]["parameter_set"], 1, "{st}");
+    };
+    say2("home");
+    until(&ccp2, "PSM2 homed, valid", |v| v["header"]["valid"] == true);
+    psm1_as_before();
+    say2("tool");
+    until(&ccp2, "PSM2 without an instrument", |v| {
+        flags(v).contains(&"NO_INSTRUMENT".to_owned())
+    });
+    psm1_as_before();
+    say2("state FAULT");
+    until(&ccp2, "PSM2 faulted", |v| {
+        flags(v).contains(&"ARM_NOT_ENABLED".to_owned())
+    });
+    psm1_as_before();
+    console2.terminate();
+    console1.terminate();
     serve.terminate();
     emulator.terminate();
 }
