@@ -24,13 +24,25 @@ NAME` publishes a tool_type (`tool` alone: removed), `state S` an operating stat
 Standard output: one JSON object per line, for each command received
 ({"t": s, "cmd": "servo_jp", "position": [...]}) and each event sent ({"t": s, "event": ...}).
 
+`--ki` (N m/(rad s)) adds an integral term and drops the weight's feed-forward: the integral
+carries the weight, so after each step the effort creeps to its final value.
+
+`--fixture clamp` plays the lab's clamp-beam experiment: the operator clamps the shaft's far end
+where it is once the arm has been still for 0.5 s after an insertion move (and at start), and
+releases it before a command moves the insertion. The clamped shaft is this stand-in's own: a
+play of `BACKLASH` and a stiffness linear in the insertion (`STIFFNESS`), logged with each
+clamp. `--friction-nm` adds Coulomb friction to the yaw and pitch motors (they stick while the
+rest of the torque stays within it). `--fixture divot` holds the tip in a divot: the same shaft
+held where the arm first comes to rest, never released.
+
 `--events-volatile` gives the event writers VOLATILE durability (unlike the dVRK console's);
 `--silent-start` publishes no event at start (a reader of VOLATILE events that joined late
 knows nothing until the next change).
 
 Usage: cyclone_console.py --domain N [--arm PSM1] [--rate 100] [--kp 40] [--start disabled|enabled|homed]
                           [--tool NAME] [--home-s 1.0] [--noise-nm 0.002] [--seconds 600]
-                          [--events-volatile] [--silent-start]
+                          [--events-volatile] [--silent-start] [--fixture none|clamp|divot]
+                          [--friction-nm 0] [--ki 0]
 """
 
 import argparse
@@ -60,25 +72,66 @@ LIMITS = [(-1.5, 1.5), (-0.9, 0.9), (0.0, 0.24)]
 # masses (kg m², kg m², kg) and weight torques (N m, N m, N)
 INERTIA = [0.05, 0.05, 0.2]
 WEIGHT = [0.08, -0.12, 0.3]
+# the shaft of `--fixture clamp`: half-width of its play (rad) and stiffness (N m/rad) at the
+# insertion L (m), linear in L (the simulator's is a cubic of other values)
+BACKLASH = [0.0025, 0.002]
+STIFFNESS = [(11.0, 60.0), (20.0, 80.0)]
+
+
+def stiffness(j, l):
+    return STIFFNESS[j][0] + STIFFNESS[j][1] * l
 
 
 class Arm:
-    def __init__(self, kp, noise):
+    def __init__(self, kp, ki, noise, friction):
         self.q = [0.0, 0.0, 0.12]
         self.v = [0.0, 0.0, 0.0]
         self.sp = list(self.q)
         self.kp = kp
+        self.ki = ki
+        self.integral = [0.0, 0.0, 0.0]
         self.noise = noise
+        self.friction = friction
         self.effort = [0.0, 0.0, 0.0]
+        # the clamp: the shaft's far end held at these yaw and pitch angles (None: free)
+        self.anchor = None
+
+    def shaft_load(self, j):
+        """The torque the clamped shaft puts on the motor side of joint j (0 unclamped): none
+        inside the play, the spring's beyond it."""
+        if self.anchor is None or j > 1:
+            return 0.0
+        x = self.q[j] - self.anchor[j]
+        beyond = abs(x) - BACKLASH[j]
+        return -math.copysign(stiffness(j, self.q[2]) * beyond, x) if beyond > 0.0 else 0.0
 
     def step(self, dt):
         for j in range(3):
             # kp in N m/rad for the rotary joints, scaled by the mass for insertion
             kp = self.kp * INERTIA[j] / INERTIA[0]
             kd = 2.0 * math.sqrt(kp * INERTIA[j])
+            if self.anchor is not None and j < 2:
+                # damped for the clamped shaft's spring as well
+                kd = 2.0 * math.sqrt((kp + stiffness(j, self.q[2])) * INERTIA[j])
             g = WEIGHT[j] * (math.sin(self.q[j]) if j < 2 else 1.0)
-            u = kp * (self.sp[j] - self.q[j]) - kd * self.v[j] + g
-            a = (u - g) / INERTIA[j]
+            e = self.sp[j] - self.q[j]
+            if self.ki > 0.0:
+                # PID without the weight's feed-forward: the integral carries the weight (and
+                # creeps to it after each step), bounded against wind-up
+                ki = self.ki * INERTIA[j] / INERTIA[0]
+                self.integral[j] = max(-2.0, min(2.0, self.integral[j] + ki * e * dt))
+                u = kp * e - kd * self.v[j] + self.integral[j]
+            else:
+                u = kp * e - kd * self.v[j] + g
+            net = u - g + self.shaft_load(j)
+            # Coulomb friction, sticking while the rest of the torque stays within it
+            if self.friction > 0.0 and j < 2:
+                if abs(self.v[j]) < 1e-4 and abs(net) <= self.friction:
+                    self.v[j] = 0.0
+                    self.effort[j] = u
+                    continue
+                net -= math.copysign(self.friction, self.v[j] if self.v[j] != 0.0 else net)
+            a = net / INERTIA[j]
             self.v[j] += a * dt
             self.q[j] += self.v[j] * dt
             self.effort[j] = u
@@ -105,6 +158,9 @@ def main():
     ap.add_argument("--seconds", type=float, default=600.0)
     ap.add_argument("--events-volatile", action="store_true")
     ap.add_argument("--silent-start", action="store_true")
+    ap.add_argument("--fixture", choices=["none", "clamp", "divot"], default="none")
+    ap.add_argument("--friction-nm", type=float, default=0.0)
+    ap.add_argument("--ki", type=float, default=0.0)
     a = ap.parse_args()
 
     dp = DomainParticipant(a.domain)
@@ -155,7 +211,11 @@ def main():
         tool_w.write(String(a.tool))
         log({"event": "tool_type", "tool": a.tool})
 
-    arm = Arm(a.kp, a.noise_nm)
+    arm = Arm(a.kp, a.ki, a.noise_nm, a.friction_nm)
+    # the operator of `--fixture clamp`: clamps once the arm has been still for 0.5 s after an
+    # insertion move (and at start), releases before the insertion moves again
+    clamp_wanted = a.fixture != "none"
+    still_since = None
     ratio = 0.2
     move = None  # (start setpoint, target, start time, duration)
     homing_until = None
@@ -243,6 +303,10 @@ def main():
                     busy = False
                     publish_state()
                     continue
+                if a.fixture == "clamp" and arm.anchor is not None and abs(pos[2] - arm.sp[2]) > 1e-3:
+                    arm.anchor = None
+                    clamp_wanted = True
+                    log({"event": "operator", "fixture": "released"})
                 if name == "servo_jp":
                     move = None
                     arm.sp = pos
@@ -269,6 +333,20 @@ def main():
                 goal_w.write(Bool(True))
                 log({"event": "goal_reached", "value": True})
                 publish_state()
+        if clamp_wanted and move is None and homing_until is None:
+            if max(abs(v) for v in arm.v) > 1e-3:
+                still_since = None
+            elif still_since is None:
+                still_since = now
+            elif now - still_since >= 0.5:
+                arm.anchor = arm.q[:2]
+                clamp_wanted = False
+                still_since = None
+                done = "clamped" if a.fixture == "clamp" else "in divot"
+                log({"event": "operator", "fixture": done, "insertion": arm.q[2],
+                     "anchor": arm.anchor,
+                     "stiffness_nm_per_rad": [stiffness(j, arm.q[2]) for j in range(2)],
+                     "backlash_rad": BACKLASH})
         if state == "ENABLED":
             for _ in range(substeps):
                 arm.step(period / substeps)

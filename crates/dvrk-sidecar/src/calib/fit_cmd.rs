@@ -312,6 +312,8 @@ struct JsonDepth {
     backlash_rad: f64,
     slopes: [f64; 2],
     points: usize,
+    /// The motor friction the fit took out of the rows (N·m; 0 unless the split says so).
+    friction_nm: f64,
 }
 
 #[derive(Serialize)]
@@ -331,7 +333,7 @@ struct JsonFit {
 }
 
 /// The `--json` document: `{"joints":[{"index":..,"depths":[{"insertion_m":..,
-/// "stiffness_nm_per_rad":..,"backlash_rad":..,"slopes":[+,-],"points":..}],
+/// "stiffness_nm_per_rad":..,"backlash_rad":..,"slopes":[+,-],"points":..,"friction_nm":..}],
 /// "inverse_compliance_nm_per_rad":[c3,c2,c1,c0],"backlash_rad":..,"r_squared":..}]}`.
 pub fn to_json(joints: &[JointFit]) -> anyhow::Result<String> {
     let doc = JsonFit {
@@ -348,6 +350,7 @@ pub fn to_json(joints: &[JointFit]) -> anyhow::Result<String> {
                         backlash_rad: d.backlash_rad,
                         slopes: [d.lines[0].slope, d.lines[1].slope],
                         points: d.points,
+                        friction_nm: d.friction_nm,
                     })
                     .collect(),
                 inverse_compliance_nm_per_rad: j.inverse_compliance_nm_per_rad,
@@ -396,6 +399,7 @@ pub fn report(outcome: &FitOutcome) -> String {
                 match d.branches {
                     fit::Branches::Motion => "motion",
                     fit::Branches::Load => "load",
+                    fit::Branches::LoadFriction => "load+fr",
                 },
                 d.points,
                 d.excluded + d.dropped_settling
@@ -746,6 +750,7 @@ mod tests {
             keys(d),
             [
                 "backlash_rad",
+                "friction_nm",
                 "insertion_m",
                 "points",
                 "slopes",
@@ -753,6 +758,8 @@ mod tests {
             ]
         );
         assert_eq!(d["slopes"].as_array().unwrap().len(), 2);
+        // the 2017 recordings keep the lines by direction of motion: no friction taken out
+        assert_eq!(d["friction_nm"], 0.0);
         assert!(d["points"].as_u64().unwrap() > 100);
     }
 

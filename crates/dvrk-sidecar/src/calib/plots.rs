@@ -316,11 +316,17 @@ pub fn fit_figures(dir: &Path, font: &Path, o: &FitOutcome) -> anyhow::Result<Ve
             let xs = range(rows.iter().map(|r| r.position_rad));
             let (plus, minus) = match d.branches {
                 Branches::Motion => ("moving +", "moving -"),
-                Branches::Load => ("tau_ext > 0", "tau_ext < 0"),
+                Branches::Load | Branches::LoadFriction => ("tau_ext > 0", "tau_ext < 0"),
+            };
+            // with the motor friction taken out, the lines lie between the rows moving each way
+            let friction = if d.branches == Branches::LoadFriction {
+                format!(", friction {:.1} mN·m", d.friction_nm * 1e3)
+            } else {
+                String::new()
             };
             panels.push(Panel {
                 title: format!(
-                    "L = {:.3} m: K^-1 {:.1} N·m/rad, delta {:.2} mrad",
+                    "L = {:.3} m: K^-1 {:.1} N·m/rad, delta {:.2} mrad{friction}",
                     d.insertion_m,
                     d.stiffness_nm_per_rad,
                     d.backlash_rad * 1e3
