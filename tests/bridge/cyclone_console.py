@@ -72,8 +72,8 @@ LIMITS = [(-1.5, 1.5), (-0.9, 0.9), (0.0, 0.24)]
 # masses (kg m², kg m², kg) and weight torques (N m, N m, N)
 INERTIA = [0.05, 0.05, 0.2]
 WEIGHT = [0.08, -0.12, 0.3]
-# the shaft of `--fixture clamp`: half-width of its play (rad) and stiffness (N m/rad) at the
-# insertion L (m), linear in L (the simulator's is a cubic of other values)
+# the shaft of `--fixture clamp` and `divot`: half-width of its play (rad) and stiffness
+# (N m/rad) at the insertion L (m), linear in L (the simulator's is a cubic of other values)
 BACKLASH = [0.0025, 0.002]
 STIFFNESS = [(11.0, 60.0), (20.0, 80.0)]
 
@@ -212,8 +212,9 @@ def main():
         log({"event": "tool_type", "tool": a.tool})
 
     arm = Arm(a.kp, a.ki, a.noise_nm, a.friction_nm)
-    # the operator of `--fixture clamp`: clamps once the arm has been still for 0.5 s after an
-    # insertion move (and at start), releases before the insertion moves again
+    # the operator of `--fixture clamp` (and `divot`): clamps once the arm has been still for
+    # 0.5 s after an insertion move (and at start), releases before the insertion moves again
+    # (the divot: never)
     clamp_wanted = a.fixture != "none"
     still_since = None
     ratio = 0.2
@@ -303,7 +304,8 @@ def main():
                     busy = False
                     publish_state()
                     continue
-                if a.fixture == "clamp" and arm.anchor is not None and abs(pos[2] - arm.sp[2]) > 1e-3:
+                moves_insertion = abs(pos[2] - arm.sp[2]) > 1e-3
+                if a.fixture == "clamp" and arm.anchor is not None and moves_insertion:
                     arm.anchor = None
                     clamp_wanted = True
                     log({"event": "operator", "fixture": "released"})
