@@ -497,13 +497,23 @@ fn one_serve_follows_each_arm_of_its_own_cyclone_dds_console() {
         v["header"]["valid"] == false && flags(v).contains(&"NOT_HOMED".to_owned())
     });
     // PSM1 stays valid and corrected through whatever PSM2's console does
+    // PSM1 as before: none of the flags PSM2's changes set on its samples, its own parameter set, and
+    // corrected (a loaded host may give it a gap and the estimator's warm-up after it, which
+    // withholds the correction for a moment: that is PSM1's own, not PSM2's console)
     let psm1_as_before = || {
-        let v = latest(&ccp1).expect("PSM1 publishes");
-        assert!(
+        for v in common::echo_json(&ccp1, 300, Duration::from_secs(10)) {
+            let f = flags(&v);
+            assert!(
+                !f.iter().any(
+                    |f| ["NOT_HOMED", "NO_INSTRUMENT", "ARM_NOT_ENABLED"].contains(&f.as_str())
+                ),
+                "PSM1 after a change of PSM2's console: {v}"
+            );
+        }
+        until(&ccp1, "PSM1 valid and corrected", |v| {
             v["header"]["valid"] == true
-                && flags(&v).iter().any(|f| f.starts_with("CORRECTION_ACTIVE")),
-            "PSM1 after a change of PSM2's console: {v}"
-        );
+                && flags(v).iter().any(|f| f.starts_with("CORRECTION_ACTIVE"))
+        });
         let st = latest(&status1).expect("PSM1's status");
         assert_eq!(st["source"]["parameter_set"], 1, "{st}");
     };
