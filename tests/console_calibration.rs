@@ -152,6 +152,27 @@ fn assert_clean(log: &[(f64, String, String)]) {
     }
 }
 
+/// `fit --clamp CLAMP --torque-offset SWEEP --out PARAMS --json`, which must succeed; its
+/// document.
+fn fit_json(clamp: &Path, sweep: &Path, params: &Path) -> serde_json::Value {
+    let out = Command::new(sidecar_bin())
+        .args(["fit", "--clamp"])
+        .arg(clamp)
+        .arg("--torque-offset")
+        .arg(sweep)
+        .arg("--out")
+        .arg(params)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "fit: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 /// 1/K(L) of the stand-in's shaft (config/sim/clamp.toml, joint 1).
 fn truth_stiffness_j1(l: f64) -> f64 {
     let c = [639.16, -432.35, 136.32, 3.12];
@@ -232,22 +253,7 @@ fn the_issues_command_lines_calibrate_through_the_console_and_fit_recovers_the_t
 
     // fit reads the files unchanged
     let params = dir.join("params.toml");
-    let out = Command::new(sidecar_bin())
-        .args(["fit", "--clamp"])
-        .arg(&clamp)
-        .arg("--torque-offset")
-        .arg(&sweep)
-        .arg("--out")
-        .arg(&params)
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "fit: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let fit: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let fit = fit_json(&clamp, &sweep, &params);
     let depths = fit["joints"][0]["depths"].as_array().unwrap();
     assert_eq!(depths.len(), 4);
     for dp in depths {
@@ -1218,22 +1224,7 @@ fn a_clamp_through_a_cyclone_dds_console_recovers_its_shaft() {
         })
         .collect();
 
-    let out = Command::new(sidecar_bin())
-        .args(["fit", "--clamp"])
-        .arg(&clamp)
-        .arg("--torque-offset")
-        .arg(&sweep)
-        .arg("--out")
-        .arg(dir.join("params.toml"))
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "fit: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let fit: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let fit = fit_json(&clamp, &sweep, &dir.join("params.toml"));
     let depths = fit["joints"][0]["depths"].as_array().unwrap();
     assert_eq!(depths.len(), 4, "{fit}");
     for dp in depths {

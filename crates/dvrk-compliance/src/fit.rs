@@ -562,7 +562,11 @@ impl BranchFit {
 }
 
 fn load_side(row: &DataRow) -> i8 {
-    let t = row.tau_ext_nm();
+    side_of(row.tau_ext_nm())
+}
+
+/// The side of the play a load `t` (N·m) presses the shaft against: +1, -1, or 0 for none.
+fn side_of(t: f64) -> i8 {
     if t > 0.0 {
         1
     } else if t < 0.0 {
@@ -697,16 +701,7 @@ fn fit_load(
         let next_side: Vec<i8> = rows
             .iter()
             .zip(dirs)
-            .map(|(r, &d)| {
-                let t = load(r, d);
-                if t > 0.0 {
-                    1
-                } else if t < 0.0 {
-                    -1
-                } else {
-                    0
-                }
-            })
+            .map(|(r, &d)| side_of(load(r, d)))
             .collect();
         let next: Vec<bool> = rows
             .iter()
@@ -861,14 +856,7 @@ fn candidates(rows: &[DataRow], opts: &FitOptions) -> Result<Candidates, FitErro
             // each row on the side its load (friction taken out) puts it
             let f = l.friction_nm;
             let score = l.median_abs_residual_nm(&kept, &dirs, |r, i| {
-                let t = r.tau_ext_nm() - f * f64::from(dirs[i]);
-                if t > 0.0 {
-                    1
-                } else if t < 0.0 {
-                    -1
-                } else {
-                    0
-                }
+                side_of(r.tau_ext_nm() - f * f64::from(dirs[i]))
             });
             (l, score)
         })
