@@ -11,9 +11,11 @@
 //!   per step and direction (both directions, so that friction cancels in the tau_0 average).
 //! - [`ClampPlan`]: the clamp-beam experiment. Per joint and depth: release, move to the depth,
 //!   wait for the clamp, then step the joint by `tip_step_m / L` rad in one direction until
-//!   |effort| > `reverse_effort_nm`, reverse until |effort| > `reverse_effort_nm` again (on the
-//!   other side: the first steps after a reversal still read above the threshold and do not
-//!   count), reverse again until past the start; one averaged row per step.
+//!   the effort in the direction of motion exceeds `reverse_effort_nm`, reverse until it does
+//!   again on the other side, reverse again until past the start; one averaged row per step.
+//!   Only the effort on the side the leg moves toward counts: right after a reversal it still
+//!   reads past the threshold on the other side, and a motor that sticks for a step, or noise,
+//!   may carry it a little further there.
 //! - [`DivotPlan`]: the evaluation. With the tip in a divot, per joint and direction, push by
 //!   the same steps until |effort| > `push_effort_nm`, then step back to the start.
 //!
@@ -762,8 +764,6 @@ pub struct ClampPlan {
     /// Setpoint of the joint under test at the start of this depth, and the current one.
     q_start: f64,
     q_set: f64,
-    /// Effort of the joint under test when the current leg began.
-    e_leg_start: f64,
     done: bool,
 }
 
@@ -776,7 +776,6 @@ impl ClampPlan {
             phase: ClampPhase::Release,
             q_start: 0.0,
             q_set: 0.0,
-            e_leg_start: 0.0,
             done: false,
         }
     }
@@ -841,20 +840,16 @@ impl Plan for ClampPlan {
                     } else {
                         self.cfg.first_direction.signum()
                     };
-                    if steps == 0
-                        && let Some(a) = last
-                    {
-                        self.e_leg_start = a.effort[j];
-                    }
                     // Decide on the step that just completed (none yet when steps == 0). A leg
-                    // ends when |effort| passes the threshold while moving away from the effort
-                    // the leg started with: right after a reversal |effort| is still above it.
+                    // ends when the effort passes the threshold on the side it moves toward.
+                    // Right after a reversal the effort is still past it on the other side, and
+                    // with a motor that sticks the first step back may even push it a little
+                    // further there: a test of |effort| against the leg's first effort ended
+                    // those legs after one step.
                     if steps > 0
                         && let Some(a) = last
                     {
-                        let e = a.effort[j];
-                        let over = e.abs() > self.cfg.reverse_effort_nm
-                            && (e - self.e_leg_start) * e.signum() > 0.0;
+                        let over = a.effort[j] * f64::from(dir) > self.cfg.reverse_effort_nm;
                         let past_start = (self.q_set - self.q_start) * f64::from(dir) > 0.0;
                         if (leg < 2 && over) || (leg == 2 && past_start) {
                             if leg == 2 {
@@ -1209,6 +1204,11 @@ mod tests {
         anchor: Option<[f64; 2]>,
         k: f64,
         tau0: f64,
+        /// A motor that sticks: the joint moves only once its setpoint is farther than this
+        /// (rad), and then to within it.
+        stiction_rad: f64,
+        /// Uniform effort noise, deterministic in time (N·m).
+        noise_nm: f64,
     }
 
     impl Plant {
@@ -1220,6 +1220,8 @@ mod tests {
                 anchor: None,
                 k: 20.0,
                 tau0: 0.1,
+                stiction_rad: 0.0,
+                noise_nm: 0.0,
             }
         }
 
@@ -1229,6 +1231,16 @@ mod tests {
                 for j in 0..2 {
                     effort[j] += self.k * (self.q[j] - a[j]);
                 }
+            }
+            if self.noise_nm > 0.0 {
+                // An LCG's high bits: uniform in [-1, 1), the same for a given time.
+                let x = self
+                    .t_ns
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                let u = (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0;
+                effort[0] += self.noise_nm * u;
+                effort[1] -= self.noise_nm * u;
             }
             Sample {
                 t_ns: self.t_ns,
@@ -1243,7 +1255,13 @@ mod tests {
             self.sp = sp;
             self.t_ns += 1_000_000;
             for j in 0..3 {
-                self.q[j] += (self.sp[j] - self.q[j]) * (1.0 - (-0.001f64 / 0.02).exp());
+                let gap = self.sp[j] - self.q[j];
+                let target = if gap.abs() > self.stiction_rad {
+                    self.sp[j] - self.stiction_rad.copysign(gap)
+                } else {
+                    self.q[j]
+                };
+                self.q[j] += (target - self.q[j]) * (1.0 - (-0.001f64 / 0.02).exp());
             }
         }
     }
@@ -1455,6 +1473,51 @@ mod tests {
         for r in &d0 {
             let e = r.averaged.effort[0];
             assert!(e.abs() < 1.0 + 0.06, "{e}");
+        }
+    }
+
+    /// A motor that sticks for the first step after a reversal leaves the effort where the leg
+    /// ended, give or take its noise: the leg back must not end there. Judged by |effort|
+    /// against the leg's first effort, as before, the legs back at 0.14 and 0.18 m here ended
+    /// after one step, and those depths' rows were lost to the fit.
+    #[test]
+    fn a_motor_that_sticks_at_a_reversal_does_not_end_the_leg_back() {
+        let depths_m = vec![0.1, 0.12, 0.14, 0.16, 0.18];
+        let cfg = ClampConfig {
+            joints: vec![1],
+            depths_m: depths_m.clone(),
+            ..ClampConfig::default()
+        };
+        let mut r = Runner::new(ClampPlan::new(cfg), RunnerConfig::default());
+        let mut plant = Plant::new(HOME);
+        plant.stiction_rad = 0.6 * 0.25e-3 / 0.18;
+        plant.noise_nm = 0.05;
+        let run = drive(&mut r, &mut plant, 20_000_000);
+        assert_eq!(run.status, Status::Done);
+        for (depth, l) in depths_m.iter().enumerate() {
+            let rows: Vec<&Record> = run
+                .records
+                .iter()
+                .filter(|r| r.depth_index as usize == depth)
+                .collect();
+            let mut legs: Vec<(i8, usize)> = Vec::new();
+            for r in &rows[1..] {
+                match legs.last_mut() {
+                    Some((d, n)) if *d == r.direction => *n += 1,
+                    _ => legs.push((r.direction, 1)),
+                }
+            }
+            assert_eq!(
+                legs.iter().map(|l| l.0).collect::<Vec<_>>(),
+                vec![-1, 1, -1],
+                "depth {l} m: {legs:?}"
+            );
+            // Each leg out crosses the 2 N·m between the thresholds (k = 20 N·m/rad, at most
+            // 0.05 N·m a step); the last one goes back to the start.
+            assert!(legs[1].1 >= 40, "depth {l} m: {legs:?}");
+            let efforts = rows.iter().map(|r| r.averaged.effort[0]);
+            let (lo, hi) = efforts.fold((f64::MAX, f64::MIN), |(lo, hi), e| (lo.min(e), hi.max(e)));
+            assert!(lo < -1.0 && hi > 1.0, "depth {l} m: effort {lo}..{hi}");
         }
     }
 
