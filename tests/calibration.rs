@@ -237,7 +237,7 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
 }
 
 /// The scenario `config/sim/{name}.toml` on an arm whose transmission rubs: the motors of joints
-/// 1 and 2 with Coulomb friction 0.03 / 0.04 N·m and stiction 0.04 / 0.05 N·m.
+/// 1 and 2 with Coulomb friction 0.08 / 0.096 N·m and stiction 0.1 / 0.12 N·m.
 fn with_friction(name: &str, dir: &std::path::Path) -> String {
     let text = std::fs::read_to_string(repo().join(format!("config/sim/{name}.toml"))).unwrap();
     assert!(text.contains("[noise]") && !text.contains("[transmission]"));
@@ -246,7 +246,7 @@ fn with_friction(name: &str, dir: &std::path::Path) -> String {
         &out,
         text.replace(
             "[noise]",
-            "[transmission]\ncoulomb_nm = [0.03, 0.04]\nstiction_nm = [0.04, 0.05]\n\n[noise]",
+            "[transmission]\ncoulomb_nm = [0.08, 0.096]\nstiction_nm = [0.1, 0.12]\n\n[noise]",
         ),
     )
     .unwrap();
@@ -254,9 +254,12 @@ fn with_friction(name: &str, dir: &std::path::Path) -> String {
 }
 
 /// A lab's arm whose motors rub, calibrated by the paper's whole workflow and then corrected.
-/// Each reversal of the clamp sticks the motor for a step; before the clamp's legs ended on the
-/// effort past the threshold on the side they move toward, two depths of joint 1 lost their
-/// rows that way and `fit` refused the data ("1 usable points moving in direction +1").
+/// - Each reversal of the clamp sticks the motor for a step. Before the clamp's legs ended on the
+///   effort past the threshold on the side they move toward, depths lost their rows that way and
+///   `fit` refused the data ("1 usable points moving in direction +1"; at 0.03 N·m of friction).
+/// - Corrected with its own fitted file, the stuck motor's friction swing at each turn and stop
+///   was read as contact before the estimator took it for friction: 0.86 mm the wrong way in
+///   `i20-still-move-still-21`, 0.53 mm in `i20-ultrasound-scan`.
 #[test]
 fn an_arm_whose_motors_rub_is_calibrated_and_corrected() {
     let _serial = one_at_a_time();
@@ -337,8 +340,14 @@ fn an_arm_whose_motors_rub_is_calibrated_and_corrected() {
         );
     }
 
-    // The fitted file on the same arm: issue 20's goals for palpation and free motion.
-    for (name, at_most_of_raw) in [("i20-palpation", 0.3), ("free-motion", 1.0)] {
+    // The fitted file on the same arm: issue 20's goals (the light scan's 50% of raw for the
+    // pressed scan; the start-stop, no worse than raw at any cycle).
+    for (name, at_most_of_raw) in [
+        ("i20-palpation", 0.3),
+        ("free-motion", 1.0),
+        ("i20-ultrasound-scan", 0.5),
+        ("i20-still-move-still-21", 1.0),
+    ] {
         let eval: Value = serde_json::from_str(&run(&[
             "evaluate",
             "--params",

@@ -257,6 +257,12 @@ pub const MOTION_LAG_S: f64 = 0.035;
 pub const TRUSTED_CONTACT_AGE_S: f64 = 0.01;
 /// How long a withheld correction takes to fade back in (s).
 pub const FADE_S: f64 = 0.05;
+/// How far a stuck motor's friction may reach, in units of the file's Coulomb friction: the
+/// break-away torque is above the sliding friction the dynamics fit measures. Simulated arms
+/// with stiction 1.25 and 2 times their Coulomb friction (fitted files of their own): at 1.5,
+/// the arm at 2 kept 0.40 mm of harm in a fast sinusoid and one at 1.25 0.17 mm; at 2, 0.37
+/// and 0.05 mm, nothing else changed by more than 0.03 mm.
+pub const STUCK_FRICTION_RATIO: f64 = 2.0;
 /// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction.
 pub const ACCEL_CUTOFF_RATIO: f64 = 2.0;
 /// Below this speed (rad/s) and [`STILL_ACCELERATION`] a joint without a dynamics model counts
@@ -980,6 +986,10 @@ struct JointTrust {
     /// Time (s) a motion's transient (an effort step or a rough residual) began after the
     /// correction had been trusted again ([`MOTION_LAG_S`]).
     motion_transient_start_s: f64,
+    /// The motor is stuck by its friction (see [`STUCK_FRICTION_RATIO`]), and the averaged
+    /// external torque (N·m) when it stuck.
+    stuck: bool,
+    stuck_tau_nm: f64,
 }
 
 impl Default for JointTrust {
@@ -1014,6 +1024,8 @@ impl Default for JointTrust {
             last_side_flip_s: f64::NEG_INFINITY,
             last_rest_s: f64::NEG_INFINITY,
             motion_transient_start_s: f64::NEG_INFINITY,
+            stuck: false,
+            stuck_tau_nm: 0.0,
         }
     }
 }
@@ -1256,6 +1268,7 @@ impl Compensator {
                 tr.effort_change_mean += w * (change.min(clip) - tr.effort_change_mean);
             }
             let effort_noise = SIGMA_PER_MEAN_CHANGE * tr.effort_change_mean;
+            let mut near_reversal = false;
             match &joint.dynamics {
                 Some(d) => {
                     // The distal weight's reaction beyond what the torque-offset table holds.
@@ -1269,6 +1282,7 @@ impl Compensator {
                     // delay: the Coulomb term may be off by 2 F_c there.
                     let reversal =
                         v.abs() < d.stick_velocity_rad_per_s + a.abs() * REVERSAL_WINDOW_S;
+                    near_reversal = reversal;
                     let static_sigma = d.residual_std_nm.max(effort_noise);
                     let motion_sigma = (0.05 * d.inertia(l_phys) * a)
                         .quad(0.05 * d.viscous_nm_s_per_rad * v)
@@ -1290,8 +1304,14 @@ impl Compensator {
                 tr.after_gap = true;
             }
             // A reversal steps the effort by the Coulomb friction twice over, which the model
-            // explains: that is not abrupt.
-            let coulomb_step = joint.dynamics.map_or(0.0, |d| 2.0 * d.coulomb_nm);
+            // explains: that is not abrupt. Only near a reversal (or stuck): elsewhere the
+            // friction cannot step, and the allowance hid the first 5-10 ms of a stop's
+            // transient on a rubbing arm (0.16 N·m of it at 0.08 N·m of friction; 0.82 mm the
+            // wrong way in the sample before the detector caught it).
+            let coulomb_step = match joint.dynamics {
+                Some(d) if near_reversal => 2.0 * d.coulomb_nm,
+                _ => 0.0,
+            };
             let step_limit = TRANSIENT_EFFORT_STEP_NM
                 .max(
                     joint
@@ -1430,6 +1450,37 @@ impl Compensator {
 
             // The correction the model would make with full trust.
             let tau_ext = if ready { tau_meas - tau_motion } else { 0.0 };
+            // A motor stuck by its friction (slower than the file's stick velocity, on a joint
+            // whose file has a Coulomb friction above its residual): the controller's effort
+            // changes while nothing moves, and the friction takes the change, anywhere between
+            // -STUCK_FRICTION_RATIO and +STUCK_FRICTION_RATIO times the file's friction. The
+            // model holds the friction at the last motion's direction, so at a turn the effort's
+            // swing across it was read as contact: on a simulated arm with 0.08 / 0.096 N·m of
+            // friction and its own fitted file, 0.2 N·m of it for 0.1 s at each turn, and the
+            // correction went 0.65 mm the wrong way in free motion. While stuck, the change
+            // since the motor stuck is the friction's as far as it can reach, and the shaft's
+            // beyond that.
+            let tau_ext = match &joint.dynamics {
+                Some(d)
+                    if ready
+                        && tau_ext.is_finite()
+                        && d.coulomb_nm > d.residual_std_nm
+                        && v.abs() < d.stick_velocity_rad_per_s =>
+                {
+                    if !tr.stuck {
+                        tr.stuck = true;
+                        tr.stuck_tau_nm = tr.tau_average;
+                    }
+                    let reach = STUCK_FRICTION_RATIO * d.coulomb_nm;
+                    let held = d.coulomb_nm * st.direction();
+                    let change = tau_ext - tr.stuck_tau_nm;
+                    tr.stuck_tau_nm + change - change.clamp(-reach - held, reach - held)
+                }
+                _ => {
+                    tr.stuck = false;
+                    tau_ext
+                }
+            };
             // What the shaft spring carries without contact (predicted, not measured): the
             // distal inertia's load and the distal weight's reaction, and its uncertainty.
             let (distal, sigma_free) = match &joint.dynamics {

@@ -146,6 +146,115 @@ fn an_abrupt_start_is_not_taken_for_contact() {
     assert!(transient < max_flagged, "{transient} samples flagged");
 }
 
+/// Joint 1 slides at 0.05 rad/s pressed with 0.2 N·m of contact, slows to a stop over 0.1 s and
+/// stays stuck by its motor's friction while the controller's effort swings across it (as at a
+/// turn), then past it. Returns `tau_ext_nm[0]` at the end of the swing and at the end, with
+/// `coulomb` N·m of friction in the file and on the arm.
+fn stuck_at_a_turn(coulomb: f64, swing: f64, beyond: f64) -> (f64, f64) {
+    let dynamics = DynamicsParams {
+        coulomb_nm: coulomb,
+        ..DYN
+    };
+    let cfg = config_with(Some(dynamics));
+    let mut c = Compensator::new();
+    let l: f64 = 0.12;
+    let j = DYN.inertia(l);
+    let (v0, t_slow, t_stop) = (0.05, 1.0, 1.1);
+    let mut q = 0.0;
+    let mut end_of_swing = f64::NAN;
+    let mut r = None;
+    for k in 0..2400 {
+        let t = k as f64 * DT;
+        // The speed falls as a half cosine over 0.1 s: the model explains every sample of it.
+        let (v, a) = if t < t_slow {
+            (v0, 0.0)
+        } else if t < t_stop {
+            let x = std::f64::consts::PI * (t - t_slow) / (t_stop - t_slow);
+            (
+                0.5 * v0 * (1.0 + x.cos()),
+                -0.5 * v0 * x.sin() * std::f64::consts::PI / (t_stop - t_slow),
+            )
+        } else {
+            (0.0, 0.0)
+        };
+        q += v * DT;
+        let moving = 0.1 + 0.2 + j * a + DYN.viscous_nm_s_per_rad * v + coulomb;
+        // Stuck: the effort swings by `swing` over 0.1 s, then by `beyond` more over 0.1 s.
+        let stuck = t - t_stop - 0.1;
+        let effort = moving
+            - swing * (stuck / 0.1).clamp(0.0, 1.0)
+            - beyond * ((stuck - 0.1) / 0.1).clamp(0.0, 1.0);
+        let out = c.correct(&cfg, t, &[q, 0.0, l], &[effort, 0.1, 0.0]);
+        if stuck <= 0.1 {
+            end_of_swing = out.tau_ext_nm[0];
+        }
+        r = Some(out);
+    }
+    (end_of_swing, r.unwrap().tau_ext_nm[0])
+}
+
+/// A motor stuck by its friction takes the controller's effort swing on its friction, not on the
+/// shaft: as far as the friction reaches (`STUCK_FRICTION_RATIO` times the file's Coulomb
+/// friction, from the last motion's side to the other), the external torque stays as it was
+/// when the motor stuck; beyond, the rest is the shaft's. Before, the swing was read as contact:
+/// 0.65 mm the wrong way at a turn of a simulated arm with 0.08 N·m of friction.
+#[test]
+fn a_motor_stuck_by_its_friction_does_not_read_the_swing_as_contact() {
+    use dvrk_compliance::model::STUCK_FRICTION_RATIO;
+    let f = 0.06;
+    // Swung from +f to -1.2 f: all of it is friction.
+    let (swung, _) = stuck_at_a_turn(f, 2.2 * f, 0.0);
+    assert!(
+        (swung - 0.2).abs() < 0.01,
+        "external torque {swung} N·m, 0.2 expected"
+    );
+    // And 0.1 N·m further: the friction's reach ends at -1.5 f, the rest loads the shaft.
+    let (_, past) = stuck_at_a_turn(f, 2.2 * f, 0.1);
+    let expected = 0.2 - (2.2 * f + 0.1 - (1.0 + STUCK_FRICTION_RATIO) * f);
+    assert!(
+        (past - expected).abs() < 0.01,
+        "{past} N·m, {expected} expected"
+    );
+    // A file without friction: the same swing is the shaft's, all of it.
+    let (frictionless, _) = stuck_at_a_turn(0.0, 2.2 * f, 0.0);
+    assert!(
+        (frictionless - (0.2 - 2.2 * f)).abs() < 0.01,
+        "{frictionless} N·m"
+    );
+}
+
+/// A rubbing arm (0.08 N·m of Coulomb friction in its file) slides at 0.4 rad/s when its
+/// controller starts to stop it: the effort falls 0.15 N·m over 8 samples before the motor
+/// slows. Far from a reversal the friction cannot step, so the fall is a transient to withhold,
+/// not 0.15 N·m of contact. With twice the friction allowed for everywhere, the detector saw
+/// nothing until the fall passed 0.195 N·m, and the correction followed it.
+#[test]
+fn a_stop_on_a_rubbing_arm_is_withheld_from_its_first_samples() {
+    let cfg = config_with(Some(DynamicsParams {
+        coulomb_nm: 0.08,
+        ..DYN
+    }));
+    let mut c = Compensator::new();
+    let l: f64 = 0.12;
+    let v = 0.4;
+    let moving = 0.1 + DYN.viscous_nm_s_per_rad * v + 0.08;
+    let mut before = None;
+    let mut worst: f64 = 0.0;
+    for k in 0..1500 + 12 {
+        let t = k as f64 * DT;
+        let fall = 0.15 * ((k as f64 - 1500.0) / 8.0).clamp(0.0, 1.0);
+        let r = c.correct(&cfg, t, &[v * t, 0.0, l], &[moving - fall, 0.1, 0.0]);
+        if k == 1499 {
+            assert_eq!(r.flags & trust::TRANSIENT, 0, "{r:?}");
+            before = Some(r.delta_rad[0]);
+        } else if k >= 1500 {
+            worst = worst.max((r.delta_rad[0] - before.unwrap()).abs());
+        }
+    }
+    // 0.15 N·m through the shaft's 1/K = 20 N·m/rad would be 7.5 mrad.
+    assert!(worst < 1e-3, "the correction moved {worst} rad");
+}
+
 /// A steady fast motion whose filter residual stays above the floor (a servo's tracking ripple)
 /// is not a transient once the residual's own level has followed it; a velocity step on top of
 /// it still is. Before the residual was weighed against its level, such a motion was withheld
