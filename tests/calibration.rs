@@ -308,6 +308,35 @@ fn an_arm_whose_motors_rub_is_calibrated_and_corrected() {
         "--json",
     ]))
     .unwrap();
+    // Each depth read as a play behind the friction (every row's `friction_nm` set), the play
+    // the same at every depth: no warning. Forced to the paper's split by direction of motion,
+    // the friction bridges the play and it moves with the depth: `fit` says so.
+    let fit_stderr = |split: &str| {
+        let out = Command::new(sidecar_bin())
+            .args([
+                "fit",
+                "--clamp",
+                &p("clamp.csv"),
+                "--torque-offset",
+                &p("sweep.csv"),
+            ])
+            .args(["--split", split, "--out", &p("params-split.toml"), "--json"])
+            .current_dir(repo())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8(out.stderr).unwrap()
+    };
+    assert!(!fit_stderr("auto").contains("scatters"));
+    assert!(
+        fit_stderr("motion").contains("joint 1: the play scatters by"),
+        "no warning for the motion split"
+    );
+    for j in fit["joints"].as_array().unwrap() {
+        for d in j["depths"].as_array().unwrap() {
+            assert!(d["friction_nm"].as_f64().unwrap() != 0.0, "{d}");
+        }
+    }
     let scenario =
         dvrk_sidecar::formats::scenario_from_toml(&std::fs::read_to_string(&clamp).unwrap())
             .unwrap();

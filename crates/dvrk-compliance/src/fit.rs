@@ -499,6 +499,9 @@ pub enum BranchRule {
     Motion,
     /// Lines by the sign of tau_ext (the two branches of Eq. 1), rows inside the play left out.
     Load,
+    /// The load split with one motor friction torque `f * direction` on every row
+    /// ([`Branches::LoadFriction`]), whatever the scores say.
+    LoadFriction,
 }
 
 /// Which split a [`DepthFit`] used.
@@ -840,7 +843,7 @@ fn candidates(rows: &[DataRow], opts: &FitOptions) -> Result<Candidates, FitErro
         }
     }
     let skip = Err(FitError::NoData { joint });
-    let motion = if opts.branches == BranchRule::Load {
+    let motion = if matches!(opts.branches, BranchRule::Load | BranchRule::LoadFriction) {
         skip
     } else {
         fit_motion(&kept, &dirs, joint, depth_index, opts).map(|m| {
@@ -849,7 +852,13 @@ fn candidates(rows: &[DataRow], opts: &FitOptions) -> Result<Candidates, FitErro
         })
     };
     let load_fit = |friction: bool| {
-        if opts.branches == BranchRule::Motion || (friction && opts.branches != BranchRule::Auto) {
+        let wanted = match opts.branches {
+            BranchRule::Auto => true,
+            BranchRule::Motion => false,
+            BranchRule::Load => !friction,
+            BranchRule::LoadFriction => friction,
+        };
+        if !wanted {
             return Err(FitError::NoData { joint });
         }
         fit_load(&kept, &dirs, friction, joint, depth_index, opts).map(|l| {
@@ -933,6 +942,7 @@ fn preferred(
     match opts.branches {
         BranchRule::Motion => Branches::Motion,
         BranchRule::Load => Branches::Load,
+        BranchRule::LoadFriction => Branches::LoadFriction,
         BranchRule::Auto => {
             let (plain, best) = if load_score < motion_score {
                 (Branches::Load, load_score)
@@ -954,6 +964,7 @@ pub fn fit_depth(rows: &[DataRow], opts: &FitOptions) -> Result<DepthFit, FitErr
     let c = candidates(rows, opts)?;
     let friction = c.load_friction.as_ref().ok().map(|(_, f)| *f);
     let want = match (&c.motion, &c.load) {
+        _ if opts.branches == BranchRule::LoadFriction => Branches::LoadFriction,
         (Ok((_, m)), Ok((_, l))) => preferred(opts, *m, *l, friction),
         (Ok(_), Err(_)) => Branches::Motion,
         _ => Branches::Load,
@@ -1421,6 +1432,21 @@ mod tests {
         let d = fit_depth(&c.rows(3).0, &FitOptions::default()).unwrap();
         assert_eq!(d.branches, Branches::Load, "{d:?}");
         assert_eq!(d.friction_nm, 0.0);
+        // ...unless the friction reading is asked for: it finds no friction there
+        let forced = FitOptions {
+            branches: BranchRule::LoadFriction,
+            ..FitOptions::default()
+        };
+        let d = fit_depth(&c.rows(3).0, &forced).unwrap();
+        assert_eq!(d.branches, Branches::LoadFriction, "{d:?}");
+        assert!(d.friction_nm.abs() < 2e-3, "{d:?}");
+        assert!((d.stiffness_nm_per_rad / 17.0 - 1.0).abs() < 0.005, "{d:?}");
+        let j = fit_joint(&rows, 1, &forced).unwrap();
+        assert!(
+            j.depths
+                .iter()
+                .all(|d| d.branches == Branches::LoadFriction)
+        );
     }
 
     #[test]
