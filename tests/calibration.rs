@@ -239,18 +239,101 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
 /// The scenario `config/sim/{name}.toml` on an arm whose transmission rubs: the motors of joints
 /// 1 and 2 with Coulomb friction 0.08 / 0.096 N·m and stiction 0.1 / 0.12 N·m.
 fn with_friction(name: &str, dir: &std::path::Path) -> String {
+    with_transmission(name, dir, [0.08, 0.096], [0.1, 0.12])
+}
+
+/// The scenario `config/sim/{name}.toml` with a `[transmission]` of its own (N·m), written to
+/// `dir`.
+fn with_transmission(
+    name: &str,
+    dir: &std::path::Path,
+    coulomb: [f64; 2],
+    stiction: [f64; 2],
+) -> String {
     let text = std::fs::read_to_string(repo().join(format!("config/sim/{name}.toml"))).unwrap();
     assert!(text.contains("[noise]") && !text.contains("[transmission]"));
     let out = dir.join(format!("{name}-friction.toml"));
-    std::fs::write(
-        &out,
-        text.replace(
-            "[noise]",
-            "[transmission]\ncoulomb_nm = [0.08, 0.096]\nstiction_nm = [0.1, 0.12]\n\n[noise]",
-        ),
-    )
-    .unwrap();
+    let section =
+        format!("[transmission]\ncoulomb_nm = {coulomb:?}\nstiction_nm = {stiction:?}\n\n[noise]");
+    std::fs::write(&out, text.replace("[noise]", &section)).unwrap();
     out.to_str().unwrap().to_owned()
+}
+
+/// Motors that stick at twice their sliding friction (0.05 / 0.06 N·m, stiction 0.1 / 0.12): each
+/// clamp leg sticks and slips, and the readings' scores come as close as the 2017 recordings'.
+/// The reading by direction of motion gave joint 2 a play falling from 3.0 to 0.1 mrad over the
+/// depths (the truth is 1.7 at each) and 1/K 8.4% low. A hysteresis that moves with the depth is
+/// not the mechanism's: `fit` reads the play behind the friction instead, and says nothing.
+#[test]
+fn an_arm_whose_motors_stick_at_twice_their_friction_keeps_one_play() {
+    let _serial = one_at_a_time();
+    let dir = scratch("sticky-arm");
+    let p = |f: &str| dir.join(f).to_str().unwrap().to_owned();
+    let clamp = with_transmission("clamp", &dir, [0.05, 0.06], [0.1, 0.12]);
+    run(&[
+        "calibrate",
+        "torque-offset",
+        "--config",
+        &clamp,
+        "--out",
+        &p("sweep.csv"),
+    ]);
+    run(&[
+        "calibrate",
+        "clamp",
+        "--config",
+        &clamp,
+        "--torque-offset",
+        &p("sweep.csv"),
+        "--out",
+        &p("clamp.csv"),
+    ]);
+    let out = Command::new(sidecar_bin())
+        .args([
+            "fit",
+            "--clamp",
+            &p("clamp.csv"),
+            "--torque-offset",
+            &p("sweep.csv"),
+        ])
+        .args(["--out", &p("params.toml"), "--json"])
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("scatters"), "{stderr}");
+    let fit: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let j = &fit["joints"][1];
+    assert_eq!(j["index"], 2, "{fit}");
+    let shaft =
+        dvrk_sidecar::formats::scenario_from_toml(&std::fs::read_to_string(&clamp).unwrap())
+            .unwrap()
+            .physics
+            .shaft;
+    let c: Vec<f64> = j["inverse_compliance_nm_per_rad"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let worst = (0..=130)
+        .map(|i| {
+            let l = 0.09 + 0.001 * f64::from(i);
+            (cubic(&c, l) / shaft.stiffness_nm_per_rad(1, l) - 1.0).abs()
+        })
+        .fold(0.0, f64::max);
+    let delta = j["backlash_rad"].as_f64().unwrap();
+    eprintln!("joint 2: 1/K worst {:.2}%, play {delta:.5}", worst * 100.0);
+    assert!(worst < 0.05, "1/K off by {worst}");
+    assert!(
+        (delta / shaft.backlash_rad[1] - 1.0).abs() < 0.15,
+        "play {delta}"
+    );
+    for d in j["depths"].as_array().unwrap() {
+        assert!(d["friction_nm"].as_f64().unwrap() != 0.0, "{d}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A lab's arm whose motors rub, calibrated by the paper's whole workflow and then corrected.

@@ -83,11 +83,6 @@ pub enum SplitArg {
     LoadFriction,
 }
 
-/// A joint's per-depth plays scattering more than this (1 sigma, relative to their mean) gets
-/// a warning: a play is the shaft's and the same at every depth, so a reading whose play moves
-/// with the depth has likely taken a motor's friction for play or play for friction.
-pub const PLAY_SPREAD_WARNING: f64 = 0.25;
-
 /// Everything one `fit` run computed (nothing is written unless all of it succeeded).
 pub struct FitOutcome {
     pub clamp_rows: Vec<DataRow>,
@@ -400,11 +395,21 @@ pub fn to_json(joints: &[JointFit]) -> anyhow::Result<String> {
     Ok(serde_json::to_string(&doc)?)
 }
 
-/// A warning when a joint's hysteresis is not the same at every depth (see
-/// [`PLAY_SPREAD_WARNING`]). A play is the shaft's: its width should not move with the depth. A
-/// friction in the transmission (a hysteresis of positive gap, as in the 2017 recordings) is a
-/// torque: its gap times the stiffness should not. `None` when it holds.
+/// A warning when a joint's hysteresis is not the same at every depth
+/// ([`fit::hysteresis_spread`] over [`fit::HYSTERESIS_SPREAD_LIMIT`]). A play is the shaft's:
+/// its width should not move with the depth. A friction in the transmission (a hysteresis of
+/// positive gap, as in the 2017 recordings) is a torque: its gap times the stiffness should
+/// not. `None` when it holds.
 pub fn hysteresis_spread_warning(j: &JointFit) -> Option<String> {
+    let gaps: Vec<(f64, f64)> = j
+        .depths
+        .iter()
+        .map(|d| (d.hysteresis_gap_rad, d.stiffness_nm_per_rad))
+        .collect();
+    let spread = fit::hysteresis_spread(&gaps)?;
+    if spread <= fit::HYSTERESIS_SPREAD_LIMIT {
+        return None;
+    }
     let friction = hysteresis_of(j).kind == HysteresisKind::Friction;
     let (values, what, unit, scale): (Vec<f64>, &str, &str, f64) = if friction {
         let v = j
@@ -425,11 +430,6 @@ pub fn hysteresis_spread_warning(j: &JointFit) -> Option<String> {
             1e3,
         )
     };
-    let mean = values.iter().sum::<f64>() / values.len().max(1) as f64;
-    let spread = fit::relative_spread(values.iter().copied(), mean)?;
-    if spread <= PLAY_SPREAD_WARNING {
-        return None;
-    }
     let list: Vec<String> = values.iter().map(|v| format!("{:.3}", v * scale)).collect();
     let split = j.depths.first().map_or("-", |d| split_name(d.branches));
     Some(format!(
@@ -821,7 +821,7 @@ mod tests {
             .and_then(|r| r.split('%').next())
             .and_then(|p| p.parse().ok())
             .expect(&w);
-        assert!(pct > 100.0 * PLAY_SPREAD_WARNING, "{w}");
+        assert!(pct > 100.0 * fit::HYSTERESIS_SPREAD_LIMIT, "{w}");
         assert!(
             w.contains("(load+fr)") && w.contains("--split motion"),
             "{w}"
