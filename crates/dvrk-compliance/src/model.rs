@@ -1456,8 +1456,10 @@ impl Compensator {
             // -STUCK_FRICTION_RATIO and +STUCK_FRICTION_RATIO times the file's friction. The
             // model holds the friction at the last motion's direction, so at a turn the effort's
             // swing across it was read as contact: on a simulated arm with 0.08 / 0.096 N·m of
-            // friction and its own fitted file, 0.2 N·m of it for 0.1 s at each turn, and the
-            // correction went 0.65 mm the wrong way in free motion. While stuck, the change
+            // friction, a softer shaft and its own fitted file, 0.2 N·m of it for 0.1 s at each
+            // turn, and the correction went 0.65 mm the wrong way in free motion. (The clamp
+            // cannot panic: the file's friction is finite and >= 0, so -reach - held <= reach -
+            // held.) While stuck, the change
             // since the motor stuck is the friction's as far as it can reach, and the shaft's
             // beyond that.
             let tau_ext = match &joint.dynamics {
