@@ -1,7 +1,7 @@
 //! Calibration data files as `fit` reads them: the project's CSV layout and the dVRK 2017 clamp
 //! and torque-offset layouts. The first input byte picks the `--joint` value (none, 1, 2 or the
-//! invalid 3) and whether the file is also given as the torque-offset sweep; the rest is the
-//! file. Rows that parse must come back unchanged through the project-layout writer, and the
+//! invalid 3), whether the file is also given as the torque-offset sweep, the model and the
+//! `--split` reading; the rest is the file. Rows that parse must come back unchanged through the project-layout writer, and the
 //! whole fit (`fit_cmd::compute`, which validates what it would write) must not panic.
 #![no_main]
 
@@ -9,7 +9,7 @@
 mod common;
 
 use dvrk_sidecar::calib::data::{read_rows, write_rows};
-use dvrk_sidecar::calib::fit_cmd::{FitArgs, ModelArg, compute};
+use dvrk_sidecar::calib::fit_cmd::{FitArgs, ModelArg, SplitArg, compute};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
@@ -47,6 +47,12 @@ fuzz_target!(|data: &[u8]| {
         font: common::scratch_dir().join("no-font.ttf"),
         dynamics: None,
         gate_sigmas: 4.0,
+        split: [
+            SplitArg::Auto,
+            SplitArg::Motion,
+            SplitArg::Load,
+            SplitArg::LoadFriction,
+        ][usize::from((sel >> 4) & 3)],
     };
     let _ = compute(&args);
 });
