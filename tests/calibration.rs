@@ -14,6 +14,11 @@ use common::*;
 use serde_json::Value;
 
 fn run(args: &[&str]) -> String {
+    run_with_stderr(args).0
+}
+
+/// [`run`], with what the command wrote on stderr (its warnings).
+fn run_with_stderr(args: &[&str]) -> (String, String) {
     let out = Command::new(sidecar_bin())
         .args(args)
         .current_dir(repo())
@@ -24,7 +29,50 @@ fn run(args: &[&str]) -> String {
         "dvrk-sidecar {args:?} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    String::from_utf8(out.stdout).unwrap()
+    (
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8(out.stderr).unwrap(),
+    )
+}
+
+/// The largest relative error of a `fit --json` joint's 1/K(L) over 0.09-0.22 m against the
+/// truth `stiffness(L)`.
+fn worst_inverse_compliance_error(j: &Value, stiffness: impl Fn(f64) -> f64) -> f64 {
+    let c: Vec<f64> = j["inverse_compliance_nm_per_rad"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    (0..=130)
+        .map(|i| {
+            let l = 0.09 + 0.001 * f64::from(i);
+            (cubic(&c, l) / stiffness(l) - 1.0).abs()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// `calibrate torque-offset` then `calibrate clamp` on the scenario `config`, into `sweep` and
+/// `clamp` (the paper's order).
+fn sweep_and_clamp(config: &str, sweep: &str, clamp: &str) {
+    run(&[
+        "calibrate",
+        "torque-offset",
+        "--config",
+        config,
+        "--out",
+        sweep,
+    ]);
+    run(&[
+        "calibrate",
+        "clamp",
+        "--config",
+        config,
+        "--torque-offset",
+        sweep,
+        "--out",
+        clamp,
+    ]);
 }
 
 /// Both joints' `insertion_range_m` of a written parameter file, in file order (read from the
@@ -63,24 +111,7 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
     let _serial = one_at_a_time();
     let dir = scratch("calibration");
     let p = |f: &str| dir.join(f).to_str().unwrap().to_owned();
-    run(&[
-        "calibrate",
-        "torque-offset",
-        "--config",
-        "config/sim/clamp.toml",
-        "--out",
-        &p("sweep.csv"),
-    ]);
-    run(&[
-        "calibrate",
-        "clamp",
-        "--config",
-        "config/sim/clamp.toml",
-        "--torque-offset",
-        &p("sweep.csv"),
-        "--out",
-        &p("clamp.csv"),
-    ]);
+    sweep_and_clamp("config/sim/clamp.toml", &p("sweep.csv"), &p("clamp.csv"));
     let fit: Value = serde_json::from_str(&run(&[
         "fit",
         "--clamp",
@@ -105,18 +136,7 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
         let index = j["index"].as_u64().unwrap() as usize;
         let depths = j["depths"].as_array().unwrap();
         assert_eq!(depths.len(), 14, "joint {index}: the paper's 14 depths");
-        let c: Vec<f64> = j["inverse_compliance_nm_per_rad"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect();
-        let mut worst: f64 = 0.0;
-        for i in 0..=130 {
-            let l = 0.09 + 0.001 * f64::from(i);
-            let truth = shaft.stiffness_nm_per_rad(index - 1, l);
-            worst = worst.max((cubic(&c, l) / truth - 1.0).abs());
-        }
+        let worst = worst_inverse_compliance_error(j, |l| shaft.stiffness_nm_per_rad(index - 1, l));
         assert!(
             worst < 0.05,
             "joint {index}: 1/K(L) off by {:.2}% somewhere in 0.09-0.22 m",
@@ -272,40 +292,19 @@ fn an_arm_whose_motors_stick_at_twice_their_friction_keeps_one_play() {
     let dir = scratch("sticky-arm");
     let p = |f: &str| dir.join(f).to_str().unwrap().to_owned();
     let clamp = with_transmission("clamp", &dir, [0.05, 0.06], [0.1, 0.12]);
-    run(&[
-        "calibrate",
-        "torque-offset",
-        "--config",
-        &clamp,
-        "--out",
-        &p("sweep.csv"),
-    ]);
-    run(&[
-        "calibrate",
-        "clamp",
-        "--config",
-        &clamp,
+    sweep_and_clamp(&clamp, &p("sweep.csv"), &p("clamp.csv"));
+    let (stdout, stderr) = run_with_stderr(&[
+        "fit",
+        "--clamp",
+        &p("clamp.csv"),
         "--torque-offset",
         &p("sweep.csv"),
         "--out",
-        &p("clamp.csv"),
+        &p("params.toml"),
+        "--json",
     ]);
-    let out = Command::new(sidecar_bin())
-        .args([
-            "fit",
-            "--clamp",
-            &p("clamp.csv"),
-            "--torque-offset",
-            &p("sweep.csv"),
-        ])
-        .args(["--out", &p("params.toml"), "--json"])
-        .current_dir(repo())
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{out:?}");
-    let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("scatters"), "{stderr}");
-    let fit: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let fit: Value = serde_json::from_str(&stdout).unwrap();
     let j = &fit["joints"][1];
     assert_eq!(j["index"], 2, "{fit}");
     let shaft =
@@ -313,18 +312,7 @@ fn an_arm_whose_motors_stick_at_twice_their_friction_keeps_one_play() {
             .unwrap()
             .physics
             .shaft;
-    let c: Vec<f64> = j["inverse_compliance_nm_per_rad"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
-    let worst = (0..=130)
-        .map(|i| {
-            let l = 0.09 + 0.001 * f64::from(i);
-            (cubic(&c, l) / shaft.stiffness_nm_per_rad(1, l) - 1.0).abs()
-        })
-        .fold(0.0, f64::max);
+    let worst = worst_inverse_compliance_error(j, |l| shaft.stiffness_nm_per_rad(1, l));
     let delta = j["backlash_rad"].as_f64().unwrap();
     eprintln!("joint 2: 1/K worst {:.2}%, play {delta:.5}", worst * 100.0);
     assert!(worst < 0.05, "1/K off by {worst}");
@@ -351,24 +339,7 @@ fn an_arm_whose_motors_rub_is_calibrated_and_corrected() {
     let dir = scratch("friction-arm");
     let p = |f: &str| dir.join(f).to_str().unwrap().to_owned();
     let clamp = with_friction("clamp", &dir);
-    run(&[
-        "calibrate",
-        "torque-offset",
-        "--config",
-        &clamp,
-        "--out",
-        &p("sweep.csv"),
-    ]);
-    run(&[
-        "calibrate",
-        "clamp",
-        "--config",
-        &clamp,
-        "--torque-offset",
-        &p("sweep.csv"),
-        "--out",
-        &p("clamp.csv"),
-    ]);
+    sweep_and_clamp(&clamp, &p("sweep.csv"), &p("clamp.csv"));
     run(&[
         "calibrate",
         "dynamics",
@@ -397,20 +368,20 @@ fn an_arm_whose_motors_rub_is_calibrated_and_corrected() {
     // the same at every depth: no warning. Forced to the paper's split by direction of motion,
     // the friction bridges the play and it moves with the depth: `fit` says so.
     let fit_stderr = |split: &str| {
-        let out = Command::new(sidecar_bin())
-            .args([
-                "fit",
-                "--clamp",
-                &p("clamp.csv"),
-                "--torque-offset",
-                &p("sweep.csv"),
-            ])
-            .args(["--split", split, "--out", &p("params-split.toml"), "--json"])
-            .current_dir(repo())
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{out:?}");
-        String::from_utf8(out.stderr).unwrap()
+        let (clamp, sweep, out) = (p("clamp.csv"), p("sweep.csv"), p("params-split.toml"));
+        run_with_stderr(&[
+            "fit",
+            "--clamp",
+            &clamp,
+            "--torque-offset",
+            &sweep,
+            "--split",
+            split,
+            "--out",
+            &out,
+            "--json",
+        ])
+        .1
     };
     assert!(!fit_stderr("auto").contains("scatters"));
     assert!(
@@ -429,18 +400,7 @@ fn an_arm_whose_motors_rub_is_calibrated_and_corrected() {
     for j in fit["joints"].as_array().unwrap() {
         let index = j["index"].as_u64().unwrap() as usize;
         assert_eq!(j["depths"].as_array().unwrap().len(), 14, "{j}");
-        let c: Vec<f64> = j["inverse_compliance_nm_per_rad"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect();
-        let worst = (0..=130)
-            .map(|i| {
-                let l = 0.09 + 0.001 * f64::from(i);
-                (cubic(&c, l) / shaft.stiffness_nm_per_rad(index - 1, l) - 1.0).abs()
-            })
-            .fold(0.0, f64::max);
+        let worst = worst_inverse_compliance_error(j, |l| shaft.stiffness_nm_per_rad(index - 1, l));
         let delta = j["backlash_rad"].as_f64().unwrap();
         let truth = shaft.backlash_rad[index - 1];
         eprintln!(
