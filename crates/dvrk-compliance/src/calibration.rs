@@ -1304,6 +1304,19 @@ mod tests {
 
     const HOME: [f64; 3] = [0.1, -0.05, 0.12];
 
+    /// A depth's rows as legs: each run of one direction and its length, in order.
+    fn legs<R: std::borrow::Borrow<Record>>(rows: &[R]) -> Vec<(i8, usize)> {
+        let mut legs: Vec<(i8, usize)> = Vec::new();
+        for r in rows {
+            let dir = r.borrow().direction;
+            match legs.last_mut() {
+                Some((d, n)) if *d == dir => *n += 1,
+                _ => legs.push((dir, 1)),
+            }
+        }
+        legs
+    }
+
     /// A robot that plans its own large moves: the caller jumps the plant and tells the runner.
     #[test]
     fn a_target_reached_by_the_robot_skips_the_ramp() {
@@ -1453,13 +1466,7 @@ mod tests {
         let d0: Vec<&Record> = run.records.iter().filter(|r| r.depth_index == 0).collect();
         assert_eq!(d0[0].direction, 0);
         // legs: -1 until |effort| > 1, +1 until |effort| > 1, -1 until past the start
-        let mut legs: Vec<(i8, usize)> = Vec::new();
-        for r in &d0[1..] {
-            match legs.last_mut() {
-                Some((d, n)) if *d == r.direction => *n += 1,
-                _ => legs.push((r.direction, 1)),
-            }
-        }
+        let legs = legs(&d0[1..]);
         assert_eq!(
             legs.iter().map(|l| l.0).collect::<Vec<_>>(),
             vec![-1, 1, -1]
@@ -1500,13 +1507,7 @@ mod tests {
                 .iter()
                 .filter(|r| r.depth_index as usize == depth)
                 .collect();
-            let mut legs: Vec<(i8, usize)> = Vec::new();
-            for r in &rows[1..] {
-                match legs.last_mut() {
-                    Some((d, n)) if *d == r.direction => *n += 1,
-                    _ => legs.push((r.direction, 1)),
-                }
-            }
+            let legs = legs(&rows[1..]);
             assert_eq!(
                 legs.iter().map(|l| l.0).collect::<Vec<_>>(),
                 vec![-1, 1, -1],
