@@ -264,21 +264,11 @@ impl DerivativeFilter {
         if span.is_nan() || span <= 0.0 {
             return (0.0, 0.0);
         }
-        let mut m = [[0.0f64; 4]; 4];
-        let mut r = [0.0f64; 4];
-        for k in 0..self.len {
+        let points = (0..self.len).map(|k| {
             let i = (oldest + k) % WINDOW;
-            let x = (self.t[i] - t0) / span;
-            let y = self.q[i] - q0;
-            let p = [1.0, x, x * x, x * x * x];
-            for a in 0..4 {
-                r[a] += p[a] * y;
-                for b in 0..4 {
-                    m[a][b] += p[a] * p[b];
-                }
-            }
-        }
-        match solve4(m, r) {
+            ((self.t[i] - t0) / span, self.q[i] - q0)
+        });
+        match cubic_through(points) {
             // q(x) = c0 + c1 x + c2 x^2 + c3 x^3 with x = (t - t0) / span, at x = 0.
             Some(c) => {
                 let mut ss = 0.0;
@@ -368,23 +358,30 @@ fn fit_derivatives(
             if i - lo < 3 || hi - i < 3 {
                 return None;
             }
-            let mut m = [[0.0f64; 4]; 4];
-            let mut r = [0.0f64; 4];
-            for s in &samples[lo..=hi] {
-                let x = (s.t_s - t0) / half;
-                let y = s.position[j] - q0;
-                let p = [1.0, x, x * x, x * x * x];
-                for a in 0..4 {
-                    r[a] += p[a] * y;
-                    for b in 0..4 {
-                        m[a][b] += p[a] * p[b];
-                    }
-                }
-            }
-            let c = solve4(m, r)?;
+            let points = samples[lo..=hi]
+                .iter()
+                .map(|s| ((s.t_s - t0) / half, s.position[j] - q0));
+            let c = cubic_through(points)?;
             Some((c[1] / half, 2.0 * c[2] / (half * half), i))
         })
         .collect()
+}
+
+/// The least-squares cubic `c0 + c1 x + c2 x² + c3 x³` through `(x, y)` points, from its normal
+/// equations; `None` when they are singular. Allocates nothing (the run-time filter's own fit).
+fn cubic_through(points: impl Iterator<Item = (f64, f64)>) -> Option<[f64; 4]> {
+    let mut m = [[0.0f64; 4]; 4];
+    let mut r = [0.0f64; 4];
+    for (x, y) in points {
+        let p = [1.0, x, x * x, x * x * x];
+        for a in 0..4 {
+            r[a] += p[a] * y;
+            for b in 0..4 {
+                m[a][b] += p[a] * p[b];
+            }
+        }
+    }
+    solve4(m, r)
 }
 
 /// Solves the symmetric 4x4 system by Gaussian elimination with partial pivoting.
