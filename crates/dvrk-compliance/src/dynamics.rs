@@ -301,16 +301,16 @@ pub const CENTRED_HALF_WIDTH_S: f64 = 0.05;
 /// [`CENTRED_BELOW_HZ`]), the run-time causal filter, restarted at each of `starts` and after a
 /// gap ([`MAX_GAP_S`]), skipping its first window. Below, a centred least-squares cubic over
 /// [`CENTRED_HALF_WIDTH_S`] each side (at least 3 samples each side), within a segment and
-/// with no gap over 3 times the median sample interval inside.
+/// with no gap over 3 times the median sample interval inside; `centred` takes the centred cubic
+/// at any rate.
 fn fit_derivatives(
     samples: &[DynamicsSample],
     j: usize,
     starts: &[usize],
+    centred: bool,
 ) -> Vec<Option<(f64, f64, usize)>> {
-    let mut dts: Vec<f64> = samples.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
-    dts.sort_by(f64::total_cmp);
-    let median_dt = dts.get(dts.len() / 2).copied().unwrap_or(0.0);
-    if median_dt <= 1.0 / CENTRED_BELOW_HZ {
+    let median_dt = median_interval(samples);
+    if !centred && median_dt <= 1.0 / CENTRED_BELOW_HZ {
         let mut filter = DerivativeFilter::default();
         let mut in_segment = 0;
         return samples
@@ -365,6 +365,151 @@ fn fit_derivatives(
             Some((c[1] / half, 2.0 * c[2] / (half * half), i))
         })
         .collect()
+}
+
+/// The median interval between neighbouring samples (s; 0 for fewer than 2).
+fn median_interval(samples: &[DynamicsSample]) -> f64 {
+    let mut dts: Vec<f64> = samples.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    dts.sort_by(f64::total_cmp);
+    dts.get(dts.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// How the excitation of a dynamics recording was commanded, which decides how the fit reads it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Excitation {
+    /// Smooth at the rows' rate: the simulator's excitation applied at every physics step, or
+    /// rows taken at the rate of the commands themselves (a console's `measured_js`). The fit
+    /// differentiates the rows as they are ([`CENTRED_BELOW_HZ`]).
+    #[default]
+    Smooth,
+    /// Set points held for `1 / commanded_hz` each (`servo_jp` through a console at its
+    /// `measured_js` rate) and rows taken faster (a sidecar service at the boards' 1.5 kHz).
+    /// The joint controller kicks at every step, so the effort ripples at the command rate and
+    /// its harmonics (0.4 N·m for the simulated PSM's kp of 150 N·m/rad at 100 Hz) while the
+    /// position barely shows it; fitted sample by sample the ripple biases the model (inertia
+    /// 0.015 for 0.05 on the simulated console). The fit first averages every row (position,
+    /// effort) over one command period centred on it, which cancels a ripple of that period
+    /// exactly and, being linear, keeps the joint's equation of motion; then it takes the
+    /// centred cubic's derivatives of the averaged rows. Rows no faster than 1.5 times
+    /// `commanded_hz` are fitted as [`Excitation::Smooth`].
+    Stepped { commanded_hz: f64 },
+}
+
+impl Excitation {
+    /// The command period (s) to average rows `median_dt` apart over, or `None` when they are
+    /// fitted as [`Excitation::Smooth`].
+    fn averaging_period(self, median_dt: f64) -> Option<f64> {
+        match self {
+            Self::Stepped { commanded_hz }
+                if commanded_hz.is_finite()
+                    && commanded_hz > 0.0
+                    && median_dt > 0.0
+                    && 1.0 / median_dt > 1.5 * commanded_hz =>
+            {
+                Some(1.0 / commanded_hz)
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Every sample averaged (position and effort) over the period centred on it, as the time
+/// average of the line through neighbouring samples (so irregular rows, a service that lost or
+/// delayed a cycle, weigh each stretch by its length), and the segment starts of the result.
+/// Samples whose period a segment's start or end (one of `starts`, or a gap over the period)
+/// would cut are left out.
+fn average_over_period(
+    samples: &[DynamicsSample],
+    starts: &[usize],
+    period: f64,
+) -> (Vec<DynamicsSample>, Vec<usize>) {
+    let half = 0.5 * period;
+    let mut segment = vec![0usize; samples.len()];
+    for i in 1..samples.len() {
+        let cut = starts.contains(&i) || samples[i].t_s - samples[i - 1].t_s > period;
+        segment[i] = segment[i - 1] + usize::from(cut);
+    }
+    let mut out = Vec::with_capacity(samples.len());
+    let mut out_starts = Vec::new();
+    let mut last_segment = None;
+    let mut lo = 0usize;
+    for i in 0..samples.len() {
+        let (a, b) = (samples[i].t_s - half, samples[i].t_s + half);
+        // lo: the last sample at or before a, in this segment
+        while lo + 1 < samples.len() && samples[lo + 1].t_s <= a {
+            lo += 1;
+        }
+        if segment[lo] != segment[i] || samples[lo].t_s > a {
+            continue;
+        }
+        let mut avg = DynamicsSample {
+            t_s: samples[i].t_s,
+            position: [0.0; 3],
+            effort_nm: [0.0; 2],
+        };
+        let mut k = lo;
+        let mut covered = false;
+        while k + 1 < samples.len() && segment[k + 1] == segment[i] && samples[k].t_s < b {
+            let (p, q) = (&samples[k], &samples[k + 1]);
+            let (t0, t1) = (p.t_s.max(a), q.t_s.min(b));
+            let span = q.t_s - p.t_s;
+            if t1 > t0 && span > 0.0 {
+                // the trapezoid of the line through p and q over [t0, t1]
+                let w0 = (t0 - p.t_s) / span;
+                let w1 = (t1 - p.t_s) / span;
+                let weight = (t1 - t0) / period;
+                let mid = 0.5 * (w0 + w1);
+                for c in 0..3 {
+                    avg.position[c] +=
+                        weight * (p.position[c] + mid * (q.position[c] - p.position[c]));
+                }
+                for c in 0..2 {
+                    avg.effort_nm[c] +=
+                        weight * (p.effort_nm[c] + mid * (q.effort_nm[c] - p.effort_nm[c]));
+                }
+            }
+            k += 1;
+            covered = samples[k].t_s >= b;
+        }
+        if !covered {
+            continue;
+        }
+        if last_segment != Some(segment[i]) {
+            out_starts.push(out.len());
+            last_segment = Some(segment[i]);
+        }
+        out.push(avg);
+    }
+    (out, out_starts)
+}
+
+/// One standard deviation of the white noise in `y` (sampled at `t`, segments starting at
+/// `starts`), from the median distance of each sample from the line through its two
+/// neighbours: that cancels the smooth motion and the controller's decay after each command
+/// step, and the kicks themselves (one sample in ten or more) move the median a little, upwards
+/// (on the safe side for a gate).
+fn sample_noise(y: &[f64], t: &[f64], starts: &[usize]) -> f64 {
+    let mut d: Vec<f64> = (2..y.len().min(t.len()))
+        .filter(|i| !starts.contains(i) && !starts.contains(&(i - 1)))
+        .filter_map(|i| {
+            let span = t[i] - t[i - 2];
+            if span.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return None;
+            }
+            let w = (t[i] - t[i - 1]) / span;
+            let r = y[i - 1] - (w * y[i - 2] + (1.0 - w) * y[i]);
+            // for white noise of std s, r has std s * sqrt(1 + w² + (1 - w)²)
+            let r = r.abs() / (1.0 + w * w + (1.0 - w) * (1.0 - w)).sqrt();
+            r.is_finite().then_some(r)
+        })
+        .collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    // |N(0, s²)| has median 0.6745 s
+    *m / 0.674_5
 }
 
 /// The least-squares cubic `c0 + c1 x + c2 x² + c3 x³` through `(x, y)` points, from its normal
@@ -666,7 +811,15 @@ pub fn fit_dynamics_segmented(
     tau_0: impl Fn(f64) -> f64,
     gate_sigmas: f64,
 ) -> Result<DynamicsFit, DynamicsFitError> {
-    fit_dynamics_with_gravity(joint, samples, starts, tau_0, gate_sigmas, None)
+    fit_dynamics_with_gravity(
+        joint,
+        samples,
+        starts,
+        tau_0,
+        gate_sigmas,
+        None,
+        Excitation::Smooth,
+    )
 }
 
 /// Regressors of the fit: `[qdd, L^2 qdd, qd, s, -(L - L_ref) du/dq_j (3)]`.
@@ -687,6 +840,11 @@ const GRAVITY_MIN_DEPTH_SPREAD_M: f64 = 0.02;
 /// correlation in time taken into account: the residual follows the motion, so neighbouring
 /// samples are not independent, and the variance is scaled by the integrated autocorrelation
 /// time of the residual (in samples, summed until the autocorrelation first falls below 0.05).
+///
+/// `excitation` says how the motion was commanded ([`Excitation`]). With
+/// [`Excitation::Stepped`] the regression runs on rows averaged over a command period; the
+/// residual std it reports is that fit's with the effort's sample noise (which the averaging
+/// hides and the run-time estimator sees on every sample) added in quadrature.
 #[allow(clippy::needless_range_loop)] // the regressors index parallel arrays
 pub fn fit_dynamics_with_gravity(
     joint: u8,
@@ -695,6 +853,7 @@ pub fn fit_dynamics_with_gravity(
     tau_0: impl Fn(f64) -> f64,
     gate_sigmas: f64,
     gravity_reference_m: Option<f64>,
+    excitation: Excitation,
 ) -> Result<DynamicsFit, DynamicsFitError> {
     const N: usize = FIT_COLUMNS;
     let j = usize::from(joint.clamp(1, 2) - 1);
@@ -721,6 +880,27 @@ pub fn fit_dynamics_with_gravity(
             reason: "the torque offset's reference insertion must be within 0..1 m",
         });
     }
+    // Rows commanded in steps: averaged over a command period first (Excitation::Stepped).
+    let period = excitation.averaging_period(median_interval(samples));
+    let raw_noise = period.map(|_| {
+        let y: Vec<f64> = samples
+            .iter()
+            .map(|s| s.effort_nm[j] - tau_0(s.position[j]))
+            .collect();
+        let t: Vec<f64> = samples.iter().map(|s| s.t_s).collect();
+        sample_noise(&y, &t, starts)
+    });
+    let averaged = period.map(|p| average_over_period(samples, starts, p));
+    let (samples, starts) = match &averaged {
+        Some((s, st)) => (s.as_slice(), st.as_slice()),
+        None => (samples, starts),
+    };
+    if samples.len() < 4 * WINDOW {
+        return Err(DynamicsFitError::Data {
+            joint,
+            reason: "too few samples for a dynamics fit (need a few seconds of motion)",
+        });
+    }
     // Regressors and target y, aligned with the filter's delay: the estimate of sample i refers
     // to sample i - DELAY_SAMPLES. `segment` marks where the residual's correlation restarts.
     let stick = default_stick_velocity();
@@ -729,7 +909,10 @@ pub fn fit_dynamics_with_gravity(
     let mut row_starts: Vec<usize> = Vec::new();
     let mut max_acc = 0.0f64;
     let l_ref = gravity_reference_m.unwrap_or(0.0);
-    for (i, d) in fit_derivatives(samples, j, starts).into_iter().enumerate() {
+    for (i, d) in fit_derivatives(samples, j, starts, period.is_some())
+        .into_iter()
+        .enumerate()
+    {
         if starts.contains(&i) {
             direction = 0.0;
             row_starts.push(rows.len());
@@ -859,6 +1042,9 @@ pub fn fit_dynamics_with_gravity(
     }
     mean_after /= n;
     let var = (after / n - mean_after * mean_after).max(0.0);
+    // what the averaging hid from the residual: the effort's own noise, which the run-time
+    // estimator sees on every sample
+    let residual_var = var + raw_noise.map_or(0.0, |s| s * s);
     let distal_gravity = if gravity {
         // Covariance of the weight's (scaled) coefficients: sigma^2 (X^T X)^-1, times the
         // residual's integrated autocorrelation time.
@@ -894,7 +1080,7 @@ pub fn fit_dynamics_with_gravity(
             viscous_nm_s_per_rad: coef[2],
             coulomb_nm: coef[3],
             stick_velocity_rad_per_s: stick,
-            residual_std_nm: var.sqrt(),
+            residual_std_nm: residual_var.sqrt(),
             gate_sigmas,
             max_acceleration_rad_per_s2: Some(max_acc),
             distal_gravity,
@@ -1066,9 +1252,16 @@ mod fit_tests {
             }
         }
         for joint in [1u8, 2] {
-            let fit =
-                fit_dynamics_with_gravity(joint, &samples, &starts, |_| 0.1, 4.0, Some(0.155))
-                    .unwrap();
+            let fit = fit_dynamics_with_gravity(
+                joint,
+                &samples,
+                &starts,
+                |_| 0.1,
+                4.0,
+                Some(0.155),
+                Excitation::Smooth,
+            )
+            .unwrap();
             let g = fit.params.distal_gravity.expect("the weight is modelled");
             assert_eq!(g.reference_insertion_m, 0.155);
             for k in 0..3 {
@@ -1091,9 +1284,127 @@ mod fit_tests {
                 |_| 0.1,
                 4.0,
                 Some(0.155),
+                Excitation::Smooth,
             )
             .unwrap();
             assert_eq!(one.params.distal_gravity, None);
         }
+    }
+    /// The excitation played through a console: set points held for 10 ms each (100 Hz
+    /// `servo_jp`) and followed by a PD controller of the simulated PSM's gains, rows at the
+    /// boards' 1.5 kHz with one in five lost. The controller kicks at every step; the per-sample fit reads the ripple
+    /// as a model it cannot place, the both-sides filter of [`Excitation::Stepped`] recovers the
+    /// joint's inertia and friction, and its residual std keeps the effort's sample noise.
+    #[test]
+    fn recovers_a_multisine_played_in_steps_through_a_controller() {
+        let (j0, j2, b, f) = (0.05, 0.4, 0.2, 0.03);
+        let (kp, kd) = (150.0, 6.0);
+        // a servo_jp every 151 physics steps (99.3 Hz): not locked to the rows' phase, as a
+        // console's clock is not to the boards'
+        const STEPS: usize = 151;
+        let physics_dt = 1.0 / 15_000.0;
+        let mut samples = Vec::new();
+        let mut starts = Vec::new();
+        let mut noise = 0x9e37_79b9_7f4a_7c15u64;
+        // nearly Gaussian, std 1: the sum of 12 uniforms in [-0.5, 0.5)
+        let mut white = move || {
+            (0..12)
+                .map(|_| {
+                    noise ^= noise << 13;
+                    noise ^= noise >> 7;
+                    noise ^= noise << 17;
+                    noise as f64 / u64::MAX as f64 - 0.5
+                })
+                .sum::<f64>()
+        };
+        let noise_std = 0.003;
+        for (d, l) in [0.1, 0.15, 0.2].into_iter().enumerate() {
+            starts.push(samples.len());
+            let inertia = j0 + j2 * l * l;
+            let target = |t: f64| -> (f64, f64) {
+                let (w, amp) = ([2.0, 3.7, 5.3], [0.2, 0.08, 0.03]);
+                (0..3).fold((0.0, 0.0), |(q, v), k| {
+                    (
+                        q + amp[k] * (w[k] * t).sin(),
+                        v + amp[k] * w[k] * (w[k] * t).cos(),
+                    )
+                })
+            };
+            let (mut q, mut v) = target(0.0);
+            let mut set = (q, v);
+            let t_seg = d as f64 * 12.0;
+            for step in 0..150_000usize {
+                let t = step as f64 * physics_dt;
+                if step % STEPS == 0 {
+                    set = target(t);
+                }
+                let tau = kp * (set.0 - q) + kd * (set.1 - v);
+                // rows at 1.5 kHz, one in five lost (a service that missed cycles)
+                if step % 10 == 0 && (step / 10) % 5 != 3 {
+                    samples.push(DynamicsSample {
+                        t_s: t_seg + t,
+                        position: [q, q, l],
+                        effort_nm: [0.1 + tau + noise_std * white(), 0.0],
+                    });
+                }
+                let acc = (tau - b * v - f * (v / 0.001).tanh()) / inertia;
+                v += acc * physics_dt;
+                q += v * physics_dt;
+            }
+        }
+        let fit = |excitation| {
+            fit_dynamics_with_gravity(1, &samples, &starts, |_| 0.1, 4.0, None, excitation).unwrap()
+        };
+        let stepped = fit(Excitation::Stepped {
+            commanded_hz: 15_000.0 / 151.0,
+        });
+        let p = stepped.params;
+        assert!((p.inertia_kg_m2[0] - j0).abs() < 0.05 * j0, "{stepped:?}");
+        assert!((p.inertia_kg_m2[1] - j2).abs() < 0.25 * j2, "{stepped:?}");
+        assert!((p.viscous_nm_s_per_rad - b).abs() < 0.05 * b, "{stepped:?}");
+        assert!((p.coulomb_nm - f).abs() < 0.3 * f, "{stepped:?}");
+        // the effort's noise is in the residual the run time gates with, though the averaging
+        // hid it from the fit: measured through the controller's ripple and the lost rows, on
+        // the safe side (the kicks touch 3 samples' lines in 15 and raise the median)
+        let y: Vec<f64> = samples.iter().map(|s| s.effort_nm[0]).collect();
+        let t: Vec<f64> = samples.iter().map(|s| s.t_s).collect();
+        let noise = sample_noise(&y, &t, &starts);
+        assert!(
+            (0.9 * noise_std..1.5 * noise_std).contains(&noise),
+            "{noise} for {noise_std}"
+        );
+        assert!(p.residual_std_nm >= noise, "{stepped:?}");
+        assert!(p.residual_std_nm < 0.02, "{stepped:?}");
+        // the per-sample fit of the same rows
+        let smooth = fit(Excitation::Smooth);
+        let s = smooth.params;
+        assert!((s.inertia_kg_m2[0] - j0).abs() > 0.1 * j0, "{smooth:?}");
+        assert!(s.residual_std_nm > 5.0 * p.residual_std_nm, "{smooth:?}");
+        // rows at the command rate itself (a console's measured_js) are fitted as smooth ones
+        let console: Vec<_> = samples.iter().step_by(15).copied().collect();
+        let console_starts: Vec<_> = starts.iter().map(|s| s / 15).collect();
+        let a = fit_dynamics_with_gravity(
+            1,
+            &console,
+            &console_starts,
+            |_| 0.1,
+            4.0,
+            None,
+            Excitation::Stepped {
+                commanded_hz: 15_000.0 / 151.0,
+            },
+        )
+        .unwrap();
+        let b2 = fit_dynamics_with_gravity(
+            1,
+            &console,
+            &console_starts,
+            |_| 0.1,
+            4.0,
+            None,
+            Excitation::Smooth,
+        )
+        .unwrap();
+        assert_eq!(a.params, b2.params);
     }
 }

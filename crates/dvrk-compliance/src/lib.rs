@@ -42,7 +42,7 @@ pub mod params;
 pub mod torque_offset;
 
 pub use dynamics::{
-    DistalGravityParams, DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample,
+    DistalGravityParams, DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, Excitation,
     fit_dynamics, fit_dynamics_segmented, fit_dynamics_with_gravity,
 };
 pub use instruments::{

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use dvrk_compliance::fit::{self, DataRow, FitOptions, JointFit, TorqueOffsetFit};
 use dvrk_compliance::{
-    ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, HysteresisKind,
+    ComplianceConfig, ComplianceParams, DynamicsFit, DynamicsSample, Excitation, HysteresisKind,
     HysteresisParams, JointParams, ModelKind, TorqueOffsetParams, fit_dynamics_with_gravity,
     params_to_toml,
 };
@@ -209,6 +209,7 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
         }
         let rows = super::dynamics_cmd::read(path)?;
         let segments = super::dynamics_cmd::segments(&rows);
+        let excitation = excitation_of(path)?;
         for jp in &mut params.joint {
             let j0 = (jp.index - 1) as usize;
             let Some(model) = config.joint(j0) else {
@@ -226,6 +227,7 @@ pub fn compute(args: &FitArgs) -> anyhow::Result<FitOutcome> {
                 |q| table.lookup(q),
                 args.gate_sigmas,
                 reference,
+                excitation,
             )
             .with_context(|| format!("{}: fitting the dynamics", path.display()))?;
             jp.dynamics = Some(fit.params);
@@ -252,6 +254,7 @@ fn fit_segments(
     tau_0: impl Fn(f64) -> f64,
     gate_sigmas: f64,
     gravity_reference_m: Option<f64>,
+    excitation: Excitation,
 ) -> anyhow::Result<DynamicsFit> {
     let mut all = Vec::new();
     let mut starts = Vec::new();
@@ -266,7 +269,26 @@ fn fit_segments(
         tau_0,
         gate_sigmas,
         gravity_reference_m,
+        excitation,
     )?)
+}
+
+/// How the dynamics file's excitation was commanded: in steps at its provenance's
+/// `commanded_hz` (`calibrate dynamics --robot`), or smooth (the simulator's, files without it).
+fn excitation_of(path: &std::path::Path) -> anyhow::Result<Excitation> {
+    let Some(text) = super::provenance::read(path)?.commanded_hz else {
+        return Ok(Excitation::Smooth);
+    };
+    match text.parse::<f64>() {
+        Ok(hz) if hz.is_finite() && hz > 0.0 && hz <= 100_000.0 => {
+            Ok(Excitation::Stepped { commanded_hz: hz })
+        }
+        _ => bail!(
+            "{}: provenance line `# commanded_hz: {text}`: expected the command rate in Hz, a \
+             number in ]0, 100000]",
+            path.display()
+        ),
+    }
 }
 
 /// The mean insertion (m) of the torque-offset sweep's rows of `joint`, if it has any.

@@ -16,6 +16,10 @@ pub struct Provenance {
     pub instrument: Option<String>,
     pub date: Option<String>,
     pub command: Option<String>,
+    /// `calibrate dynamics --robot`: the rate (Hz) at which the excitation was commanded in
+    /// steps (one `servo_jp` per console `measured_js`), which `fit --dynamics` needs when the
+    /// rows are faster (`--measure sidecar`). Absent: the motion is smooth at the rows' rate.
+    pub commanded_hz: Option<String>,
 }
 
 impl Provenance {
@@ -26,6 +30,7 @@ impl Provenance {
             instrument: instrument.map(str::to_owned),
             date: Some(utc_now()),
             command: Some(command_line()),
+            commanded_hz: None,
         }
     }
 
@@ -37,6 +42,7 @@ impl Provenance {
             ("instrument", &self.instrument),
             ("date", &self.date),
             ("command", &self.command),
+            ("commanded_hz", &self.commanded_hz),
         ] {
             if let Some(v) = v {
                 let v: String = v.chars().map(|c| if c == '\n' { ' ' } else { c }).collect();
@@ -76,6 +82,7 @@ pub fn read(path: &Path) -> anyhow::Result<Provenance> {
             "instrument" => p.instrument = v,
             "date" => p.date = v,
             "command" => p.command = v,
+            "commanded_hz" => p.commanded_hz = v,
             _ => {}
         }
     }
@@ -177,6 +184,7 @@ mod tests {
             instrument: Some("LARGE_NEEDLE_DRIVER:400006[..]".into()),
             date: Some("2026-11-25T01:01:01Z".into()),
             command: Some("dvrk-sidecar calibrate clamp --robot ros2:PSM1".into()),
+            commanded_hz: Some("99.8".into()),
         };
         let pa = dir.join("a.csv");
         std::fs::write(&pa, format!("{}joint,x\n1,2\n", a.lines())).unwrap();
