@@ -638,6 +638,8 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
             "--dynamics",
             "--seconds",
             "15",
+            "--commanded-hz",
+            "100",
             "--config",
         ])
         .arg(&cfg)
@@ -649,7 +651,13 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
     let (st, log) = serve.terminate();
     assert!(st.success(), "{log}");
     let text = std::fs::read_to_string(p("dynamics.csv")).unwrap();
-    let mut lines = text.lines();
+    // --commanded-hz goes into the provenance lines, which `fit` reads
+    assert!(
+        text.lines().any(|l| l == "# commanded_hz: 100"),
+        "{}",
+        &text[..300.min(text.len())]
+    );
+    let mut lines = text.lines().skip_while(|l| l.starts_with('#'));
     assert_eq!(
         lines.next(),
         Some("t_s,q1_rad,q2_rad,q3_m,effort1_nm,effort2_nm")
@@ -669,16 +677,39 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
         - rows.iter().map(|r| r[1]).fold(f64::INFINITY, f64::min);
     assert!(q1_range > 0.3, "joint 1 moved over {q1_range} rad");
 
+    // Fitted as stepped at 100 Hz (each row averaged over 10 ms, harmless on this smooth
+    // excitation) and, from a copy without the line, sample by sample.
+    let smooth: String = text
+        .lines()
+        .filter(|l| !l.starts_with("# commanded_hz"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(p("dynamics-smooth.csv"), smooth).unwrap();
+    for file in ["dynamics.csv", "dynamics-smooth.csv"] {
+        check_record_dynamics_fit(
+            &p("clamp.csv"),
+            &p("sweep.csv"),
+            &p(file),
+            &p("params.toml"),
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `fit --dynamics DYNAMICS` of the recording of
+/// [`calibrate_record_dynamics_from_a_live_service_identifies_the_model`] against the
+/// simulator's truth.
+fn check_record_dynamics_fit(clamp: &str, sweep: &str, file: &str, params: &str) {
     let dfit: Value = serde_json::from_str(&run(&[
         "fit",
         "--clamp",
-        &p("clamp.csv"),
+        clamp,
         "--torque-offset",
-        &p("sweep.csv"),
+        sweep,
         "--dynamics",
-        &p("dynamics.csv"),
+        file,
         "--out",
-        &p("params.toml"),
+        params,
         "--json",
     ]))
     .unwrap();
@@ -697,7 +728,7 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
         let viscous = d["viscous_nm_s_per_rad"].as_f64().unwrap();
         let before = d["torque_residual_rms_nm"]["before"].as_f64().unwrap();
         let after = d["torque_residual_rms_nm"]["after"].as_f64().unwrap();
-        eprintln!("joint {}: {d}", j + 1);
+        eprintln!("{file}, joint {}: {d}", j + 1);
         // Within 1-2% on a quiet machine. Under load the stamp's distance to the simulated
         // instant jitters (the serve thread is preempted between the two), which only biases
         // the acceleration's coefficient toward zero (errors in variables): hence a one-sided
@@ -710,5 +741,4 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
         // model leaves most of it.
         assert!(after < 0.35 * before, "{d}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -6,6 +6,8 @@
 //! - the two command lines run, the console refuses or clips none of their moves, and
 //!   `fit` recovers the stand-in's stiffness within 5% at every clamp depth;
 //! - `divot` and `dynamics` run the same way and their files are read by `evaluate` and `fit`;
+//!   `dynamics` with rows from a sidecar service beside the console recovers the arm's inertia
+//!   and viscous friction;
 //! - each abort cause (effort spike, e-stop, FAULT, silence, invalid data, refused move,
 //!   Ctrl-C) ends the run non-zero with the reason, keeps the rows, and no more than two motion
 //!   commands reach the console after the fault; Ctrl-Z aborts the same way (with its hold)
@@ -54,7 +56,7 @@ impl Drop for Slot {
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-21; each test has its own (a shared domain crosses two tests'
+/// 4-9 (the fault cases), 10-22; each test has its own (a shared domain crosses two tests'
 /// consoles and commands).
 fn domain(offset: u16) -> u16 {
     150 + (std::process::id() % 60) as u16 + offset
@@ -740,6 +742,26 @@ fn bad_arguments_are_refused_before_anything_is_opened() {
             "an earlier recording\n"
         );
     }
+    // the sidecar's rows are for a console run: on the simulator the option is refused
+    for procedure in ["clamp", "dynamics"] {
+        let args = [
+            "calibrate",
+            procedure,
+            "--config",
+            "config/sim/clamp.toml",
+            "--measure",
+            "sidecar",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        let (ok, err, _) = run(domain(12), &args, Duration::from_secs(30));
+        assert!(!ok, "{args:?} accepted");
+        assert!(err.contains("only with --robot"), "{args:?}: {err}");
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            "an earlier recording\n"
+        );
+    }
 }
 
 #[test]
@@ -885,6 +907,146 @@ fn rows_from_the_sidecar_service_match_the_consoles() {
         worst
     );
     assert!(worst < 0.05, "{worst}");
+}
+
+/// `calibrate dynamics --robot ros2:PSM1 --measure sidecar` beside a `serve` that reads the
+/// stand-in's boards: the excitation goes through the console's servo_jp at 100 Hz, the rows
+/// are the service's, and `fit --dynamics` (which reads `commanded_hz` from the file) recovers
+/// the simulated arm's inertia J(L) = 0.05 + 0.02 L² kg·m² and viscous friction 0.2 N·m·s/rad.
+/// The same rows fitted sample by sample (the file without its `commanded_hz` line) lose the
+/// inertia in the controller's ripple.
+#[test]
+fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
+    let _slot = slot();
+    let test = "console_dynamics_sidecar";
+    let d = domain(22);
+    let port = common::free_udp_port();
+    let boards = format!("127.0.0.1:{port}");
+    let mut console = stand_in(test, d, &["--boards", &boards]);
+    let prefix = format!("cd{}", std::process::id());
+    let cfg = common::write_config(
+        test,
+        &format!("udp:{boards}"),
+        "shared",
+        &prefix,
+        "clamp.toml",
+    );
+    let mut serve = common::serve(&cfg);
+    let dir = scratch(test);
+    let dynamics = dir.join("dynamics.csv");
+    let (ok, err, secs) = run(
+        d,
+        &[
+            "calibrate",
+            "dynamics",
+            "--robot",
+            "ros2:PSM1",
+            "--measure",
+            "sidecar",
+            "--sidecar-prefix",
+            &prefix,
+            "--depths",
+            "0.10,0.15,0.20",
+            "--seconds-per-depth",
+            "10",
+            "--out",
+            dynamics.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(300),
+    );
+    assert!(ok, "dynamics failed after {secs:.0} s: {err}");
+    serve.terminate();
+    console.proc.terminate();
+    assert_clean(&console_log(&console.log));
+    let text = std::fs::read_to_string(&dynamics).unwrap();
+    let hz: f64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("# commanded_hz: "))
+        .expect("the file records the command rate")
+        .parse()
+        .unwrap();
+    assert!((90.0..110.0).contains(&hz), "commanded_hz {hz}");
+    // the service's rate, not the console's 100 Hz
+    let n = rows(&dynamics);
+    assert!(n as f64 > 600.0 * secs.min(40.0), "{n} rows in {secs:.0} s");
+
+    // a torque-offset table and a clamp file from the same simulated arm, in process
+    let repo = repo();
+    let (sweep, clamp) = (dir.join("sweep.csv"), dir.join("clamp.csv"));
+    let st = Command::new(sidecar_bin())
+        .current_dir(&repo)
+        .args([
+            "calibrate",
+            "torque-offset",
+            "--config",
+            "config/sim/clamp.toml",
+            "--quiet",
+            "--out",
+        ])
+        .arg(&sweep)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    sim_clamp_file(&clamp);
+    let fit = |file: &Path| -> serde_json::Value {
+        let out = Command::new(sidecar_bin())
+            .args(["fit", "--clamp"])
+            .arg(&clamp)
+            .arg("--torque-offset")
+            .arg(&sweep)
+            .arg("--joint")
+            .arg("1")
+            .arg("--dynamics")
+            .arg(file)
+            .arg("--out")
+            .arg(dir.join("p.toml"))
+            .arg("--json")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "fit --dynamics: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        v["dynamics"][0].clone()
+    };
+    let inertia_at = |j: &serde_json::Value, l: f64| {
+        j["inertia_kg_m2"][0].as_f64().unwrap() + j["inertia_kg_m2"][1].as_f64().unwrap() * l * l
+    };
+    let j = fit(&dynamics);
+    eprintln!("dynamics through the console, rows from the sidecar ({n} rows): {j}");
+    assert_eq!(j["index"], 1);
+    for l in [0.10, 0.15, 0.20] {
+        let truth = 0.05 + 0.02 * l * l;
+        let got = inertia_at(&j, l);
+        assert!(
+            (got - truth).abs() < 0.06 * truth,
+            "J({l}) = {got} for {truth}: {j}"
+        );
+    }
+    let b = j["viscous_nm_s_per_rad"].as_f64().unwrap();
+    assert!((b - 0.2).abs() < 0.03, "viscous {b}: {j}");
+    let residual = j["residual_std_nm"].as_f64().unwrap();
+    assert!(residual < 0.03, "residual std {residual}: {j}");
+    // the same rows fitted one by one: the ripple of the 100 Hz steps takes the inertia
+    let plain = dir.join("dynamics-plain.csv");
+    let without: String = text
+        .lines()
+        .filter(|l| !l.starts_with("# commanded_hz"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&plain, without).unwrap();
+    let p = fit(&plain);
+    eprintln!("the same rows fitted sample by sample: {p}");
+    let plain_residual = p["residual_std_nm"].as_f64().unwrap();
+    assert!(plain_residual > 2.0 * residual, "{p}");
+    assert!((inertia_at(&p, 0.15) - 0.0505).abs() > 0.1 * 0.0505, "{p}");
 }
 
 /// The Cyclone DDS console stand-in (`tests/bridge/cyclone_console.py`) on DDS domain `d` with

@@ -100,6 +100,12 @@ pub struct RecordArgs {
     /// --rows). The file is written when the recording ends, Ctrl-C included.
     #[arg(long)]
     pub seconds: Option<f64>,
+    /// With --dynamics: the rate (Hz) at which the excitation sends its set points, when it
+    /// steps them (e.g. 100 for a crtk `servo_jp` script at a console's `measured_js` rate).
+    /// Written into the file as `# commanded_hz:`, so that `fit --dynamics` averages the
+    /// controller's ripple at each step over one period. Leave it out for a smooth excitation.
+    #[arg(long, requires = "dynamics")]
+    pub commanded_hz: Option<f64>,
 }
 
 /// Options shared by the procedures, on the simulator (`--config SCENARIO`) or on a real arm
@@ -212,6 +218,8 @@ impl SimArgs {
         }
         if let Some(r) = &self.robot {
             robot_arm(r)?;
+        } else if self.measure != "console" || self.sidecar_prefix.is_some() {
+            bail!("--measure sidecar and --sidecar-prefix: only with --robot");
         }
         data::check_output_path(&self.out)?;
         Ok(())

@@ -991,7 +991,9 @@ impl ExcitationClock {
 }
 
 /// `calibrate dynamics --robot ros2:ARM`: the excitation through `servo_jp`, rows from the
-/// console's `measured_js`.
+/// console's `measured_js` or, with `--measure sidecar`, from a sidecar service's. The file's
+/// provenance records the rate the console's `measured_js` (and so the commands) came at, as
+/// `commanded_hz`, for `fit --dynamics`.
 pub fn run_dynamics(
     a: &super::dynamics_cmd::DynamicsArgs,
     arm: &str,
@@ -1028,11 +1030,29 @@ pub fn run_dynamics(
          {duration:.0} s in all; effort limit {} N·m",
         traj[0][1], traj[0][2], traj[0][3], a.depths, a.seconds_per_depth, a.effort_limit_nm
     );
+    eprintln!(
+        "rows: {}",
+        match a.measure.as_str() {
+            "sidecar" => "the sidecar service's measured_js (1.5 kHz)",
+            _ =>
+                "the console's measured_js (at 100 Hz the effort is seen at one phase of the \
+                 controller's response to each step: --measure sidecar is the better record)",
+        }
+    );
     eprintln!("output: {}", a.out.display());
     if a.dry_run {
         eprintln!("--dry-run: nothing was sent");
         return Ok(());
     }
+    // the sidecar's samples, if asked for: opened before anything moves
+    let mut sidecar = match a.measure.as_str() {
+        "sidecar" => Some(SidecarSource::open(
+            a.sidecar_prefix.as_deref().unwrap_or(arm),
+        )?),
+        _ => None,
+    };
+    let mut side: Vec<Sample> = Vec::new();
+    let mut console_stamps: Vec<u64> = Vec::new();
     let mut client = prepare(arm, a.enable, a.yes)?;
     set_ratio(&mut client, a.ratio)?;
     let mut polled = Polled::default();
@@ -1078,15 +1098,52 @@ pub fn run_dynamics(
                     client.move_jp(&[first[1], first[2], first[3], w[0], w[1], w[2]])?;
                 }
                 (Some(_), _) => {
-                    let t0n = *t0_ns.get_or_insert(s.t_ns);
-                    rows.push(dvrk_compliance::DynamicsSample {
-                        t_s: s.t_ns.saturating_sub(t0n) as f64 * 1e-9,
-                        position: s.position,
-                        effort_nm: [s.effort[0], s.effort[1]],
-                    });
+                    console_stamps.push(s.t_ns);
+                    if sidecar.is_none() {
+                        let t0n = *t0_ns.get_or_insert(s.t_ns);
+                        rows.push(dvrk_compliance::DynamicsSample {
+                            t_s: s.t_ns.saturating_sub(t0n) as f64 * 1e-9,
+                            position: s.position,
+                            effort_nm: [s.effort[0], s.effort[1]],
+                        });
+                    }
                     fresh = true;
                 }
                 (None, Some(_)) => {}
+            }
+        }
+        if let Some(src) = sidecar.as_mut() {
+            side.clear();
+            src.drain(&mut side, now)?;
+            let since = now.duration_since(src.last_valid);
+            if since > SILENCE_LIMIT {
+                break 'run Some(Stop::Silent {
+                    source: "sidecar",
+                    for_ms: since.as_millis(),
+                    invalid: src.received > 0,
+                });
+            }
+            for s in side.iter().filter(|s| s.valid) {
+                if let Some(j) = (0..2).find(|&j| s.effort[j].abs() > a.effort_limit_nm) {
+                    break 'run Some(Stop::EffortLimit {
+                        joint: j + 1,
+                        effort: s.effort[j],
+                        limit: a.effort_limit_nm,
+                    });
+                }
+                // rows from the excitation's first servo_jp on, on one time axis (a repeated
+                // or older stamp, from a restarted service, is left out)
+                if started.is_some() && servos > 0 {
+                    let t0n = *t0_ns.get_or_insert(s.t_ns);
+                    let t = s.t_ns.saturating_sub(t0n) as f64 * 1e-9;
+                    if rows.last().is_none_or(|r| t > r.t_s) {
+                        rows.push(dvrk_compliance::DynamicsSample {
+                            t_s: t,
+                            position: s.position,
+                            effort_nm: [s.effort[0], s.effort[1]],
+                        });
+                    }
+                }
             }
         }
         // one servo_jp per poll that brought a measured_js: however many came at once (after
@@ -1123,7 +1180,8 @@ pub fn run_dynamics(
         eprintln!("no row collected: {} is left as it was", a.out.display());
         false
     } else {
-        let prov = super::provenance::Provenance::now(arm, watch.tool_type.as_deref());
+        let mut prov = super::provenance::Provenance::now(arm, watch.tool_type.as_deref());
+        prov.commanded_hz = commanded_hz(&console_stamps).map(|hz| format!("{hz:.2}"));
         let text = prov.lines() + &to_csv(&rows);
         super::data::write_atomically(&a.out, text.as_bytes())?;
         true
@@ -1147,10 +1205,48 @@ pub fn run_dynamics(
     }
 }
 
+/// The rate (Hz) of the console's `measured_js` from their stamps (ns): the mean interval over
+/// those shorter than twice the median (a stall, this process starved, is not a period; the
+/// jitter of the others cancels in the mean); `None` for fewer than 10 stamps.
+fn commanded_hz(stamps: &[u64]) -> Option<f64> {
+    let dt: Vec<u64> = stamps
+        .windows(2)
+        .map(|w| w[1].saturating_sub(w[0]))
+        .filter(|&d| d > 0)
+        .collect();
+    if dt.len() < 9 {
+        return None;
+    }
+    let mut sorted = dt.clone();
+    let mid = sorted.len() / 2;
+    let (_, median, _) = sorted.select_nth_unstable(mid);
+    let limit = 2 * *median;
+    let (sum, n) = dt
+        .iter()
+        .filter(|&&d| d < limit)
+        .fold((0u64, 0u64), |(s, n), &d| (s.saturating_add(d), n + 1));
+    (sum > 0).then(|| 1e9 * n as f64 / sum as f64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::calib::dynamics_cmd::TrajectoryArgs;
+
+    #[test]
+    fn the_command_rate_is_the_consoles_median_period() {
+        // 100 Hz with up to 3 ms of jitter, a stall of 200 ms and a repeated stamp
+        let mut stamps: Vec<u64> = (0..200u64)
+            .map(|i| i * 10_000_000 + (i * 7919 % 7) * 500_000)
+            .collect();
+        stamps[100] = stamps[99];
+        for s in &mut stamps[150..] {
+            *s += 200_000_000;
+        }
+        let hz = commanded_hz(&stamps).unwrap();
+        assert!((hz - 100.0).abs() < 3.0, "{hz}");
+        assert_eq!(commanded_hz(&stamps[..5]), None);
+    }
 
     #[test]
     fn a_stall_pauses_the_excitation_instead_of_jumping_it() {

@@ -37,9 +37,20 @@ pub struct DynamicsArgs {
     /// A real arm through the dVRK console's CRTK interface over DDS (`ros2:PSM1`): the
     /// excitation is played through servo_jp at the console's measured_js rate, slowed so its
     /// speed and acceleration stay within 80% of the PSM's move limits (90 deg/s, 90 deg/s²),
-    /// and rows are the console's measured_js.
+    /// and rows are the console's measured_js (or a sidecar service's, --measure sidecar).
     #[arg(long, value_name = "ros2:ARM")]
     pub robot: Option<String>,
+    /// With --robot: where rows come from. `console`: its measured_js (100 Hz); `sidecar`: the
+    /// 1.5 kHz measured_js of a sidecar service running for that arm, which `fit --dynamics`
+    /// averages over the console's command period (the file records that rate). `sidecar`
+    /// is the one to use: at 100 Hz the effort is seen at one phase of the controller's
+    /// response to each servo_jp step.
+    #[arg(long, default_value = "console", value_parser = ["console", "sidecar"])]
+    pub measure: String,
+    /// With --measure sidecar: the service's prefix (default: the arm's name, as `serve` names
+    /// its topics).
+    #[arg(long)]
+    pub sidecar_prefix: Option<String>,
     /// With --robot: the operator prompt and the plan's confirmation are answered (never
     /// enables an arm).
     #[arg(long)]
@@ -169,6 +180,9 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
         );
     }
     super::data::check_output_path(&a.out)?;
+    if a.robot.is_none() && (a.measure != "console" || a.sidecar_prefix.is_some()) {
+        bail!("--measure sidecar and --sidecar-prefix: only with --robot");
+    }
     if let Some(robot) = &a.robot {
         let arm = super::calibrate::robot_arm(robot)?;
         return super::console_run::run_dynamics(a, &arm, stop);
@@ -191,7 +205,8 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
 /// `calibrate record --dynamics`: subscribes to `<prefix>/measured_js` of the running service
 /// and keeps every valid sample as a dynamics row until `--seconds` of samples, `--rows` rows or
 /// Ctrl-C; then writes the file atomically. The time of a row is the sample's own monotonic stamp
-/// (`sample_t_ns`) from the first kept sample, so the fit's filter sees the true spacing.
+/// (`sample_t_ns`) from the first kept sample, so the fit's filter sees the true spacing. With
+/// `--commanded-hz`, the file starts with its provenance lines, that rate among them.
 pub fn record_live(
     a: &super::calibrate::RecordArgs,
     prefix: &str,
@@ -205,6 +220,14 @@ pub fn record_live(
         bail!(
             "--seconds {}: must be a positive number of seconds",
             num(seconds)
+        );
+    }
+    if let Some(hz) = a.commanded_hz
+        && !(hz.is_finite() && hz > 0.0 && hz <= 100_000.0)
+    {
+        bail!(
+            "--commanded-hz {}: must be a rate in ]0, 100000] Hz",
+            num(hz)
         );
     }
     let limit = a.rows.unwrap_or(usize::MAX);
@@ -272,7 +295,17 @@ pub fn record_live(
             a.out.display()
         );
     }
-    super::data::write_atomically(&a.out, to_csv(&rows).as_bytes())?;
+    let head = match a.commanded_hz {
+        Some(hz) => super::provenance::Provenance {
+            date: Some(super::provenance::utc_now()),
+            command: Some(super::provenance::command_line()),
+            commanded_hz: Some(format!("{hz}")),
+            ..Default::default()
+        }
+        .lines(),
+        None => String::new(),
+    };
+    super::data::write_atomically(&a.out, (head + &to_csv(&rows)).as_bytes())?;
     let segments = segments(&rows).len();
     eprintln!(
         "wrote {} rows ({last_t:.1} s, {segments} segment(s), {invalid} invalid samples skipped) \
