@@ -37,26 +37,37 @@ static SLOTS: Slots = Slots {
     freed: std::sync::Condvar::new(),
 };
 
-struct Slot;
+/// The slots a test holds (1, or 2 to run alone).
+struct Slot(usize);
 
 fn slot() -> Slot {
+    slots(1)
+}
+
+/// Both slots: for a test whose measurement needs the machine (a simulated arm, its board
+/// emulator and a `serve` reading it at 1.5 kHz).
+fn slot_alone() -> Slot {
+    slots(2)
+}
+
+fn slots(n: usize) -> Slot {
     let mut used = SLOTS.used.lock().unwrap_or_else(|e| e.into_inner());
-    while *used >= 2 {
+    while *used + n > 2 {
         used = SLOTS.freed.wait(used).unwrap_or_else(|e| e.into_inner());
     }
-    *used += 1;
-    Slot
+    *used += n;
+    Slot(n)
 }
 
 impl Drop for Slot {
     fn drop(&mut self) {
-        *SLOTS.used.lock().unwrap_or_else(|e| e.into_inner()) -= 1;
-        SLOTS.freed.notify_one();
+        *SLOTS.used.lock().unwrap_or_else(|e| e.into_inner()) -= self.0;
+        SLOTS.freed.notify_all();
     }
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-22; each test has its own (a shared domain crosses two tests'
+/// 4-9 (the fault cases), 10-23; each test has its own (a shared domain crosses two tests'
 /// consoles and commands).
 fn domain(offset: u16) -> u16 {
     150 + (std::process::id() % 60) as u16 + offset
@@ -321,6 +332,11 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
     );
     let (ok, err, secs) = dyn_thread.join().unwrap();
     assert!(ok, "dynamics failed after {secs:.0} s: {err}");
+    // `--measure auto` (the default) found no sidecar service for PSM1 and said so
+    assert!(
+        err.contains("no sidecar service publishes valid PSM1/measured_js"),
+        "{err}"
+    );
     eprintln!(
         "dynamics through the console: {} rows in {secs:.0} s",
         rows(&dynamics)
@@ -377,10 +393,12 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
         .arg(dir.join("p.toml"))
         .output()
         .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "fit --dynamics: {err}");
+    // rows at the console's rate of an excitation played in steps: fit says what to do instead
     assert!(
-        out.status.success(),
-        "fit --dynamics: {}",
-        String::from_utf8_lossy(&out.stderr)
+        err.contains("rows at") && err.contains("--measure sidecar"),
+        "fit --dynamics: {err}"
     );
 }
 
@@ -917,7 +935,7 @@ fn rows_from_the_sidecar_service_match_the_consoles() {
 /// inertia in the controller's ripple.
 #[test]
 fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
-    let _slot = slot();
+    let _slot = slot_alone();
     let test = "console_dynamics_sidecar";
     let d = domain(22);
     let port = common::free_udp_port();
@@ -967,9 +985,9 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
         .parse()
         .unwrap();
     assert!((90.0..110.0).contains(&hz), "commanded_hz {hz}");
-    // the service's rate, not the console's 100 Hz
+    // the service's rate (1.5 kHz, less what a loaded machine loses), not the console's 100 Hz
     let n = rows(&dynamics);
-    assert!(n as f64 > 600.0 * secs.min(40.0), "{n} rows in {secs:.0} s");
+    assert!(n as f64 > 400.0 * secs.min(40.0), "{n} rows in {secs:.0} s");
 
     // a torque-offset table and a clamp file from the same simulated arm, in process
     let repo = repo();
@@ -993,7 +1011,7 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
         String::from_utf8_lossy(&st.stderr)
     );
     sim_clamp_file(&clamp);
-    let fit = |file: &Path| -> serde_json::Value {
+    let fit = |file: &Path| -> (serde_json::Value, String) {
         let out = Command::new(sidecar_bin())
             .args(["fit", "--clamp"])
             .arg(&clamp)
@@ -1008,19 +1026,20 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
             .arg("--json")
             .output()
             .unwrap();
-        assert!(
-            out.status.success(),
-            "fit --dynamics: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "fit --dynamics: {err}");
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        v["dynamics"][0].clone()
+        (v["dynamics"][0].clone(), err)
     };
     let inertia_at = |j: &serde_json::Value, l: f64| {
         j["inertia_kg_m2"][0].as_f64().unwrap() + j["inertia_kg_m2"][1].as_f64().unwrap() * l * l
     };
-    let j = fit(&dynamics);
+    let (j, err) = fit(&dynamics);
     eprintln!("dynamics through the console, rows from the sidecar ({n} rows): {j}");
+    assert!(
+        !err.contains("explains little") && !err.contains("rows at"),
+        "{err}"
+    );
     assert_eq!(j["index"], 1);
     for l in [0.10, 0.15, 0.20] {
         let truth = 0.05 + 0.02 * l * l;
@@ -1042,11 +1061,61 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
         .map(|l| format!("{l}\n"))
         .collect();
     std::fs::write(&plain, without).unwrap();
-    let p = fit(&plain);
+    let (p, err) = fit(&plain);
     eprintln!("the same rows fitted sample by sample: {p}");
+    assert!(err.contains("explains little"), "{err}");
     let plain_residual = p["residual_std_nm"].as_f64().unwrap();
     assert!(plain_residual > 2.0 * residual, "{p}");
     assert!((inertia_at(&p, 0.15) - 0.0505).abs() > 0.1 * 0.0505, "{p}");
+}
+
+/// `--measure sidecar` with a service that reads another arm (its own simulator, moving):
+/// refused before anything moves, the service named.
+#[test]
+fn a_sidecar_service_of_another_arm_is_refused_before_anything_moves() {
+    let _slot = slot();
+    let test = "console_other_arm";
+    let d = domain(23);
+    let mut console = stand_in(test, d, &[]);
+    let prefix = format!("oa{}", std::process::id());
+    let cfg = common::write_config(test, "sim", "shared", &prefix, "excitation.toml");
+    let mut serve = common::serve(&cfg);
+    let out = scratch(test).join("dynamics.csv");
+    let (ok, err, secs) = run(
+        d,
+        &[
+            "calibrate",
+            "dynamics",
+            "--robot",
+            "ros2:PSM1",
+            "--measure",
+            "sidecar",
+            "--sidecar-prefix",
+            &prefix,
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(120),
+    );
+    serve.terminate();
+    console.proc.terminate();
+    assert!(!ok, "accepted after {secs:.0} s: {err}");
+    assert!(
+        err.contains(&format!("{prefix}/measured_js")) && err.contains("reads another arm"),
+        "{err}"
+    );
+    let log = console_log(&console.log);
+    assert!(
+        !log.iter()
+            .any(|(_, k, d)| k == "motion" && !d.starts_with("hold")),
+        "a motion command reached the console: {log:?}"
+    );
+    let text = std::fs::read_to_string(&out).unwrap_or_default();
+    assert!(
+        text.lines().filter(|l| !l.starts_with('#')).count() <= 1,
+        "no row: {text}"
+    );
 }
 
 /// The Cyclone DDS console stand-in (`tests/bridge/cyclone_console.py`) on DDS domain `d` with

@@ -79,6 +79,13 @@ pub enum Stop {
     },
     MoveInterrupted,
     Interrupted,
+    /// `--measure sidecar`: the service's joint position differs from the console's, at rest.
+    OtherArm {
+        service: String,
+        joint: usize,
+        console: f64,
+        sidecar: f64,
+    },
 }
 
 impl std::fmt::Display for Stop {
@@ -132,6 +139,17 @@ impl std::fmt::Display for Stop {
             }
             Stop::MoveInterrupted => write!(f, "a move_jp ended with goal_reached false"),
             Stop::Interrupted => write!(f, "stopped by Ctrl-C, Ctrl-Z or SIGTERM (signal)"),
+            Stop::OtherArm {
+                service,
+                joint,
+                console,
+                sidecar,
+            } => write!(
+                f,
+                "{service} reads joint {joint} at {sidecar:.4} where the console's measured_js \
+                 reads {console:.4}: that service reads another arm (give this arm's with \
+                 --sidecar-prefix)"
+            ),
         }
     }
 }
@@ -552,6 +570,8 @@ pub struct SidecarSource {
     last_valid: Instant,
     /// Samples taken (valid or not).
     pub received: u64,
+    /// The service was found to read the console's arm ([`same_arm`]).
+    checked: bool,
 }
 
 impl SidecarSource {
@@ -577,7 +597,23 @@ impl SidecarSource {
             service,
             last_valid: Instant::now(),
             received: 0,
+            checked: false,
         })
+    }
+
+    /// Whether a valid sample arrives within `timeout` (those received meanwhile are dropped).
+    fn publishes_within(&mut self, timeout: Duration) -> anyhow::Result<bool> {
+        let start = Instant::now();
+        let mut scratch = Vec::new();
+        while start.elapsed() < timeout {
+            scratch.clear();
+            self.drain(&mut scratch, Instant::now())?;
+            if scratch.iter().any(|s| s.valid) {
+                return Ok(true);
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        Ok(false)
     }
 
     /// Every sample waiting, oldest first (invalid ones as `valid = false`).
@@ -608,6 +644,23 @@ impl SidecarSource {
             });
         }
         Ok(())
+    }
+}
+
+/// How far the sidecar's joint positions may be from the console's (rad, rad, m) for the two
+/// to read one arm: the same encoders, at most a console period apart.
+const SAME_ARM_TOLERANCE: [f64; 3] = [0.02, 0.02, 0.005];
+
+/// Checks that the sidecar service's sample and the console's read the same arm.
+fn same_arm(service: &str, console: &[f64; 3], sidecar: &[f64; 3]) -> Result<(), Stop> {
+    match (0..3).find(|&j| (console[j] - sidecar[j]).abs() > SAME_ARM_TOLERANCE[j]) {
+        None => Ok(()),
+        Some(j) => Err(Stop::OtherArm {
+            service: service.to_owned(),
+            joint: j + 1,
+            console: console[j],
+            sidecar: sidecar[j],
+        }),
     }
 }
 
@@ -678,6 +731,17 @@ pub fn run_console<P: Plan>(
         }
         if let Some(src) = sidecar.as_deref_mut() {
             src.drain(&mut side, now)?;
+            if !src.checked
+                && let (Some(pos), Some(first)) = (last_position, side.iter().find(|s| s.valid))
+            {
+                if let Err(r) = same_arm(&src.service, &pos, &first.position) {
+                    break 'run Some(r);
+                }
+                src.checked = true;
+            }
+            if !src.checked {
+                side.clear(); // nothing from the service until it is known to read this arm
+            }
             let since = now.duration_since(src.last_valid);
             if since > SILENCE_LIMIT {
                 break 'run Some(Stop::Silent {
@@ -1034,6 +1098,9 @@ pub fn run_dynamics(
         "rows: {}",
         match a.measure.as_str() {
             "sidecar" => "the sidecar service's measured_js (1.5 kHz)",
+            "auto" =>
+                "a sidecar service's measured_js (1.5 kHz) if one runs for this arm, else the \
+                 console's",
             _ =>
                 "the console's measured_js (at 100 Hz the effort is seen at one phase of the \
                  controller's response to each step: --measure sidecar is the better record)",
@@ -1044,14 +1111,31 @@ pub fn run_dynamics(
         eprintln!("--dry-run: nothing was sent");
         return Ok(());
     }
-    // the sidecar's samples, if asked for: opened before anything moves
+    // the sidecar's samples, if asked for or (auto) if a service runs: opened before anything
+    // moves
+    let prefix = a.sidecar_prefix.as_deref().unwrap_or(arm);
     let mut sidecar = match a.measure.as_str() {
-        "sidecar" => Some(SidecarSource::open(
-            a.sidecar_prefix.as_deref().unwrap_or(arm),
-        )?),
+        "sidecar" => Some(SidecarSource::open(prefix)?),
+        "auto" => match SidecarSource::open(prefix)
+            .and_then(|mut src| Ok(src.publishes_within(Duration::from_secs(1))?.then_some(src)))
+        {
+            Ok(Some(src)) => {
+                eprintln!("rows: {} (a sidecar service runs for {arm})", src.service);
+                Some(src)
+            }
+            Ok(None) | Err(_) => {
+                eprintln!(
+                    "rows: the console's measured_js: no sidecar service publishes valid \
+                     {prefix}/measured_js (start `dvrk-sidecar serve` for this arm to record at \
+                     the boards' rate; fit will warn)"
+                );
+                None
+            }
+        },
         _ => None,
     };
     let mut side: Vec<Sample> = Vec::new();
+    let mut side_last: Option<[f64; 3]> = None;
     let mut console_stamps: Vec<u64> = Vec::new();
     let mut client = prepare(arm, a.enable, a.yes)?;
     set_ratio(&mut client, a.ratio)?;
@@ -1087,6 +1171,17 @@ pub fn run_dynamics(
             clock.stamp(s.t_ns);
             match (started, &moving) {
                 (None, None) => {
+                    // with the sidecar's rows: nothing moves before the service is known to
+                    // read this arm
+                    if let Some(src) = sidecar.as_mut()
+                        && !src.checked
+                    {
+                        let Some(p) = side_last else { continue };
+                        if let Err(r) = same_arm(&src.service, &s.position, &p) {
+                            break 'run Some(r);
+                        }
+                        src.checked = true;
+                    }
                     // the move to the start of the excitation
                     let first = &traj[0];
                     let d = [
@@ -1124,6 +1219,7 @@ pub fn run_dynamics(
                 });
             }
             for s in side.iter().filter(|s| s.valid) {
+                side_last = Some(s.position);
                 if let Some(j) = (0..2).find(|&j| s.effort[j].abs() > a.effort_limit_nm) {
                     break 'run Some(Stop::EffortLimit {
                         joint: j + 1,

@@ -40,12 +40,13 @@ pub struct DynamicsArgs {
     /// and rows are the console's measured_js (or a sidecar service's, --measure sidecar).
     #[arg(long, value_name = "ros2:ARM")]
     pub robot: Option<String>,
-    /// With --robot: where rows come from. `console`: its measured_js (100 Hz); `sidecar`: the
-    /// 1.5 kHz measured_js of a sidecar service running for that arm, which `fit --dynamics`
-    /// averages over the console's command period (the file records that rate). `sidecar`
-    /// is the one to use: at 100 Hz the effort is seen at one phase of the controller's
-    /// response to each servo_jp step.
-    #[arg(long, default_value = "console", value_parser = ["console", "sidecar"])]
+    /// With --robot: where rows come from. `sidecar`: the 1.5 kHz measured_js of a sidecar
+    /// service running for that arm (checked to read the console's arm before anything moves),
+    /// which `fit --dynamics` averages over the console's command period (the file records that
+    /// rate); `console`: its measured_js (100 Hz), where the effort is seen at one phase of the
+    /// controller's response to each servo_jp step, which biases the fit; `auto`: `sidecar`
+    /// when such a service publishes within 5 s, else `console`.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "console", "sidecar"])]
     pub measure: String,
     /// With --measure sidecar: the service's prefix (default: the arm's name, as `serve` names
     /// its topics).
@@ -180,7 +181,7 @@ pub fn run(a: &DynamicsArgs, stop: &AtomicBool) -> anyhow::Result<()> {
         );
     }
     super::data::check_output_path(&a.out)?;
-    if a.robot.is_none() && (a.measure != "console" || a.sidecar_prefix.is_some()) {
+    if a.robot.is_none() && (a.measure == "sidecar" || a.sidecar_prefix.is_some()) {
         bail!("--measure sidecar and --sidecar-prefix: only with --robot");
     }
     if let Some(robot) = &a.robot {
