@@ -390,6 +390,22 @@ fn unphysical_numbers_in_data_files_are_refused_through_the_binary() {
             String::from_utf8_lossy(&o.stdout)
         );
     }
+    // A command rate that is not one, in the provenance line `fit` reads: named with its file.
+    let rate = d.join("dynamics-rate.csv");
+    std::fs::write(
+        &rate,
+        format!("# commanded_hz: fast\n{dynamics_header}\n0.001,0.1,0.1,0.12,0.1,0.2\n"),
+    )
+    .unwrap();
+    let o = Command::new(sidecar_bin())
+        .args(fit_with("--dynamics", &rate))
+        .output()
+        .unwrap();
+    let err = assert_refused(&o, "dynamics-rate.csv");
+    assert!(
+        err.contains("dynamics-rate.csv") && err.contains("`# commanded_hz: fast`"),
+        "{err}"
+    );
 }
 
 #[test]

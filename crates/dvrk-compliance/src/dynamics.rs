@@ -1290,11 +1290,13 @@ mod fit_tests {
             assert_eq!(one.params.distal_gravity, None);
         }
     }
-    /// The excitation played through a console: set points held for 10 ms each (100 Hz
-    /// `servo_jp`) and followed by a PD controller of the simulated PSM's gains, rows at the
-    /// boards' 1.5 kHz with one in five lost. The controller kicks at every step; the per-sample fit reads the ripple
-    /// as a model it cannot place, the both-sides filter of [`Excitation::Stepped`] recovers the
-    /// joint's inertia and friction, and its residual std keeps the effort's sample noise.
+
+    /// The excitation played through a console: set points held for about 10 ms each (a
+    /// `servo_jp` per console period) and followed by a PD controller of the simulated PSM's
+    /// gains, rows at the boards' 1.5 kHz with one in five lost. The controller kicks at every
+    /// step; the per-sample fit reads the ripple as a model it cannot place, the averaging of
+    /// [`Excitation::Stepped`] recovers the joint's inertia and friction, and its residual std
+    /// keeps the effort's sample noise.
     #[test]
     fn recovers_a_multisine_played_in_steps_through_a_controller() {
         let (j0, j2, b, f) = (0.05, 0.4, 0.2, 0.03);
