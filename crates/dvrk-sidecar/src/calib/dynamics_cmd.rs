@@ -37,7 +37,7 @@ pub struct DynamicsArgs {
     /// A real arm through the dVRK console's CRTK interface over DDS (`ros2:PSM1`): the
     /// excitation is played through servo_jp at the console's measured_js rate, slowed so its
     /// speed and acceleration stay within 80% of the PSM's move limits (90 deg/s, 90 deg/s²),
-    /// and rows are the console's measured_js (or a sidecar service's, --measure sidecar).
+    /// and rows are a sidecar service's measured_js or the console's (see --measure).
     #[arg(long, value_name = "ros2:ARM")]
     pub robot: Option<String>,
     /// With --robot: where rows come from. `sidecar`: the 1.5 kHz measured_js of a sidecar
