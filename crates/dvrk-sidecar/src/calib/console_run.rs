@@ -1330,7 +1330,7 @@ mod tests {
     use crate::calib::dynamics_cmd::TrajectoryArgs;
 
     #[test]
-    fn the_command_rate_is_the_consoles_median_period() {
+    fn the_command_rate_is_the_consoles_period_without_stalls() {
         // 100 Hz with up to 3 ms of jitter, a stall of 200 ms and a repeated stamp
         let mut stamps: Vec<u64> = (0..200u64)
             .map(|i| i * 10_000_000 + (i * 7919 % 7) * 500_000)
