@@ -301,15 +301,15 @@ pub const CENTRED_HALF_WIDTH_S: f64 = 0.05;
 /// [`CENTRED_BELOW_HZ`]), the run-time causal filter, restarted at each of `starts` and after a
 /// gap ([`MAX_GAP_S`]), skipping its first window. Below, a centred least-squares cubic over
 /// [`CENTRED_HALF_WIDTH_S`] each side (at least 3 samples each side), within a segment and
-/// with no gap over 3 times the median sample interval inside; `centred` takes the centred cubic
-/// at any rate.
+/// with no gap over 3 times the median sample interval (`median_dt`) inside; `centred` takes the
+/// centred cubic at any rate.
 fn fit_derivatives(
     samples: &[DynamicsSample],
     j: usize,
     starts: &[usize],
+    median_dt: f64,
     centred: bool,
 ) -> Vec<Option<(f64, f64, usize)>> {
-    let median_dt = median_interval(samples);
     if !centred && median_dt <= 1.0 / CENTRED_BELOW_HZ {
         let mut filter = DerivativeFilter::default();
         let mut in_segment = 0;
@@ -368,7 +368,7 @@ fn fit_derivatives(
 }
 
 /// The median interval between neighbouring samples (s; 0 for fewer than 2).
-fn median_interval(samples: &[DynamicsSample]) -> f64 {
+pub fn median_interval(samples: &[DynamicsSample]) -> f64 {
     let mut dts: Vec<f64> = samples.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
     dts.sort_by(f64::total_cmp);
     dts.get(dts.len() / 2).copied().unwrap_or(0.0)
@@ -396,9 +396,9 @@ pub enum Excitation {
 }
 
 impl Excitation {
-    /// The command period (s) to average rows `median_dt` apart over, or `None` when they are
-    /// fitted as [`Excitation::Smooth`].
-    fn averaging_period(self, median_dt: f64) -> Option<f64> {
+    /// The command period (s) to average rows `median_dt` apart over ([`median_interval`]), or
+    /// `None` when they are fitted as [`Excitation::Smooth`].
+    pub fn averaging_period(self, median_dt: f64) -> Option<f64> {
         match self {
             Self::Stepped { commanded_hz }
                 if commanded_hz.is_finite()
@@ -881,7 +881,8 @@ pub fn fit_dynamics_with_gravity(
         });
     }
     // Rows commanded in steps: averaged over a command period first (Excitation::Stepped).
-    let period = excitation.averaging_period(median_interval(samples));
+    let raw_median_dt = median_interval(samples);
+    let period = excitation.averaging_period(raw_median_dt);
     let raw_noise = period.map(|_| {
         let y: Vec<f64> = samples
             .iter()
@@ -891,9 +892,9 @@ pub fn fit_dynamics_with_gravity(
         sample_noise(&y, &t, starts)
     });
     let averaged = period.map(|p| average_over_period(samples, starts, p));
-    let (samples, starts) = match &averaged {
-        Some((s, st)) => (s.as_slice(), st.as_slice()),
-        None => (samples, starts),
+    let (samples, starts, median_dt) = match &averaged {
+        Some((s, st)) => (s.as_slice(), st.as_slice(), median_interval(s)),
+        None => (samples, starts, raw_median_dt),
     };
     if samples.len() < 4 * WINDOW {
         return Err(DynamicsFitError::Data {
@@ -909,7 +910,7 @@ pub fn fit_dynamics_with_gravity(
     let mut row_starts: Vec<usize> = Vec::new();
     let mut max_acc = 0.0f64;
     let l_ref = gravity_reference_m.unwrap_or(0.0);
-    for (i, d) in fit_derivatives(samples, j, starts, period.is_some())
+    for (i, d) in fit_derivatives(samples, j, starts, median_dt, period.is_some())
         .into_iter()
         .enumerate()
     {

@@ -422,15 +422,7 @@ impl Watch {
         }
         self.last_t_ns = t_ns;
         self.last_valid = now;
-        for j in 0..2 {
-            if s.effort[j].abs() > self.effort_limit_nm {
-                return Err(Stop::EffortLimit {
-                    joint: j + 1,
-                    effort: s.effort[j],
-                    limit: self.effort_limit_nm,
-                });
-            }
-        }
+        effort_within(&s, self.effort_limit_nm)?;
         Ok(Some(s))
     }
 
@@ -445,6 +437,18 @@ impl Watch {
             });
         }
         Ok(())
+    }
+}
+
+/// |effort| of joint 1 or 2 of `s` above `limit_nm` stops the run.
+fn effort_within(s: &Sample, limit_nm: f64) -> Result<(), Stop> {
+    match (0..2).find(|&j| s.effort[j].abs() > limit_nm) {
+        None => Ok(()),
+        Some(j) => Err(Stop::EffortLimit {
+            joint: j + 1,
+            effort: s.effort[j],
+            limit: limit_nm,
+        }),
     }
 }
 
@@ -616,6 +620,19 @@ impl SidecarSource {
         Ok(false)
     }
 
+    /// No valid sample for [`SILENCE_LIMIT`] stops the run.
+    fn silence(&self, now: Instant) -> Result<(), Stop> {
+        let since = now.duration_since(self.last_valid);
+        if since > SILENCE_LIMIT {
+            return Err(Stop::Silent {
+                source: "sidecar",
+                for_ms: since.as_millis(),
+                invalid: self.received > 0,
+            });
+        }
+        Ok(())
+    }
+
     /// Every sample waiting, oldest first (invalid ones as `valid = false`).
     fn drain(&mut self, out: &mut Vec<Sample>, now: Instant) -> anyhow::Result<()> {
         while let Some(sample) = self
@@ -742,27 +759,16 @@ pub fn run_console<P: Plan>(
             if !src.checked {
                 side.clear(); // nothing from the service until it is known to read this arm
             }
-            let since = now.duration_since(src.last_valid);
-            if since > SILENCE_LIMIT {
-                break 'run Some(Stop::Silent {
-                    source: "sidecar",
-                    for_ms: since.as_millis(),
-                    invalid: src.received > 0,
-                });
+            if let Err(r) = src.silence(now) {
+                break 'run Some(r);
             }
         }
         for s in &side {
             if !s.valid {
                 continue;
             }
-            for j in 0..2 {
-                if s.effort[j].abs() > rc.effort_limit_nm {
-                    break 'run Some(Stop::EffortLimit {
-                        joint: j + 1,
-                        effort: s.effort[j],
-                        limit: rc.effort_limit_nm,
-                    });
-                }
+            if let Err(r) = effort_within(s, rc.effort_limit_nm) {
+                break 'run Some(r);
             }
             if moving.is_some() || prompt.is_some() {
                 continue; // the console moves (or the operator acts); the runner waits
@@ -1210,22 +1216,13 @@ pub fn run_dynamics(
         if let Some(src) = sidecar.as_mut() {
             side.clear();
             src.drain(&mut side, now)?;
-            let since = now.duration_since(src.last_valid);
-            if since > SILENCE_LIMIT {
-                break 'run Some(Stop::Silent {
-                    source: "sidecar",
-                    for_ms: since.as_millis(),
-                    invalid: src.received > 0,
-                });
+            if let Err(r) = src.silence(now) {
+                break 'run Some(r);
             }
             for s in side.iter().filter(|s| s.valid) {
                 side_last = Some(s.position);
-                if let Some(j) = (0..2).find(|&j| s.effort[j].abs() > a.effort_limit_nm) {
-                    break 'run Some(Stop::EffortLimit {
-                        joint: j + 1,
-                        effort: s.effort[j],
-                        limit: a.effort_limit_nm,
-                    });
+                if let Err(r) = effort_within(s, a.effort_limit_nm) {
+                    break 'run Some(r);
                 }
                 // rows from the excitation's first servo_jp on, on one time axis (a repeated
                 // or older stamp, from a restarted service, is left out)

@@ -303,11 +303,9 @@ pub fn console_rate_warning(excitation: Excitation, rows: &[DynamicsSample]) -> 
     let Excitation::Stepped { commanded_hz } = excitation else {
         return None;
     };
-    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
-    dt.sort_by(f64::total_cmp);
-    let median = dt.get(dt.len() / 2).copied()?;
+    let median = dvrk_compliance::median_interval(rows);
     let rate = 1.0 / median;
-    (rate <= 1.5 * commanded_hz).then(|| {
+    (median > 0.0 && excitation.averaging_period(median).is_none()).then(|| {
         format!(
             "rows at {rate:.0} Hz for commands at {commanded_hz:.0} Hz: each row sees the \
              controller's response to a step at the same phase, which biases the model \
