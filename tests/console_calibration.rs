@@ -404,20 +404,20 @@ fn divot_and_dynamics_through_the_console_give_files_that_evaluate_and_fit_read(
 
 /// A clamp file of joint 1 at four depths, made on the in-process simulator.
 fn sim_clamp_file(out: &Path) {
+    sim_file(
+        &["clamp", "--joints", "1", "--depths", "0.10,0.13,0.16,0.19"],
+        out,
+    );
+}
+
+/// `calibrate PROCEDURE... --config config/sim/clamp.toml --quiet --out OUT` on the in-process
+/// simulator, which must succeed.
+fn sim_file(procedure: &[&str], out: &Path) {
     let st = Command::new(sidecar_bin())
         .current_dir(repo())
-        .args([
-            "calibrate",
-            "clamp",
-            "--config",
-            "config/sim/clamp.toml",
-            "--joints",
-            "1",
-            "--depths",
-            "0.10,0.13,0.16,0.19",
-            "--quiet",
-            "--out",
-        ])
+        .arg("calibrate")
+        .args(procedure)
+        .args(["--config", "config/sim/clamp.toml", "--quiet", "--out"])
         .arg(out)
         .output()
         .unwrap();
@@ -848,6 +848,24 @@ fn files_record_their_provenance_and_fit_refuses_two_instruments() {
     assert!(!out2.exists());
 }
 
+/// A console stand-in whose simulated arm also answers as boards on loopback, and a `serve`
+/// reading those boards in shared mode under a prefix of its own (`tag` and this process's
+/// id): the sidecar service beside the console. Returns both and the prefix.
+fn stand_in_with_service(test: &str, d: u16, tag: &str) -> (StandIn, Proc, String) {
+    let port = common::free_udp_port();
+    let boards = format!("127.0.0.1:{port}");
+    let console = stand_in(test, d, &["--boards", &boards]);
+    let prefix = format!("{tag}{}", std::process::id());
+    let cfg = common::write_config(
+        test,
+        &format!("udp:{boards}"),
+        "shared",
+        &prefix,
+        "clamp.toml",
+    );
+    (console, common::serve(&cfg), prefix)
+}
+
 /// `--measure sidecar`: the rows come from a sidecar service reading the same arm's boards at
 /// 1.5 kHz, while the commands still go through the console; compared with the console's own
 /// 100 Hz rows of the same sweep.
@@ -856,18 +874,7 @@ fn rows_from_the_sidecar_service_match_the_consoles() {
     let _slot = slot();
     let test = "console_measure_sidecar";
     let d = domain(13);
-    let port = common::free_udp_port();
-    let boards = format!("127.0.0.1:{port}");
-    let mut console = stand_in(test, d, &["--boards", &boards]);
-    let prefix = format!("cs{}", std::process::id());
-    let cfg = common::write_config(
-        test,
-        &format!("udp:{boards}"),
-        "shared",
-        &prefix,
-        "clamp.toml",
-    );
-    let mut serve = common::serve(&cfg);
+    let (mut console, mut serve, prefix) = stand_in_with_service(test, d, "cs");
     let dir = scratch(test);
     let (side, cons) = (dir.join("sidecar.csv"), dir.join("console.csv"));
     for (out, extra) in [
@@ -938,18 +945,7 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
     let _slot = slot_alone();
     let test = "console_dynamics_sidecar";
     let d = domain(22);
-    let port = common::free_udp_port();
-    let boards = format!("127.0.0.1:{port}");
-    let mut console = stand_in(test, d, &["--boards", &boards]);
-    let prefix = format!("cd{}", std::process::id());
-    let cfg = common::write_config(
-        test,
-        &format!("udp:{boards}"),
-        "shared",
-        &prefix,
-        "clamp.toml",
-    );
-    let mut serve = common::serve(&cfg);
+    let (mut console, mut serve, prefix) = stand_in_with_service(test, d, "cd");
     let dir = scratch(test);
     let dynamics = dir.join("dynamics.csv");
     let (ok, err, secs) = run(
@@ -990,26 +986,8 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
     assert!(n as f64 > 400.0 * secs.min(40.0), "{n} rows in {secs:.0} s");
 
     // a torque-offset table and a clamp file from the same simulated arm, in process
-    let repo = repo();
     let (sweep, clamp) = (dir.join("sweep.csv"), dir.join("clamp.csv"));
-    let st = Command::new(sidecar_bin())
-        .current_dir(&repo)
-        .args([
-            "calibrate",
-            "torque-offset",
-            "--config",
-            "config/sim/clamp.toml",
-            "--quiet",
-            "--out",
-        ])
-        .arg(&sweep)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    sim_file(&["torque-offset"], &sweep);
     sim_clamp_file(&clamp);
     let fit = |file: &Path| -> (serde_json::Value, String) {
         let out = Command::new(sidecar_bin())
