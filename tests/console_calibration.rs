@@ -67,10 +67,10 @@ impl Drop for Slot {
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-23; each test has its own (a shared domain crosses two tests'
-/// consoles and commands).
+/// 4-9 (the fault cases), 10-24; each test has its own (a shared domain crosses two tests'
+/// consoles and commands). At most 150 + 58 + 24 = 232, the highest domain ROS 2 allows.
 fn domain(offset: u16) -> u16 {
-    150 + (std::process::id() % 60) as u16 + offset
+    150 + (std::process::id() % 59) as u16 + offset
 }
 
 struct StandIn {
@@ -587,7 +587,7 @@ fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
         "the earlier file must be untouched"
     );
 
-    // --enable: enable and home, then the run starts; Ctrl-C ends it with one hold at most
+    // --enable: enable and home, then the run starts; Ctrl-C ends it with nothing but holds
     let mut p = Proc::spawn(
         "calibrate --enable",
         Command::new(sidecar_bin())
@@ -1099,6 +1099,106 @@ fn a_sidecar_service_of_another_arm_is_refused_before_anything_moves() {
     );
 }
 
+/// `calibrate dynamics --measure sidecar` whose service is killed (SIGKILL, no clean-up) two
+/// seconds into the excitation: the run stops within the silence limit with the service named
+/// "silent" (not "invalid"), sends its hold, keeps its rows and exits non-zero.
+#[test]
+fn a_sidecar_service_killed_mid_run_stops_the_excitation_with_a_hold() {
+    let _slot = slot();
+    let test = "console_sidecar_killed";
+    let d = domain(24);
+    let (mut console, mut serve, prefix) = stand_in_with_service(test, d, "ck");
+    let out = scratch(test).join("dynamics.csv");
+    let (log_path, serve_pid) = (console.log.clone(), serve.pid());
+    let killer = std::thread::spawn(move || {
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(90) {
+            let motions = console_log(&log_path)
+                .iter()
+                .filter(|(_, k, d)| k == "motion" && d.starts_with("servo_jp"))
+                .count();
+            if motions >= 200 {
+                // SAFETY: plain kill(2) on a child of this test.
+                unsafe { libc::kill(serve_pid, libc::SIGKILL) };
+                return Some(Instant::now());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    });
+    let (ok, err, secs, end) = run_until(
+        d,
+        &[
+            "calibrate",
+            "dynamics",
+            "--robot",
+            "ros2:PSM1",
+            "--measure",
+            "sidecar",
+            "--sidecar-prefix",
+            &prefix,
+            "--depths",
+            "0.10,0.15",
+            "--seconds-per-depth",
+            "10",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(120),
+    );
+    let killed = killer
+        .join()
+        .unwrap()
+        .expect("the excitation never started");
+    let _ = serve.wait_timeout(Duration::from_secs(5));
+    // the hold was acknowledged by the stand-in's reader before calibrate exited; give its loop
+    // the time to take it before stopping it
+    let waited = Instant::now();
+    while waited.elapsed() < Duration::from_secs(3)
+        && !console_log(&console.log)
+            .iter()
+            .any(|(_, k, d)| k == "command" && d == "hold")
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    console.proc.terminate();
+    assert!(!ok, "the run succeeded after {secs:.0} s: {err}");
+    assert!(err.contains("sidecar measured_js silent"), "{err}");
+    assert!(err.contains("rows collected are kept"), "{err}");
+    let kept = rows(&out);
+    assert!(kept >= 1000, "{kept} rows kept: {err}");
+    let exit_s = end.duration_since(killed).as_secs_f64();
+    assert!(exit_s < 5.0, "exit {exit_s:.1} s after the kill");
+    // The kill on the stand-in's clock (which starts a little after the test's): just after
+    // its 200th servo_jp was logged.
+    let log = console_log(&console.log);
+    let servo: Vec<f64> = log
+        .iter()
+        .filter(|(_, k, d)| k == "motion" && d.starts_with("servo_jp"))
+        .map(|(t, _, _)| *t)
+        .collect();
+    let t_kill = servo[199];
+    let hold = log
+        .iter()
+        .filter(|(_, k, d)| k == "command" && d == "hold")
+        .map(|(t, _, _)| *t)
+        .fold(f64::NAN, f64::max);
+    let last_motion = servo[servo.len() - 1];
+    eprintln!(
+        "killed after the servo_jp at {t_kill:.2} s; hold at {hold:.2} s, last servo_jp at \
+         {last_motion:.2} s, exit {exit_s:.2} s after the kill, {kept} rows kept"
+    );
+    assert!(
+        hold >= t_kill,
+        "no hold after the kill at {t_kill:.2} s: {:?}; calibrate said: {err}",
+        &log[log.len().saturating_sub(3)..]
+    );
+    assert!(hold >= last_motion, "a motion after the hold: {log:?}");
+    // the silence limit (0.3 s) and a loaded machine's delays, never the rest of the excitation
+    assert!(last_motion - t_kill < 2.0, "{last_motion} after {t_kill}");
+}
+
 /// The Cyclone DDS console stand-in (`tests/bridge/cyclone_console.py`) on DDS domain `d` with
 /// `args`, for up to 600 s; its log (one JSON object per command received and event sent) in
 /// `dir`.
@@ -1264,7 +1364,8 @@ fn a_console_with_volatile_events_is_named_and_nothing_is_sent() {
 
 /// An abort against the Cyclone DDS console: its weight torque on joint 2 (0.12 sin q2, 0.057
 /// N·m at the sweep's first position) is above an effort limit of 0.03 N·m, so the run stops
-/// and sends one `hold`, an `std_msgs/Empty` the console of another author decodes.
+/// and sends its `hold` (twice, 50 ms apart), an `std_msgs/Empty` the console of another author
+/// decodes; nothing else follows it.
 #[cfg_attr(
     not(has_py_cyclonedds),
     ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
@@ -1314,7 +1415,7 @@ fn an_abort_sends_a_hold_that_a_cyclone_dds_console_reads() {
         .lines()
         .skip_while(|l| !l.contains("\"cmd\": \"hold\""))
         .skip(1)
-        .filter(|l| l.contains("\"cmd\""))
+        .filter(|l| l.contains("\"cmd\"") && !l.contains("\"cmd\": \"hold\""))
         .collect();
     assert!(after.is_empty(), "commands after the hold: {after:?}");
 }

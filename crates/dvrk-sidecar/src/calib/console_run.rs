@@ -13,8 +13,9 @@
 //! - every `measured_js` is checked: |effort| of joints 1-2 above `--effort-limit-nm`, a joint
 //!   outside the limits, the operating state leaving ENABLED (e-stop, FAULT), `measured_js`
 //!   silent or invalid (zero stamp) for 0.3 s, a move not finished in time and Ctrl-C all abort
-//!   within one poll (1 ms) of being seen: no motion command follows but at most one `hold`, the
-//!   rows collected are written atomically, and the command exits non-zero with the reason.
+//!   within one poll (1 ms) of being seen: no motion command follows but `hold` (sent twice,
+//!   50 ms apart), the rows collected are written atomically, and the command exits non-zero
+//!   with the reason.
 
 use std::io::BufRead;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -422,22 +423,43 @@ impl Watch {
         }
         self.last_t_ns = t_ns;
         self.last_valid = now;
+        self.saw_invalid = false;
         effort_within(&s, self.effort_limit_nm)?;
         Ok(Some(s))
     }
 
     /// No valid `measured_js` for [`SILENCE_LIMIT`] stops the run.
     fn silence(&self, now: Instant) -> Result<(), Stop> {
-        let since_valid = now.duration_since(self.last_valid);
-        if since_valid > SILENCE_LIMIT {
-            return Err(Stop::Silent {
-                source: "console",
-                for_ms: since_valid.as_millis(),
-                invalid: self.saw_invalid && now.duration_since(self.last_any) <= SILENCE_LIMIT,
-            });
-        }
-        Ok(())
+        silence(
+            "console",
+            self.last_valid,
+            self.last_any,
+            self.saw_invalid,
+            now,
+        )
     }
+}
+
+/// The stop of a `source` whose last valid `measured_js` came at `last_valid`, once that is
+/// more than [`SILENCE_LIMIT`] ago: "invalid" while invalid ones still arrive (the last at
+/// `last_any`, `saw_invalid` since the last valid one), "silent" once nothing does (a console
+/// or a service that stopped or died).
+fn silence(
+    source: &'static str,
+    last_valid: Instant,
+    last_any: Instant,
+    saw_invalid: bool,
+    now: Instant,
+) -> Result<(), Stop> {
+    let since_valid = now.duration_since(last_valid);
+    if since_valid > SILENCE_LIMIT {
+        return Err(Stop::Silent {
+            source,
+            for_ms: since_valid.as_millis(),
+            invalid: saw_invalid && now.duration_since(last_any) <= SILENCE_LIMIT,
+        });
+    }
+    Ok(())
 }
 
 /// |effort| of joint 1 or 2 of `s` above `limit_nm` stops the run.
@@ -488,7 +510,7 @@ impl MoveWait {
     }
 }
 
-/// After an abort: one `hold` where the arm is, unless the arm already left ENABLED (a hold
+/// After an abort: `hold` where the arm is (twice, see below), unless the arm already left ENABLED (a hold
 /// would be refused); nothing else follows.
 ///
 /// If this process's DDS has stopped (RustDDS ends its event loop when a stop and continue,
@@ -500,7 +522,25 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
         return;
     }
     if client.dds_alive() {
-        let _ = client.hold();
+        // Acknowledged, not only written, since the process exits next; and sent twice. In the
+        // first seconds after connecting, the console stand-in's hold reader (RustDDS, VOLATILE)
+        // sometimes acknowledged the hold without delivering it: half of the holds of runs
+        // stopped 2 s into the excitation were lost, none 6 s in. A second hold 50 ms later
+        // arrives; holding twice where the arm is changes nothing on a console.
+        let mut acked = true;
+        for i in 0..HOLD_REPEATS {
+            if i > 0 {
+                std::thread::sleep(HOLD_REPEAT_GAP);
+            }
+            acked &= client.hold_acknowledged(HOLD_ACK_WAIT).unwrap_or(false);
+        }
+        if !acked {
+            eprintln!(
+                "the hold was sent but the console did not acknowledge it within {} s: it may keep \
+                 the last command; hold the arm from the console",
+                HOLD_ACK_WAIT.as_secs()
+            );
+        }
         return;
     }
     eprintln!(
@@ -514,7 +554,7 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
             dvrk_bridge::console::wait_until(HOLD_MATCH_WAIT, Duration::from_millis(5), || {
                 c.commands_matched()
             });
-        matched && c.hold_acknowledged(Duration::from_secs(1)).unwrap_or(false)
+        matched && c.hold_acknowledged(HOLD_ACK_WAIT).unwrap_or(false)
     });
     if sent {
         eprintln!("hold sent and acknowledged by the console");
@@ -528,6 +568,11 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
 
 /// How long a new participant may take to meet the console's command readers for the hold.
 const HOLD_MATCH_WAIT: Duration = Duration::from_secs(5);
+/// How long the console's readers may take to acknowledge the hold.
+const HOLD_ACK_WAIT: Duration = Duration::from_secs(1);
+/// How many holds an abort sends, and how far apart (see [`hold_after`]).
+const HOLD_REPEATS: usize = 2;
+const HOLD_REPEAT_GAP: Duration = Duration::from_millis(50);
 
 fn set_ratio(client: &mut ConsoleClient, ratio: f64) -> anyhow::Result<()> {
     if client.ratio_matched() {
@@ -572,8 +617,10 @@ pub struct SidecarSource {
     _node: dvrk_ipc::iceoryx2::node::Node<dvrk_ipc::iceoryx2::service::ipc::Service>,
     service: String,
     last_valid: Instant,
-    /// Samples taken (valid or not).
-    pub received: u64,
+    /// When the last sample (valid or not) arrived.
+    last_any: Instant,
+    /// An invalid sample arrived since the last valid one.
+    saw_invalid: bool,
     /// The service was found to read the console's arm ([`same_arm`]).
     checked: bool,
 }
@@ -600,7 +647,8 @@ impl SidecarSource {
             _node: node,
             service,
             last_valid: Instant::now(),
-            received: 0,
+            last_any: Instant::now(),
+            saw_invalid: false,
             checked: false,
         })
     }
@@ -622,15 +670,13 @@ impl SidecarSource {
 
     /// No valid sample for [`SILENCE_LIMIT`] stops the run.
     fn silence(&self, now: Instant) -> Result<(), Stop> {
-        let since = now.duration_since(self.last_valid);
-        if since > SILENCE_LIMIT {
-            return Err(Stop::Silent {
-                source: "sidecar",
-                for_ms: since.as_millis(),
-                invalid: self.received > 0,
-            });
-        }
-        Ok(())
+        silence(
+            "sidecar",
+            self.last_valid,
+            self.last_any,
+            self.saw_invalid,
+            now,
+        )
     }
 
     /// Every sample waiting, oldest first (invalid ones as `valid = false`).
@@ -643,7 +689,7 @@ impl SidecarSource {
         {
             let m = *sample;
             drop(sample);
-            self.received += 1;
+            self.last_any = now;
             let valid = m.header.valid != 0
                 && m.position[..3]
                     .iter()
@@ -651,6 +697,9 @@ impl SidecarSource {
                     .all(|v| v.is_finite());
             if valid {
                 self.last_valid = now;
+                self.saw_invalid = false;
+            } else {
+                self.saw_invalid = true;
             }
             out.push(Sample {
                 t_ns: m.header.sample_t_ns,
@@ -942,7 +991,7 @@ pub fn run_procedure(
             run.records.len()
         ),
         Some(reason) => bail!(
-            "{name} aborted: {reason}; motion commands stopped (one hold sent where the arm \
+            "{name} aborted: {reason}; motion commands stopped (a hold sent where the arm \
              was still ENABLED); the {} rows collected are kept",
             run.records.len()
         ),
@@ -1339,6 +1388,36 @@ mod tests {
         let hz = commanded_hz(&stamps).unwrap();
         assert!((hz - 100.0).abs() < 3.0, "{hz}");
         assert_eq!(commanded_hz(&stamps[..5]), None);
+    }
+
+    #[test]
+    fn a_source_that_stops_is_silent_and_one_that_sends_invalid_samples_is_invalid() {
+        let t0 = Instant::now();
+        let ms = |m: u64| t0 + Duration::from_millis(m);
+        let kind = |r: Result<(), Stop>| match r {
+            Ok(()) => None,
+            Err(Stop::Silent {
+                source, invalid, ..
+            }) => Some((source, invalid)),
+            Err(other) => panic!("{other}"),
+        };
+        // within the limit of the last valid sample: nothing to say
+        assert_eq!(kind(silence("sidecar", ms(0), ms(0), true, ms(250))), None);
+        // a service killed after valid samples: nothing arrives any more
+        assert_eq!(
+            kind(silence("sidecar", ms(0), ms(0), false, ms(400))),
+            Some(("sidecar", false))
+        );
+        // invalid samples still arriving
+        assert_eq!(
+            kind(silence("console", ms(0), ms(390), true, ms(400))),
+            Some(("console", true))
+        );
+        // invalid ones that stopped as well: silent
+        assert_eq!(
+            kind(silence("console", ms(0), ms(50), true, ms(400))),
+            Some(("console", false))
+        );
     }
 
     #[test]
