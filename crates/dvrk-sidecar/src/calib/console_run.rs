@@ -510,8 +510,8 @@ impl MoveWait {
     }
 }
 
-/// After an abort: `hold` where the arm is (twice, see below), unless the arm already left ENABLED (a hold
-/// would be refused); nothing else follows.
+/// After an abort: `hold` where the arm is (twice, see below), unless the arm already left
+/// ENABLED (a hold would be refused); nothing else follows.
 ///
 /// If this process's DDS has stopped (RustDDS ends its event loop when a stop and continue,
 /// SIGSTOP then SIGCONT, interrupts its poll), the hold goes through a new participant, once the
@@ -523,10 +523,11 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
     }
     if client.dds_alive() {
         // Acknowledged, not only written, since the process exits next; and sent twice. In the
-        // first seconds after connecting, the console stand-in's hold reader (RustDDS, VOLATILE)
-        // sometimes acknowledged the hold without delivering it: half of the holds of runs
-        // stopped 2 s into the excitation were lost, none 6 s in. A second hold 50 ms later
-        // arrives; holding twice where the arm is changes nothing on a console.
+        // first seconds after connecting, the wait for the acknowledgement of the first hold
+        // (RustDDS) returned at once and the console stand-in never saw that hold: half of the
+        // holds of runs stopped 2 s into the excitation were lost, none 6 s in. A second hold
+        // 50 ms later arrived every time; holding twice where the arm is changes nothing on a
+        // console.
         let mut acked = true;
         for i in 0..HOLD_REPEATS {
             if i > 0 {
