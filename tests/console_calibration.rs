@@ -701,9 +701,23 @@ fn a_stopped_and_continued_calibrate_still_sends_its_hold() {
     assert!(!st.success(), "{err}");
     assert!(err.contains("measured_js silent"), "{err}");
     assert!(err.contains("hold sent and acknowledged"), "{err}");
+    wait_for_hold(&console);
     console.proc.terminate();
     let log = console_log(&console.log);
     assert_eq!(last_command(&log), Some("hold"), "{log:?}");
+}
+
+/// Waits up to 3 s for the stand-in to log a hold: calibrate exits once the stand-in's reader
+/// has acknowledged it, and the stand-in's loop takes it a moment later.
+fn wait_for_hold(console: &StandIn) {
+    let waited = Instant::now();
+    while waited.elapsed() < Duration::from_secs(3)
+        && !console_log(&console.log)
+            .iter()
+            .any(|(_, k, d)| k == "command" && d == "hold")
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 #[test]
@@ -1152,16 +1166,7 @@ fn a_sidecar_service_killed_mid_run_stops_the_excitation_with_a_hold() {
         .unwrap()
         .expect("the excitation never started");
     let _ = serve.wait_timeout(Duration::from_secs(5));
-    // the hold was acknowledged by the stand-in's reader before calibrate exited; give its loop
-    // the time to take it before stopping it
-    let waited = Instant::now();
-    while waited.elapsed() < Duration::from_secs(3)
-        && !console_log(&console.log)
-            .iter()
-            .any(|(_, k, d)| k == "command" && d == "hold")
-    {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_hold(&console);
     console.proc.terminate();
     assert!(!ok, "the run succeeded after {secs:.0} s: {err}");
     assert!(err.contains("sidecar measured_js silent"), "{err}");

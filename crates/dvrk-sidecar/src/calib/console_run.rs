@@ -522,20 +522,7 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
         return;
     }
     if client.dds_alive() {
-        // Acknowledged, not only written, since the process exits next; and sent twice. In the
-        // first seconds after connecting, the wait for the acknowledgement of the first hold
-        // (RustDDS) returned at once and the console stand-in never saw that hold: half of the
-        // holds of runs stopped 2 s into the excitation were lost, none 6 s in. A second hold
-        // 50 ms later arrived every time; holding twice where the arm is changes nothing on a
-        // console.
-        let mut acked = true;
-        for i in 0..HOLD_REPEATS {
-            if i > 0 {
-                std::thread::sleep(HOLD_REPEAT_GAP);
-            }
-            acked &= client.hold_acknowledged(HOLD_ACK_WAIT).unwrap_or(false);
-        }
-        if !acked {
+        if !hold_acknowledged(client) {
             eprintln!(
                 "the hold was sent but the console did not acknowledge it within {} s: it may keep \
                  the last command; hold the arm from the console",
@@ -555,7 +542,7 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
             dvrk_bridge::console::wait_until(HOLD_MATCH_WAIT, Duration::from_millis(5), || {
                 c.commands_matched()
             });
-        matched && c.hold_acknowledged(HOLD_ACK_WAIT).unwrap_or(false)
+        matched && hold_acknowledged(&mut c)
     });
     if sent {
         eprintln!("hold sent and acknowledged by the console");
@@ -565,6 +552,23 @@ fn hold_after(client: &mut ConsoleClient, reason: Option<&Stop>) {
              console"
         );
     }
+}
+
+/// `hold`, [`HOLD_REPEATS`] times [`HOLD_REPEAT_GAP`] apart, each acknowledged (the process exits
+/// next): whether every one was. Sent more than once because in the first seconds after
+/// connecting, the wait for the acknowledgement of the first hold (RustDDS) returned at once and
+/// the console stand-in never saw that hold: half of the holds of runs stopped 2 s into the
+/// excitation were lost, none 6 s in. A second hold 50 ms later arrived every time; holding
+/// twice where the arm is changes nothing on a console.
+fn hold_acknowledged(client: &mut ConsoleClient) -> bool {
+    let mut acked = true;
+    for i in 0..HOLD_REPEATS {
+        if i > 0 {
+            std::thread::sleep(HOLD_REPEAT_GAP);
+        }
+        acked &= client.hold_acknowledged(HOLD_ACK_WAIT).unwrap_or(false);
+    }
+    acked
 }
 
 /// How long a new participant may take to meet the console's command readers for the hold.
