@@ -138,51 +138,63 @@ fn compensated_values_follow_the_model_never_beyond_it() {
     .unwrap();
     let tool = dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap();
     let kin = dvrk_compliance::PsmKinematics::new(dvrk_compliance::ArmKind::Classic, tool);
-    let cycles = collect_pairs(&prefix, 3000);
-    let mut active = 0;
-    for (raw, comp, raw_cp, comp_cp) in &cycles {
-        assert_eq!(raw.header.valid, 1);
-        let q = [raw.position[0], raw.position[1], raw.position[2]];
-        let t = [raw.effort[0], raw.effort[1], raw.effort[2]];
-        let c = model.correct(&q, &t);
-        // The service's estimator (issue 20) applies the model's correction, a share of it
-        // (its evidence weight, or withheld while the arm moves without a dynamics model:
-        // STILL_ONLY), never more than it and never the other way.
-        for j in 0..2 {
-            let model_d = raw.position[j] - c.position[j];
-            let served_d = raw.position[j] - comp.position[j];
-            assert!(
-                served_d * model_d >= 0.0 && served_d.abs() <= model_d.abs() + 1e-12,
-                "seq {} joint {}: served correction {served_d} vs the model's {model_d}",
-                raw.header.seq,
-                j + 1
+    // The paper's file has no dynamics model, so the correction acts only while the arm is
+    // still (STILL_ONLY). The push's rising torque bends the shaft and turns joint 1's motor at
+    // about 0.035 rad/s until the push nears its peak (5 s into its 20 s cycle): `evaluate` of
+    // this scenario with this file corrects no cycle in the first 3 s and 20% of 5 s. Batches
+    // of 3000 complete cycles (2-3 s each) are checked until one corrects, at most four.
+    let (mut active, mut checked) = (0, 0);
+    for _ in 0..4 {
+        let cycles = collect_pairs(&prefix, 3000);
+        checked += cycles.len();
+        for (raw, comp, raw_cp, comp_cp) in &cycles {
+            assert_eq!(raw.header.valid, 1);
+            let q = [raw.position[0], raw.position[1], raw.position[2]];
+            let t = [raw.effort[0], raw.effort[1], raw.effort[2]];
+            let c = model.correct(&q, &t);
+            // The service's estimator (issue 20) applies the model's correction, a share of it
+            // (its evidence weight, or withheld while the arm moves without a dynamics model:
+            // STILL_ONLY), never more than it and never the other way.
+            for j in 0..2 {
+                let model_d = raw.position[j] - c.position[j];
+                let served_d = raw.position[j] - comp.position[j];
+                assert!(
+                    served_d * model_d >= 0.0 && served_d.abs() <= model_d.abs() + 1e-12,
+                    "seq {} joint {}: served correction {served_d} vs the model's {model_d}",
+                    raw.header.seq,
+                    j + 1
+                );
+                let active_flag = [flags::CORRECTION_ACTIVE_J1, flags::CORRECTION_ACTIVE_J2][j];
+                if comp.header.flags & active_flag == 0 {
+                    assert_eq!(comp.position[j], raw.position[j], "seq {}", raw.header.seq);
+                }
+            }
+            assert_eq!(comp.position[2], c.position[2]);
+            assert_eq!(&comp.position[3..], &raw.position[3..]);
+            assert_eq!(comp.effort, raw.effort);
+            active += usize::from(
+                comp.header.flags & (flags::CORRECTION_ACTIVE_J1 | flags::CORRECTION_ACTIVE_J2)
+                    != 0,
             );
-            let active_flag = [flags::CORRECTION_ACTIVE_J1, flags::CORRECTION_ACTIVE_J2][j];
-            if comp.header.flags & active_flag == 0 {
-                assert_eq!(comp.position[j], raw.position[j], "seq {}", raw.header.seq);
+            let fk = |p: &[f64; 6]| {
+                kin.forward(&[p[0], p[1], p[2], p[3], p[4], p[5]])
+                    .translation
+                    .vector
+            };
+            let raw_p = fk(&raw.position);
+            let comp_p = fk(&comp.position);
+            for i in 0..3 {
+                assert_eq!(raw_cp.position_m[i], raw_p[i]);
+                assert_eq!(comp_cp.position_m[i], comp_p[i]);
             }
         }
-        assert_eq!(comp.position[2], c.position[2]);
-        assert_eq!(&comp.position[3..], &raw.position[3..]);
-        assert_eq!(comp.effort, raw.effort);
-        active += usize::from(
-            comp.header.flags & (flags::CORRECTION_ACTIVE_J1 | flags::CORRECTION_ACTIVE_J2) != 0,
-        );
-        let fk = |p: &[f64; 6]| {
-            kin.forward(&[p[0], p[1], p[2], p[3], p[4], p[5]])
-                .translation
-                .vector
-        };
-        let raw_p = fk(&raw.position);
-        let comp_p = fk(&comp.position);
-        for i in 0..3 {
-            assert_eq!(raw_cp.position_m[i], raw_p[i]);
-            assert_eq!(comp_cp.position_m[i], comp_p[i]);
+        if active > 0 {
+            break;
         }
     }
     assert!(
         active > 0,
-        "the divot push should activate the correction in some of 3000 cycles"
+        "the divot push should activate the correction in some of {checked} cycles"
     );
     let (st, log) = serve.terminate();
     assert!(st.success(), "{log}");
