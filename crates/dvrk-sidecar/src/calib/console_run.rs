@@ -343,9 +343,7 @@ pub fn move_duration_s(d: &[f64; 3], ratio: f64) -> f64 {
 /// `measured_js` (validity, effort limit) and silence.
 struct Watch {
     effort_limit_nm: f64,
-    last_valid: Instant,
-    last_any: Instant,
-    saw_invalid: bool,
+    heard: Heard,
     last_error: Option<String>,
     last_t_ns: u64,
     tool_type: Option<String>,
@@ -353,12 +351,9 @@ struct Watch {
 
 impl Watch {
     fn new(effort_limit_nm: f64, tool_type: Option<String>) -> Self {
-        let now = Instant::now();
         Self {
             effort_limit_nm,
-            last_valid: now,
-            last_any: now,
-            saw_invalid: false,
+            heard: Heard::new(Instant::now()),
             last_error: None,
             last_t_ns: 0,
             tool_type,
@@ -411,55 +406,70 @@ impl Watch {
 
     /// One `measured_js`: `Ok(None)` for an invalid one (zero stamp, short, not finite).
     fn sample(&mut self, m: &JointStateMsg, now: Instant) -> Result<Option<Sample>, Stop> {
-        self.last_any = now;
         let stamp_ns =
             u64::try_from(i64::from(m.stamp.sec) * 1_000_000_000 + i64::from(m.stamp.nanosec))
                 .unwrap_or(0);
         let t_ns = stamp_ns.max(self.last_t_ns);
         let s = sample_of(m, t_ns);
+        self.heard.sample(s.valid, now);
         if !s.valid {
-            self.saw_invalid = true;
             return Ok(None);
         }
         self.last_t_ns = t_ns;
-        self.last_valid = now;
-        self.saw_invalid = false;
         effort_within(&s, self.effort_limit_nm)?;
         Ok(Some(s))
     }
 
     /// No valid `measured_js` for [`SILENCE_LIMIT`] stops the run.
     fn silence(&self, now: Instant) -> Result<(), Stop> {
-        silence(
-            "console",
-            self.last_valid,
-            self.last_any,
-            self.saw_invalid,
-            now,
-        )
+        self.heard.silence("console", now)
     }
 }
 
-/// The stop of a `source` whose last valid `measured_js` came at `last_valid`, once that is
-/// more than [`SILENCE_LIMIT`] ago: "invalid" while invalid ones still arrive (the last at
-/// `last_any`, `saw_invalid` since the last valid one), "silent" once nothing does (a console
-/// or a service that stopped or died).
-fn silence(
-    source: &'static str,
+/// What a source of `measured_js` (the console, a sidecar service) was last heard to send.
+#[derive(Clone, Copy, Debug)]
+struct Heard {
+    /// When the last valid sample arrived.
     last_valid: Instant,
+    /// When the last sample (valid or not) arrived.
     last_any: Instant,
+    /// An invalid sample arrived since the last valid one.
     saw_invalid: bool,
-    now: Instant,
-) -> Result<(), Stop> {
-    let since_valid = now.duration_since(last_valid);
-    if since_valid > SILENCE_LIMIT {
-        return Err(Stop::Silent {
-            source,
-            for_ms: since_valid.as_millis(),
-            invalid: saw_invalid && now.duration_since(last_any) <= SILENCE_LIMIT,
-        });
+}
+
+impl Heard {
+    /// Nothing heard yet: the silence is counted from `now`.
+    fn new(now: Instant) -> Self {
+        Self {
+            last_valid: now,
+            last_any: now,
+            saw_invalid: false,
+        }
     }
-    Ok(())
+
+    /// A sample, valid or not, arrived at `now`.
+    fn sample(&mut self, valid: bool, now: Instant) {
+        self.last_any = now;
+        if valid {
+            self.last_valid = now;
+        }
+        self.saw_invalid = !valid;
+    }
+
+    /// The stop of `source` once its last valid sample is more than [`SILENCE_LIMIT`] ago:
+    /// "invalid" while invalid ones still arrive, "silent" once nothing does (a console or a
+    /// service that stopped or died).
+    fn silence(&self, source: &'static str, now: Instant) -> Result<(), Stop> {
+        let since_valid = now.duration_since(self.last_valid);
+        if since_valid > SILENCE_LIMIT {
+            return Err(Stop::Silent {
+                source,
+                for_ms: since_valid.as_millis(),
+                invalid: self.saw_invalid && now.duration_since(self.last_any) <= SILENCE_LIMIT,
+            });
+        }
+        Ok(())
+    }
 }
 
 /// |effort| of joint 1 or 2 of `s` above `limit_nm` stops the run.
@@ -621,11 +631,7 @@ pub struct SidecarSource {
     sub: dvrk_ipc::Subscription<dvrk_ipc::JointStateV2, dvrk_ipc::iceoryx2::service::ipc::Service>,
     _node: dvrk_ipc::iceoryx2::node::Node<dvrk_ipc::iceoryx2::service::ipc::Service>,
     service: String,
-    last_valid: Instant,
-    /// When the last sample (valid or not) arrived.
-    last_any: Instant,
-    /// An invalid sample arrived since the last valid one.
-    saw_invalid: bool,
+    heard: Heard,
     /// The service was found to read the console's arm ([`same_arm`]).
     checked: bool,
 }
@@ -651,9 +657,7 @@ impl SidecarSource {
             sub,
             _node: node,
             service,
-            last_valid: Instant::now(),
-            last_any: Instant::now(),
-            saw_invalid: false,
+            heard: Heard::new(Instant::now()),
             checked: false,
         })
     }
@@ -675,13 +679,7 @@ impl SidecarSource {
 
     /// No valid sample for [`SILENCE_LIMIT`] stops the run.
     fn silence(&self, now: Instant) -> Result<(), Stop> {
-        silence(
-            "sidecar",
-            self.last_valid,
-            self.last_any,
-            self.saw_invalid,
-            now,
-        )
+        self.heard.silence("sidecar", now)
     }
 
     /// Every sample waiting, oldest first (invalid ones as `valid = false`).
@@ -694,18 +692,12 @@ impl SidecarSource {
         {
             let m = *sample;
             drop(sample);
-            self.last_any = now;
             let valid = m.header.valid != 0
                 && m.position[..3]
                     .iter()
                     .chain(&m.effort[..3])
                     .all(|v| v.is_finite());
-            if valid {
-                self.last_valid = now;
-                self.saw_invalid = false;
-            } else {
-                self.saw_invalid = true;
-            }
+            self.heard.sample(valid, now);
             out.push(Sample {
                 t_ns: m.header.sample_t_ns,
                 valid,
@@ -1406,22 +1398,41 @@ mod tests {
             }) => Some((source, invalid)),
             Err(other) => panic!("{other}"),
         };
+        // valid samples up to 0 ms, then (for the invalid cases) invalid ones up to `last` ms
+        let heard = |last: Option<u64>| {
+            let mut h = Heard::new(ms(0));
+            h.sample(true, ms(0));
+            if let Some(last) = last {
+                h.sample(false, ms(last / 2));
+                h.sample(false, ms(last));
+            }
+            h
+        };
         // within the limit of the last valid sample: nothing to say
-        assert_eq!(kind(silence("sidecar", ms(0), ms(0), true, ms(250))), None);
+        assert_eq!(kind(heard(Some(250)).silence("sidecar", ms(250))), None);
         // a service killed after valid samples: nothing arrives any more
         assert_eq!(
-            kind(silence("sidecar", ms(0), ms(0), false, ms(400))),
+            kind(heard(None).silence("sidecar", ms(400))),
             Some(("sidecar", false))
         );
         // invalid samples still arriving
         assert_eq!(
-            kind(silence("console", ms(0), ms(390), true, ms(400))),
+            kind(heard(Some(390)).silence("console", ms(400))),
             Some(("console", true))
         );
         // invalid ones that stopped as well: silent
         assert_eq!(
-            kind(silence("console", ms(0), ms(50), true, ms(400))),
+            kind(heard(Some(50)).silence("console", ms(400))),
             Some(("console", false))
+        );
+        // a valid sample after invalid ones clears them
+        let mut h = heard(Some(100));
+        h.sample(true, ms(110));
+        h.sample(false, ms(150)); // one more invalid, then nothing
+        h.sample(true, ms(160));
+        assert_eq!(
+            kind(h.silence("sidecar", ms(500))),
+            Some(("sidecar", false))
         );
     }
 
