@@ -710,14 +710,12 @@ fn a_stopped_and_continued_calibrate_still_sends_its_hold() {
 /// Waits up to 3 s for the stand-in to log a hold: calibrate exits once the stand-in's reader
 /// has acknowledged it, and the stand-in's loop takes it a moment later.
 fn wait_for_hold(console: &StandIn) {
-    let waited = Instant::now();
-    while waited.elapsed() < Duration::from_secs(3)
-        && !console_log(&console.log)
+    common::eventually(Duration::from_secs(3), || {
+        console_log(&console.log)
             .iter()
             .any(|(_, k, d)| k == "command" && d == "hold")
-    {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+            .then_some(())
+    });
 }
 
 #[test]
@@ -948,6 +946,29 @@ fn rows_from_the_sidecar_service_match_the_consoles() {
     assert!(worst < 0.05, "{worst}");
 }
 
+/// `calibrate dynamics --robot ros2:PSM1 --measure sidecar --sidecar-prefix PREFIX --depths
+/// DEPTHS --seconds-per-depth 10 --out OUT --yes`: the excitation through the console, the rows
+/// from the service `PREFIX`.
+fn sidecar_dynamics<'a>(prefix: &'a str, depths: &'a str, out: &'a Path) -> [&'a str; 15] {
+    [
+        "calibrate",
+        "dynamics",
+        "--robot",
+        "ros2:PSM1",
+        "--measure",
+        "sidecar",
+        "--sidecar-prefix",
+        prefix,
+        "--depths",
+        depths,
+        "--seconds-per-depth",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+        "--yes",
+    ]
+}
+
 /// `calibrate dynamics --robot ros2:PSM1 --measure sidecar` beside a `serve` that reads the
 /// stand-in's boards: the excitation goes through the console's servo_jp at 100 Hz, the rows
 /// are the service's, and `fit --dynamics` (which reads `commanded_hz` from the file) recovers
@@ -964,23 +985,7 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
     let dynamics = dir.join("dynamics.csv");
     let (ok, err, secs) = run(
         d,
-        &[
-            "calibrate",
-            "dynamics",
-            "--robot",
-            "ros2:PSM1",
-            "--measure",
-            "sidecar",
-            "--sidecar-prefix",
-            &prefix,
-            "--depths",
-            "0.10,0.15,0.20",
-            "--seconds-per-depth",
-            "10",
-            "--out",
-            dynamics.to_str().unwrap(),
-            "--yes",
-        ],
+        &sidecar_dynamics(&prefix, "0.10,0.15,0.20", &dynamics),
         Duration::from_secs(300),
     );
     assert!(ok, "dynamics failed after {secs:.0} s: {err}");
@@ -1125,40 +1130,21 @@ fn a_sidecar_service_killed_mid_run_stops_the_excitation_with_a_hold() {
     let out = scratch(test).join("dynamics.csv");
     let (log_path, serve_pid) = (console.log.clone(), serve.pid());
     let killer = std::thread::spawn(move || {
-        let t0 = Instant::now();
-        while t0.elapsed() < Duration::from_secs(90) {
+        common::eventually(Duration::from_secs(90), || {
             let motions = console_log(&log_path)
                 .iter()
                 .filter(|(_, k, d)| k == "motion" && d.starts_with("servo_jp"))
                 .count();
-            if motions >= 200 {
+            (motions >= 200).then(|| {
                 // SAFETY: plain kill(2) on a child of this test.
                 unsafe { libc::kill(serve_pid, libc::SIGKILL) };
-                return Some(Instant::now());
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
+                Instant::now()
+            })
+        })
     });
     let (ok, err, secs, end) = run_until(
         d,
-        &[
-            "calibrate",
-            "dynamics",
-            "--robot",
-            "ros2:PSM1",
-            "--measure",
-            "sidecar",
-            "--sidecar-prefix",
-            &prefix,
-            "--depths",
-            "0.10,0.15",
-            "--seconds-per-depth",
-            "10",
-            "--out",
-            out.to_str().unwrap(),
-            "--yes",
-        ],
+        &sidecar_dynamics(&prefix, "0.10,0.15", &out),
         Duration::from_secs(120),
     );
     let killed = killer
