@@ -14,7 +14,9 @@
 //!   instead of suspending a run in mid-motion; a SIGSTOP and SIGCONT, which end RustDDS's
 //!   event loop, abort on silence and the hold goes through a new participant;
 //! - a DISABLED arm is refused with its state named and nothing sent; `--enable` enables and
-//!   homes it; `--dry-run` sends nothing.
+//!   homes it; `--dry-run` sends nothing;
+//! - a `state_command`, a `set_ratio` and a `move_jp` lost on the way (`--fault lose@0`) are
+//!   each sent again, the same, and the run goes on; a refused move is not sent again.
 
 mod common;
 
@@ -67,10 +69,10 @@ impl Drop for Slot {
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-24; each test has its own (a shared domain crosses two tests'
-/// consoles and commands). At most 150 + 58 + 24 = 232, the highest domain ROS 2 allows.
+/// 4-9 (the fault cases), 10-25; each test has its own (a shared domain crosses two tests'
+/// consoles and commands). At most 150 + 57 + 25 = 232, the highest domain ROS 2 allows.
 fn domain(offset: u16) -> u16 {
-    150 + (std::process::id() % 59) as u16 + offset
+    150 + (std::process::id() % 58) as u16 + offset
 }
 
 struct StandIn {
@@ -546,7 +548,7 @@ fn a_refused_move_aborts() {
         9,
         "refuse",
         12.0,
-        "did not start a move_jp",
+        "did not start a move_jp within 1.0 s (refused?); its last warning",
     );
 }
 
@@ -629,6 +631,101 @@ fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
         cmds.starts_with(&["state_command enable", "state_command home"]),
         "{cmds:?}"
     );
+    assert_eq!(cmds.last(), Some(&"hold"), "{cmds:?}");
+}
+
+#[test]
+fn a_lost_command_is_sent_again_once_and_the_run_goes_on() {
+    // The network loses the first state_command (home), set_ratio and move_jp (as a command
+    // written before the console's reader matched the writer can be): each is sent again, the
+    // same, the ratio before every move_jp, and the run goes on.
+    let _slot = slot();
+    let d = domain(25);
+    let mut console = stand_in(
+        "console_lost",
+        d,
+        &["--start", "enabled", "--fault", "lose@0"],
+    );
+    let out = scratch("console_lost").join("sweep.csv");
+    let mut p = Proc::spawn(
+        "calibrate --enable",
+        Command::new(sidecar_bin())
+            .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
+            .args([
+                "--joints", "1", "--depths", "0.12", "--yes", "--enable", "--out",
+            ])
+            .arg(&out)
+            .env("ROS_DOMAIN_ID", d.to_string())
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    // the sweep runs: the resent move_jp was followed by the next one
+    let sweeping = common::eventually(Duration::from_secs(60), || {
+        let log = console_log(&console.log);
+        (log.iter().filter(|(_, k, _)| k == "motion").count() >= 2).then_some(())
+    });
+    p.signal(libc::SIGINT);
+    let st = p.wait_timeout(Duration::from_secs(20));
+    let err = p.stderr_text();
+    wait_for_hold(&console);
+    console.proc.terminate();
+    let log = console_log(&console.log);
+    assert!(sweeping.is_some(), "{err}\n{log:?}");
+    assert!(st.is_some_and(|s| !s.success()), "{err}");
+    assert!(err.contains("stopped by Ctrl-C"), "{err}");
+    let lost: Vec<&str> = log
+        .iter()
+        .filter(|(_, k, _)| k == "lost")
+        .map(|(_, _, d)| d.as_str())
+        .collect();
+    assert_eq!(lost.len(), 3, "{log:?}");
+    assert_eq!(lost[0], "state_command home", "{log:?}");
+    assert_eq!(lost[1], "set_ratio 0.2", "{log:?}");
+    assert!(lost[2].starts_with("move_jp "), "{log:?}");
+    // each lost command came again, the same, before any other of its kind or any motion
+    let sent: Vec<&(f64, String, String)> = log
+        .iter()
+        .filter(|(_, k, _)| k == "lost" || k == "command" || k == "motion")
+        .collect();
+    for l in &lost {
+        let i = sent
+            .iter()
+            .position(|(_, k, d)| k == "lost" && d == l)
+            .unwrap();
+        let name = l.split(' ').next().unwrap();
+        let next = sent[i + 1..]
+            .iter()
+            .find(|(_, k, d)| k == "motion" || d.starts_with(name))
+            .map(|(_, _, d)| d.as_str());
+        assert_eq!(next, Some(*l), "{log:?}");
+    }
+    // the console had the ratio before it applied any move_jp
+    let first_move = sent
+        .iter()
+        .position(|(_, k, d)| k == "motion" && d.starts_with("move_jp"))
+        .unwrap();
+    assert!(
+        sent[..first_move]
+            .iter()
+            .any(|(_, k, d)| k == "command" && d == "set_ratio 0.2"),
+        "{log:?}"
+    );
+    assert!(
+        err.contains("state_command \"home\"") && err.contains("sending it again, once"),
+        "{err}"
+    );
+    assert!(
+        err.contains("did not start the move_jp: sending it again, once"),
+        "{err}"
+    );
+    let cmds: Vec<&str> = log
+        .iter()
+        .filter(|(_, k, _)| k == "command")
+        .map(|(_, _, d)| d.as_str())
+        .collect();
+    assert!(cmds.starts_with(&["state_command home"]), "{cmds:?}");
     assert_eq!(cmds.last(), Some(&"hold"), "{cmds:?}");
 }
 

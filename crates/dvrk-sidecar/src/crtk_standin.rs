@@ -89,7 +89,9 @@ pub struct CrtkArgs {
     /// Inject a fault at a time after start: `effort@S` (joint 1 effort reads +3 N·m),
     /// `estop@S` (DISABLED), `fault@S` (FAULT), `silence@S` (measured_js stops),
     /// `invalid@S` (measured_js with a zero stamp), `refuse@S` (moves refused with a warning
-    /// and no busy event, as the console does when it is not ready).
+    /// and no busy event, as the console does when it is not ready), `lose@S` (the next
+    /// move_jp, the next state_command and the next set_ratio after S are lost on the way:
+    /// never applied, logged as `lost`).
     #[arg(long, value_name = "KIND@SECONDS")]
     pub fault: Vec<String>,
     /// A change the console makes on its own, at a time after start: `tool@S=NAME` (the
@@ -124,6 +126,7 @@ pub enum Fault {
     Silence,
     Invalid,
     Refuse,
+    Lose,
 }
 
 pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
@@ -137,8 +140,10 @@ pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
         "silence" => Fault::Silence,
         "invalid" => Fault::Invalid,
         "refuse" => Fault::Refuse,
+        "lose" => Fault::Lose,
         other => bail!(
-            "--fault {s:?}: unknown kind {other:?} (effort, estop, fault, silence, invalid, refuse)"
+            "--fault {s:?}: unknown kind {other:?} (effort, estop, fault, silence, invalid, \
+             refuse, lose)"
         ),
     };
     let at: f64 = at
@@ -579,7 +584,7 @@ impl ConsoleSim {
                 self.set_state("FAULT", out);
             }
             Fault::Refuse => self.refuse = true,
-            Fault::Silence | Fault::Invalid => {}
+            Fault::Silence | Fault::Invalid | Fault::Lose => {}
         }
     }
 
@@ -805,6 +810,8 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
     let mut outs = Vec::new();
     let mut silent = false;
     let mut invalid = false;
+    // `lose@S`: the next move_jp, state_command, set_ratio
+    let mut lose = [false; 3];
     while !stop.raised() {
         let now = start.elapsed().as_secs_f64();
         while let Some(&(f, at)) = faults.first()
@@ -815,6 +822,7 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
             match f {
                 Fault::Silence => silent = true,
                 Fault::Invalid => invalid = true,
+                Fault::Lose => lose = [true; 3],
                 _ => sim.fault(f, &mut outs),
             }
         }
@@ -852,6 +860,17 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
             log_line(&mut log, now, "undecodable", &bad.to_string());
         }
         for c in &cmds {
+            let lost = match c {
+                ConsoleCommand::MoveJp(_) => Some(0),
+                ConsoleCommand::StateCommand(_) => Some(1),
+                ConsoleCommand::SetRatio(_) => Some(2),
+                _ => None,
+            }
+            .filter(|&i| std::mem::take(&mut lose[i]));
+            if lost.is_some() {
+                log_line(&mut log, now, "lost", &command_name(c));
+                continue;
+            }
             let kind = if c.is_motion() { "motion" } else { "command" };
             log_line(&mut log, now, kind, &command_name(c));
             sim.command(c, &mut outs);

@@ -10,6 +10,9 @@
 //! - large moves go through `move_jp`, slowed with `trajectory_j/set_ratio`, and each must show
 //!   a busy event and end with `goal_reached` true within its timeout; small steps go through
 //!   `servo_jp`, at most the runner's ramp (0.2 rad/s, 0.02 m/s) per `measured_js` period;
+//! - a `move_jp` or `--enable`'s `state_command` that the console shows no sign of (no busy
+//!   event or warning within 0.5 s; no state event, warning or error within 3 s) is sent again,
+//!   once, the same: DDS loses what a writer sends before the reader has matched it;
 //! - every `measured_js` is checked: |effort| of joints 1-2 above `--effort-limit-nm`, a joint
 //!   outside the limits, the operating state leaving ENABLED (e-stop, FAULT), `measured_js`
 //!   silent or invalid (zero stamp) for 0.3 s, a move not finished in time and Ctrl-C all abort
@@ -73,6 +76,9 @@ pub enum Stop {
     },
     MoveNotStarted {
         waited_s: f64,
+        /// How many times the move was sent (a second time when neither busy nor a warning
+        /// came).
+        sends: usize,
         warning: Option<String>,
     },
     MoveTimeout {
@@ -122,11 +128,18 @@ impl std::fmt::Display for Stop {
                 },
                 SILENCE_LIMIT.as_millis()
             ),
-            Stop::MoveNotStarted { waited_s, warning } => {
+            Stop::MoveNotStarted {
+                waited_s,
+                sends,
+                warning,
+            } => {
                 write!(
                     f,
                     "the console did not start a move_jp within {waited_s:.1} s (refused?)"
                 )?;
+                if *sends > 1 {
+                    write!(f, ", sent {sends} times")?;
+                }
                 if let Some(w) = warning {
                     write!(f, "; its last warning: {w}")?;
                 }
@@ -237,36 +250,75 @@ pub fn ensure_ready(c: &mut ConsoleClient, enable: bool) -> anyhow::Result<()> {
         );
     }
     let mut polled = Polled::default();
-    let mut wait_for =
-        |c: &mut ConsoleClient, what: &str, secs: u64, ok: &dyn Fn(&str, bool, bool) -> bool| {
-            let end = Instant::now() + Duration::from_secs(secs);
-            while Instant::now() < end {
-                c.poll(&mut polled);
-                polled.measured_js.clear();
-                let (s, h, b) = state(c);
-                if ok(&s, h, b) {
-                    return Ok(());
-                }
-                if s == "FAULT" {
-                    bail!("{arm} went to FAULT while {what}");
-                }
-                std::thread::sleep(Duration::from_millis(5));
+    // Sends `cmd` and waits up to `secs` for `ok`; sent again, once, if the console shows no
+    // sign of it (no state event, no warning) within STATE_RESEND_AFTER.
+    let mut command = |c: &mut ConsoleClient,
+                       cmd: &str,
+                       what: &str,
+                       secs: u64,
+                       ok: &dyn Fn(&str, bool, bool) -> bool| {
+        let mut seq = c.last_seq();
+        c.state_command(cmd)?;
+        let start = Instant::now();
+        let mut heard = false;
+        let mut resent = false;
+        while start.elapsed() < Duration::from_secs(secs) {
+            polled.events.clear();
+            c.poll(&mut polled);
+            polled.measured_js.clear();
+            heard |= polled.events.iter().any(|e| {
+                e.seq > seq
+                    && matches!(
+                        e.value,
+                        ConsoleEvent::OperatingState(_)
+                            | ConsoleEvent::Warning(_)
+                            | ConsoleEvent::Error(_)
+                    )
+            });
+            let (s, h, b) = state(c);
+            if ok(&s, h, b) {
+                return Ok(());
             }
-            let (s, h, _) = state(c);
-            bail!("{arm} not {what} after {secs} s (state {s}, homed {h})")
-        };
+            if s == "FAULT" {
+                bail!("{arm} went to FAULT while {what}");
+            }
+            if !heard && !resent && start.elapsed() > STATE_RESEND_AFTER {
+                eprintln!(
+                    "--enable: the console showed no sign of state_command {cmd:?} after {} s: \
+                     sending it again, once",
+                    STATE_RESEND_AFTER.as_secs()
+                );
+                seq = c.last_seq();
+                c.state_command(cmd)?;
+                resent = true;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let (s, h, _) = state(c);
+        bail!(
+            "{arm} not {what} after {secs} s (state {s}, homed {h}{})",
+            if heard {
+                ""
+            } else {
+                "; the console showed no sign of the command, sent twice"
+            }
+        )
+    };
     if s != "ENABLED" {
         eprintln!("--enable: asking the console to enable {arm}");
-        c.state_command("enable")?;
-        wait_for(c, "enabled", 30, &|s, _, _| s == "ENABLED")?;
+        command(c, "enable", "enabled", 30, &|s, _, _| s == "ENABLED")?;
     }
     if !state(c).1 {
         eprintln!("--enable: asking the console to home {arm}");
-        c.state_command("home")?;
-        wait_for(c, "homed", 120, &|s, h, b| s == "ENABLED" && h && !b)?;
+        command(c, "home", "homed", 120, &|s, h, b| {
+            s == "ENABLED" && h && !b
+        })?;
     }
     Ok(())
 }
+
+/// How long `--enable` waits for a sign of its `state_command` before sending it again, once.
+const STATE_RESEND_AFTER: Duration = Duration::from_secs(3);
 
 fn sample_of(m: &JointStateMsg, t_ns: u64) -> Sample {
     let ok = m.is_valid()
@@ -311,12 +363,36 @@ pub fn fixture_prompt(f: &Fixture) -> String {
 
 struct MoveWait {
     cmd_seq: u64,
+    /// The goal sent, all six joints: sent again if the console shows no sign of it.
+    q6: [f64; 6],
+    /// `trajectory_j/set_ratio`, sent again before each send of the move.
+    ratio: f64,
+    /// When the move was first sent, and when last sent.
+    first_sent: Instant,
     sent: Instant,
+    resent: bool,
     saw_busy: bool,
+    /// A console warning after the command: it was read and refused, never sent again.
+    warned: bool,
     ended: bool,
     goal: Option<bool>,
     timeout_s: f64,
 }
+
+/// What a running `move_jp` needs next.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum MoveStatus {
+    Running,
+    Done,
+    /// No busy event and no warning [`MOVE_RESEND_AFTER`] after the command: send it again,
+    /// once (a command written before the console's reader has matched this writer can be lost).
+    Resend,
+}
+
+/// How long a `move_jp` may go without a busy event before it is sent again, once.
+const MOVE_RESEND_AFTER: Duration = Duration::from_millis(500);
+/// How long a `move_jp` (each send of it) may go without a busy event before the run stops.
+const MOVE_START_LIMIT: Duration = Duration::from_secs(1);
 
 /// Planned duration of a `move_jp` of `d` (rad, rad, m) at `ratio`, with the PSM's limits.
 pub fn move_duration_s(d: &[f64; 3], ratio: f64) -> f64 {
@@ -392,7 +468,14 @@ impl Watch {
                     tracing::warn!("console error: {e}");
                     self.last_error = Some(e.clone());
                 }
-                ConsoleEvent::Warning(w) => tracing::warn!("console warning: {w}"),
+                ConsoleEvent::Warning(w) => {
+                    tracing::warn!("console warning: {w}");
+                    if let Some(m) = moving.as_deref_mut()
+                        && ev.seq > m.cmd_seq
+                    {
+                        m.warned = true;
+                    }
+                }
                 ConsoleEvent::ToolType(t) => {
                     if self.tool_type.as_deref().is_some_and(|old| old != t) {
                         tracing::warn!("instrument changed during the run: {t:?}");
@@ -485,38 +568,84 @@ fn effort_within(s: &Sample, limit_nm: f64) -> Result<(), Stop> {
 }
 
 impl MoveWait {
-    fn new(client: &ConsoleClient, now: Instant, d: &[f64; 3], ratio: f64) -> Self {
-        MoveWait {
+    /// Sends `move_jp` to `q6` (the first three joints `d` away from where the arm is), after
+    /// `trajectory_j/set_ratio` again: a ratio lost on its way would leave the move at the
+    /// console's own speed, and the console does not say which ratio it runs.
+    fn start(
+        client: &mut ConsoleClient,
+        now: Instant,
+        d: &[f64; 3],
+        ratio: f64,
+        q6: [f64; 6],
+    ) -> Result<Self, dvrk_bridge::BridgeError> {
+        let m = MoveWait {
             cmd_seq: client.last_seq(),
+            q6,
+            ratio,
+            first_sent: now,
             sent: now,
+            resent: false,
             saw_busy: false,
+            warned: false,
             ended: false,
             goal: None,
             timeout_s: 2.0 * move_duration_s(d, ratio) + 3.0,
-        }
+        };
+        m.send(client)?;
+        Ok(m)
     }
 
-    /// `Ok(true)` once the move is done, `Ok(false)` while it runs.
-    fn check(&self, client: &ConsoleClient, now: Instant) -> Result<bool, Stop> {
-        let waited = now.duration_since(self.sent).as_secs_f64();
+    /// Sends the same goal again (an identical `move_jp` only restarts the console's
+    /// trajectory to the same place).
+    fn resend(
+        &mut self,
+        client: &mut ConsoleClient,
+        now: Instant,
+    ) -> Result<(), dvrk_bridge::BridgeError> {
+        tracing::warn!(
+            "the console showed no sign of a move_jp after {:.1} s: sending it again",
+            now.duration_since(self.sent).as_secs_f64()
+        );
+        eprintln!("the console did not start the move_jp: sending it again, once");
+        self.cmd_seq = client.last_seq();
+        self.sent = now;
+        self.resent = true;
+        self.send(client)
+    }
+
+    fn send(&self, client: &mut ConsoleClient) -> Result<(), dvrk_bridge::BridgeError> {
+        if client.ratio_matched() {
+            client.set_ratio(self.ratio)?;
+        }
+        client.move_jp(&self.q6)
+    }
+
+    fn check(&self, client: &ConsoleClient, now: Instant) -> Result<MoveStatus, Stop> {
+        let since = now.duration_since(self.sent);
         if self.goal == Some(false) {
             return Err(Stop::MoveInterrupted);
         }
         if self.ended && self.goal == Some(true) {
-            return Ok(true);
+            return Ok(MoveStatus::Done);
         }
-        if !self.saw_busy && waited > 1.0 {
-            return Err(Stop::MoveNotStarted {
-                waited_s: waited,
-                warning: client.recent_warnings.back().cloned(),
-            });
+        if !self.saw_busy {
+            if !self.warned && !self.resent && since > MOVE_RESEND_AFTER {
+                return Ok(MoveStatus::Resend);
+            }
+            if since > MOVE_START_LIMIT {
+                return Err(Stop::MoveNotStarted {
+                    waited_s: now.duration_since(self.first_sent).as_secs_f64(),
+                    sends: 1 + usize::from(self.resent),
+                    warning: client.recent_warnings.back().cloned(),
+                });
+            }
         }
-        if waited > self.timeout_s {
+        if since.as_secs_f64() > self.timeout_s {
             return Err(Stop::MoveTimeout {
                 timeout_s: self.timeout_s,
             });
         }
-        Ok(false)
+        Ok(MoveStatus::Running)
     }
 }
 
@@ -843,8 +972,7 @@ pub fn run_console<P: Plan>(
             let target = runner.target();
             let d: [f64; 3] = std::array::from_fn(|j| target[j] - base[j]);
             if runner.ramping() && (0..3).any(|j| d[j].abs() > LARGE_MOVE[j]) {
-                moving = Some(MoveWait::new(client, now, &d, opts.ratio));
-                client.move_jp(&full(&target))?;
+                moving = Some(MoveWait::start(client, now, &d, opts.ratio, full(&target))?);
                 run.moves += 1;
                 last_cmd = Some(target);
             } else if last_cmd != Some(sp) {
@@ -856,15 +984,16 @@ pub fn run_console<P: Plan>(
         if let Err(r) = watch.silence(now) {
             break 'run Some(r);
         }
-        if let Some(m) = &moving {
+        if let Some(m) = &mut moving {
             match m.check(client, now) {
                 Err(r) => break 'run Some(r),
-                Ok(true) => {
+                Ok(MoveStatus::Resend) => m.resend(client, now)?,
+                Ok(MoveStatus::Done) => {
                     runner.target_reached_by_robot();
                     setpoint = Some(runner.target());
                     moving = None;
                 }
-                Ok(false) => {}
+                Ok(MoveStatus::Running) => {}
             }
         }
         if let Some((deadline, rx)) = &prompt {
@@ -1241,8 +1370,13 @@ pub fn run_dynamics(
                         first[2] - s.position[1],
                         first[3] - s.position[2],
                     ];
-                    moving = Some(MoveWait::new(&client, now, &d, a.ratio));
-                    client.move_jp(&[first[1], first[2], first[3], w[0], w[1], w[2]])?;
+                    moving = Some(MoveWait::start(
+                        &mut client,
+                        now,
+                        &d,
+                        a.ratio,
+                        [first[1], first[2], first[3], w[0], w[1], w[2]],
+                    )?);
                 }
                 (Some(_), _) => {
                     console_stamps.push(s.t_ns);
@@ -1301,15 +1435,16 @@ pub fn run_dynamics(
         if let Err(r) = watch.silence(now) {
             break 'run Some(r);
         }
-        if let Some(m) = &moving {
+        if let Some(m) = &mut moving {
             match m.check(&client, now) {
                 Err(r) => break 'run Some(r),
-                Ok(true) => {
+                Ok(MoveStatus::Resend) => m.resend(&mut client, now)?,
+                Ok(MoveStatus::Done) => {
                     moving = None;
                     started = Some(now);
                     eprintln!("at the start: excitation running for {duration:.0} s");
                 }
-                Ok(false) => {}
+                Ok(MoveStatus::Running) => {}
             }
         }
         std::thread::sleep(Duration::from_millis(1));
