@@ -94,30 +94,39 @@ fn collect_pairs(prefix: &str, n: usize) -> Vec<(JointStateV2, JointStateV2, Pos
     let mut b = BTreeMap::new();
     let mut c = BTreeMap::new();
     let mut d = BTreeMap::new();
+    // the sequence numbers seen on all four topics, kept as they complete (each sample is
+    // checked once, so collecting stays linear in the cycles)
+    let mut complete = std::collections::BTreeSet::new();
+    let mut fresh = Vec::new();
     let start = std::time::Instant::now();
     while start.elapsed() < LIVENESS {
+        fresh.clear();
         if let Update::Fresh(_) = raw
             .wait_with(|m| {
                 a.insert(m.header.seq, *m);
+                fresh.push(m.header.seq);
             })
             .unwrap()
         {}
         while let Some(m) = comp.try_latest().unwrap() {
             b.insert(m.header.seq, m);
+            fresh.push(m.header.seq);
         }
         while let Some(m) = raw_cp.try_latest().unwrap() {
             c.insert(m.header.seq, m);
+            fresh.push(m.header.seq);
         }
         while let Some(m) = comp_cp.try_latest().unwrap() {
             d.insert(m.header.seq, m);
+            fresh.push(m.header.seq);
         }
-        let both: Vec<u64> = a
-            .keys()
-            .filter(|k| b.contains_key(k) && c.contains_key(k) && d.contains_key(k))
-            .copied()
-            .collect();
-        if both.len() >= n {
-            return both
+        for k in &fresh {
+            if a.contains_key(k) && b.contains_key(k) && c.contains_key(k) && d.contains_key(k) {
+                complete.insert(*k);
+            }
+        }
+        if complete.len() >= n {
+            return complete
                 .iter()
                 .take(n)
                 .map(|k| (a[k], b[k], c[k], d[k]))
