@@ -16,7 +16,8 @@
 //! - a DISABLED arm is refused with its state named and nothing sent; `--enable` enables and
 //!   homes it; `--dry-run` sends nothing;
 //! - a `state_command`, a `set_ratio` and a `move_jp` lost on the way (`--fault lose@0`) are
-//!   each sent again, the same, and the run goes on; a refused move is not sent again.
+//!   each sent again, the same, and the run goes on; a refused move is not sent again; a
+//!   console that says it runs another trajectory ratio than the one asked for gets no move.
 
 mod common;
 
@@ -69,10 +70,10 @@ impl Drop for Slot {
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-25; each test has its own (a shared domain crosses two tests'
-/// consoles and commands). At most 150 + 57 + 25 = 232, the highest domain ROS 2 allows.
+/// 4-9 (the fault cases), 10-26; each test has its own (a shared domain crosses two tests'
+/// consoles and commands). At most 150 + 56 + 26 = 232, the highest domain ROS 2 allows.
 fn domain(offset: u16) -> u16 {
-    150 + (std::process::id() % 58) as u16 + offset
+    150 + (std::process::id() % 57) as u16 + offset
 }
 
 struct StandIn {
@@ -727,6 +728,53 @@ fn a_lost_command_is_sent_again_once_and_the_run_goes_on() {
         .collect();
     assert!(cmds.starts_with(&["state_command home"]), "{cmds:?}");
     assert_eq!(cmds.last(), Some(&"hold"), "{cmds:?}");
+}
+
+#[test]
+fn a_console_that_keeps_another_ratio_gets_no_move() {
+    // The stand-in publishes trajectory_j/ratio as the dVRK 2.x console does, and takes no
+    // set_ratio: no move may go out at its own speed.
+    let _slot = slot();
+    let d = domain(26);
+    let mut console = stand_in("console_ratio", d, &["--fault", "ignore-ratio@0"]);
+    let out = scratch("console_ratio").join("sweep.csv");
+    let (ok, err, secs) = run(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.12",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(60),
+    );
+    console.proc.terminate();
+    let log = console_log(&console.log);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("did not take trajectory_j/set_ratio 0.2 within 1.5 s")
+            && err.contains("(its trajectory_j/ratio: 1)")
+            && err.contains("sending set_ratio again, once"),
+        "{err}"
+    );
+    assert!(
+        log.iter().all(|(_, k, _)| k != "motion"),
+        "a motion reached the console: {log:?}"
+    );
+    let ignored = log
+        .iter()
+        .filter(|(_, k, d)| k == "lost" && d == "set_ratio 0.2")
+        .count();
+    // the procedure's, the move's, and the move's one resend
+    assert_eq!(ignored, 3, "{log:?}");
+    eprintln!("ratio not taken: exit after {secs:.1} s");
 }
 
 /// A stand-in console on domain `d` and `calibrate torque-offset` of joint 1 through it, once

@@ -2,7 +2,8 @@
 //!
 //! - [`ConsoleClient`]: what a program that watches and moves an arm through the console uses
 //!   (the calibration procedures on a real arm): it reads `measured_js`, `operating_state`,
-//!   `goal_reached`, `warning`, `error` and `tool_type`, and writes `move_jp`, `servo_jp`,
+//!   `goal_reached`, `warning`, `error`, `tool_type` and `trajectory_j/ratio` (where the console
+//!   publishes it), and writes `move_jp`, `servo_jp`,
 //!   `hold`, `state_command` and `trajectory_j/set_ratio`.
 //! - [`ConsoleServer`]: the other side of the same topics, for a console stand-in (the simulated
 //!   PSM of `dvrk-sidecar sim --crtk PSM1`) that tests run the procedures against.
@@ -380,6 +381,9 @@ pub enum ConsoleEvent {
     Warning(String),
     Error(String),
     ToolType(String),
+    /// `trajectory_j/ratio`: the ratio the console's joint trajectories run at, sent on each
+    /// `trajectory_j/set_ratio` it takes (dVRK 2.x; older consoles do not publish it).
+    Ratio(f64),
 }
 
 /// A console event with its arrival sequence number and time.
@@ -415,6 +419,7 @@ pub struct ConsoleClient {
     warning: Named<TopicReader>,
     error: Named<TopicReader>,
     tool_type: Named<TopicReader>,
+    ratio: Named<TopicReader>,
     ep: Endpoints,
     domain: u16,
     seq: u64,
@@ -423,6 +428,9 @@ pub struct ConsoleClient {
     /// Last values, for callers that only want the current state.
     pub last_operating_state: Option<OperatingStateMsg>,
     pub last_tool_type: Option<String>,
+    /// The last `trajectory_j/ratio` the console sent (`None` before any, or from a console
+    /// that does not publish it).
+    pub last_ratio: Option<f64>,
     pub recent_warnings: VecDeque<String>,
 }
 
@@ -466,6 +474,7 @@ impl ConsoleClient {
             warning: ep.reader("warning", dds_type::STRING, Event)?,
             error: ep.reader("error", dds_type::STRING, Event)?,
             tool_type: ep.reader("tool_type", dds_type::STRING, Event)?,
+            ratio: ep.reader("trajectory_j/ratio", dds_type::FLOAT64, Event)?,
             ep,
             domain,
             seq: 0,
@@ -473,6 +482,7 @@ impl ConsoleClient {
             w: CdrWriter::new(),
             last_operating_state: None,
             last_tool_type: None,
+            last_ratio: None,
             recent_warnings: VecDeque::new(),
         })
     }
@@ -523,6 +533,12 @@ impl ConsoleClient {
         self.set_ratio.matched()
     }
 
+    /// The console publishes `trajectory_j/ratio` (a writer of it matched, as of the last
+    /// [`poll`](Self::poll)): it says which ratio it takes.
+    pub fn ratio_published(&self) -> bool {
+        self.ratio.matched > 0
+    }
+
     /// Drains every reader without blocking.
     pub fn poll(&mut self, out: &mut Polled) {
         let now = Instant::now();
@@ -554,6 +570,18 @@ impl ConsoleClient {
         for b in &buf {
             match crtk::decode_bool(&b.bytes, b.big_endian) {
                 Ok(v) => self.push(out, now, ConsoleEvent::GoalReached(v)),
+                Err(_) => out.undecodable += 1,
+            }
+        }
+
+        buf.clear();
+        self.ratio.drain(&mut buf);
+        for b in &buf {
+            match crtk::decode_f64(&b.bytes, b.big_endian) {
+                Ok(v) => {
+                    self.last_ratio = Some(v);
+                    self.push(out, now, ConsoleEvent::Ratio(v));
+                }
                 Err(_) => out.undecodable += 1,
             }
         }
@@ -817,6 +845,7 @@ pub struct ConsoleServer {
     error: Named<Writer>,
     status: Named<Writer>,
     tool_type: Named<Writer>,
+    ratio: Named<Writer>,
     readers: Vec<(usize, Named<TopicReader>)>,
     ep: Endpoints,
     buf: Vec<RawBody>,
@@ -861,6 +890,7 @@ impl ConsoleServer {
             error: ep.writer("error", dds_type::STRING, Event)?,
             status: ep.writer("status", dds_type::STRING, Event)?,
             tool_type: ep.writer("tool_type", dds_type::STRING, Event)?,
+            ratio: ep.writer("trajectory_j/ratio", dds_type::FLOAT64, Event)?,
             readers,
             ep,
             buf: Vec::new(),
@@ -939,6 +969,13 @@ impl ConsoleServer {
         self.w.clear();
         self.w.bool(v);
         self.goal_reached.send(&self.w)
+    }
+
+    /// `trajectory_j/ratio`, as the dVRK 2.x console sends it on each ratio it takes.
+    pub fn publish_ratio(&mut self, ratio: f64) -> Result<(), BridgeError> {
+        self.w.clear();
+        self.w.f64(ratio);
+        self.ratio.send(&self.w)
     }
 
     fn string(&mut self, which: u8, s: &str) -> Result<(), BridgeError> {

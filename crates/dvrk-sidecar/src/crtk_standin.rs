@@ -91,7 +91,7 @@ pub struct CrtkArgs {
     /// `invalid@S` (measured_js with a zero stamp), `refuse@S` (moves refused with a warning
     /// and no busy event, as the console does when it is not ready), `lose@S` (the next
     /// move_jp, the next state_command and the next set_ratio after S are lost on the way:
-    /// never applied, logged as `lost`).
+    /// never applied, logged as `lost`), `ignore-ratio@S` (every set_ratio from S on is lost).
     #[arg(long, value_name = "KIND@SECONDS")]
     pub fault: Vec<String>,
     /// A change the console makes on its own, at a time after start: `tool@S=NAME` (the
@@ -127,6 +127,7 @@ pub enum Fault {
     Invalid,
     Refuse,
     Lose,
+    IgnoreRatio,
 }
 
 pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
@@ -141,9 +142,10 @@ pub fn parse_fault(s: &str) -> Result<(Fault, f64)> {
         "invalid" => Fault::Invalid,
         "refuse" => Fault::Refuse,
         "lose" => Fault::Lose,
+        "ignore-ratio" => Fault::IgnoreRatio,
         other => bail!(
             "--fault {s:?}: unknown kind {other:?} (effort, estop, fault, silence, invalid, \
-             refuse, lose)"
+             refuse, lose, ignore-ratio)"
         ),
     };
     let at: f64 = at
@@ -294,6 +296,8 @@ pub enum Out {
     Warning(String),
     Error(String),
     Note(String),
+    /// `trajectory_j/ratio`, on each `set_ratio` taken.
+    Ratio(f64),
 }
 
 impl ConsoleSim {
@@ -516,6 +520,9 @@ impl ConsoleSim {
             | ConsoleCommand::SetRatioA(r) => {
                 if *r > 0.0 && *r <= 1.0 {
                     self.ratio = *r;
+                    if matches!(cmd, ConsoleCommand::SetRatio(_)) {
+                        out.push(Out::Ratio(*r));
+                    }
                 } else {
                     out.push(Out::Warning(format!("set_ratio: {r} not in ]0, 1]")));
                 }
@@ -584,7 +591,7 @@ impl ConsoleSim {
                 self.set_state("FAULT", out);
             }
             Fault::Refuse => self.refuse = true,
-            Fault::Silence | Fault::Invalid | Fault::Lose => {}
+            Fault::Silence | Fault::Invalid | Fault::Lose | Fault::IgnoreRatio => {}
         }
     }
 
@@ -797,6 +804,7 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
     let start = Instant::now();
     let stamp = dvrk_bridge::console::ros_now;
     server.publish_operating_state(&sim.operating_state(stamp()))?;
+    server.publish_ratio(sim.ratio)?;
     server.publish_tool_type(&args.tool)?;
     tracing::info!(
         arm, domain, start = %args.start, fixture = %args.fixture, tool = %args.tool,
@@ -812,6 +820,7 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
     let mut invalid = false;
     // `lose@S`: the next move_jp, state_command, set_ratio
     let mut lose = [false; 3];
+    let mut ignore_ratio = false;
     while !stop.raised() {
         let now = start.elapsed().as_secs_f64();
         while let Some(&(f, at)) = faults.first()
@@ -823,6 +832,7 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
                 Fault::Silence => silent = true,
                 Fault::Invalid => invalid = true,
                 Fault::Lose => lose = [true; 3],
+                Fault::IgnoreRatio => ignore_ratio = true,
                 _ => sim.fault(f, &mut outs),
             }
         }
@@ -867,7 +877,8 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
                 _ => None,
             }
             .filter(|&i| std::mem::take(&mut lose[i]));
-            if lost.is_some() {
+            let ignored = ignore_ratio && matches!(c, ConsoleCommand::SetRatio(_));
+            if lost.is_some() || ignored {
                 log_line(&mut log, now, "lost", &command_name(c));
                 continue;
             }
@@ -892,6 +903,7 @@ pub fn run(args: &CrtkArgs, arm: &str, scenario: &Scenario, io: &dvrk_io::IoConf
                     log_line(&mut log, now, "goal_reached", &v.to_string());
                     server.publish_goal_reached(v)?;
                 }
+                Out::Ratio(r) => server.publish_ratio(r)?,
                 Out::Warning(w) => {
                     log_line(&mut log, now, "warning", &w);
                     tracing::warn!("{w}");

@@ -13,6 +13,9 @@
 //! - a `move_jp` or `--enable`'s `state_command` that the console shows no sign of (no busy
 //!   event or warning within 0.5 s; no state event, warning or error within 3 s) is sent again,
 //!   once, the same: DDS loses what a writer sends before the reader has matched it;
+//! - `trajectory_j/set_ratio` goes out again before every `move_jp`, and where the console
+//!   publishes `trajectory_j/ratio`, the move waits until it says it runs that ratio (nothing
+//!   moves if it does not within 1.5 s);
 //! - every `measured_js` is checked: |effort| of joints 1-2 above `--effort-limit-nm`, a joint
 //!   outside the limits, the operating state leaving ENABLED (e-stop, FAULT), `measured_js`
 //!   silent or invalid (zero stamp) for 0.3 s, a move not finished in time and Ctrl-C all abort
@@ -84,6 +87,11 @@ pub enum Stop {
     MoveTimeout {
         timeout_s: f64,
     },
+    /// The console publishes its trajectory ratio and did not take the one asked for.
+    RatioNotTaken {
+        asked: f64,
+        console: Option<f64>,
+    },
     MoveInterrupted,
     Interrupted,
     /// `--measure sidecar`: the service's joint position differs from the console's, at rest.
@@ -144,6 +152,15 @@ impl std::fmt::Display for Stop {
                     write!(f, "; its last warning: {w}")?;
                 }
                 Ok(())
+            }
+            Stop::RatioNotTaken { asked, console } => {
+                write!(
+                    f,
+                    "the console did not take trajectory_j/set_ratio {asked} within {} s (its \
+                     trajectory_j/ratio: {}): the move was not sent",
+                    RATIO_LIMIT.as_secs_f64(),
+                    console.map_or("none received".to_owned(), |r| r.to_string())
+                )
             }
             Stop::MoveTimeout { timeout_s } => {
                 write!(
@@ -367,6 +384,9 @@ struct MoveWait {
     q6: [f64; 6],
     /// `trajectory_j/set_ratio`, sent again before each send of the move.
     ratio: f64,
+    /// Waiting for the console to say it runs `ratio` before the move is sent: since when, and
+    /// whether the ratio was sent again (`None` once the move is sent).
+    ratio_wait: Option<(Instant, bool)>,
     /// When the move was first sent, and when last sent.
     first_sent: Instant,
     sent: Instant,
@@ -387,7 +407,16 @@ enum MoveStatus {
     /// No busy event and no warning [`MOVE_RESEND_AFTER`] after the command: send it again,
     /// once (a command written before the console's reader has matched this writer can be lost).
     Resend,
+    /// The console now runs the ratio: send the move.
+    SendMove,
+    /// The console has not said it runs the ratio [`MOVE_RESEND_AFTER`] after it was sent: send
+    /// the ratio again, once.
+    ResendRatio,
 }
+
+/// How long a move waits for the console's `trajectory_j/ratio` to say it runs the ratio asked
+/// for (where the console publishes it) before the run stops with nothing moved.
+const RATIO_LIMIT: Duration = Duration::from_millis(1500);
 
 /// How long a `move_jp` may go without a busy event before it is sent again, once.
 const MOVE_RESEND_AFTER: Duration = Duration::from_millis(500);
@@ -476,6 +505,7 @@ impl Watch {
                         m.warned = true;
                     }
                 }
+                ConsoleEvent::Ratio(_) => {}
                 ConsoleEvent::ToolType(t) => {
                     if self.tool_type.as_deref().is_some_and(|old| old != t) {
                         tracing::warn!("instrument changed during the run: {t:?}");
@@ -568,9 +598,10 @@ fn effort_within(s: &Sample, limit_nm: f64) -> Result<(), Stop> {
 }
 
 impl MoveWait {
-    /// Sends `move_jp` to `q6` (the first three joints `d` away from where the arm is), after
-    /// `trajectory_j/set_ratio` again: a ratio lost on its way would leave the move at the
-    /// console's own speed, and the console does not say which ratio it runs.
+    /// A `move_jp` to `q6` (the first three joints `d` away from where the arm is), with
+    /// `trajectory_j/set_ratio` sent again first: a ratio lost on its way would leave the move
+    /// at the console's own speed. Where the console publishes `trajectory_j/ratio`, the move is
+    /// sent only once it says it runs `ratio` ([`MoveStatus::SendMove`]); elsewhere at once.
     fn start(
         client: &mut ConsoleClient,
         now: Instant,
@@ -578,10 +609,11 @@ impl MoveWait {
         ratio: f64,
         q6: [f64; 6],
     ) -> Result<Self, dvrk_bridge::BridgeError> {
-        let m = MoveWait {
+        let mut m = MoveWait {
             cmd_seq: client.last_seq(),
             q6,
             ratio,
+            ratio_wait: None,
             first_sent: now,
             sent: now,
             resent: false,
@@ -591,36 +623,88 @@ impl MoveWait {
             goal: None,
             timeout_s: 2.0 * move_duration_s(d, ratio) + 3.0,
         };
-        m.send(client)?;
+        if client.ratio_matched() {
+            client.set_ratio(ratio)?;
+        }
+        if client.ratio_published() && !ratio_taken(client, ratio) {
+            m.ratio_wait = Some((now, false));
+        } else {
+            m.send_move(client, now)?;
+        }
         Ok(m)
     }
 
-    /// Sends the same goal again (an identical `move_jp` only restarts the console's
-    /// trajectory to the same place).
-    fn resend(
+    /// What [`check`](Self::check) asked for: the move, or the ratio or the move again.
+    fn act(
+        &mut self,
+        status: MoveStatus,
+        client: &mut ConsoleClient,
+        now: Instant,
+    ) -> Result<(), dvrk_bridge::BridgeError> {
+        match status {
+            MoveStatus::SendMove => {
+                self.ratio_wait = None;
+                self.send_move(client, now)
+            }
+            MoveStatus::ResendRatio => {
+                if let Some((_, resent)) = &mut self.ratio_wait {
+                    *resent = true;
+                }
+                eprintln!(
+                    "the console does not yet say it runs trajectory_j ratio {}: sending \
+                     set_ratio again, once",
+                    self.ratio
+                );
+                client.set_ratio(self.ratio)
+            }
+            MoveStatus::Resend => {
+                tracing::warn!(
+                    "the console showed no sign of a move_jp after {:.1} s: sending it again",
+                    now.duration_since(self.sent).as_secs_f64()
+                );
+                eprintln!("the console did not start the move_jp: sending it again, once");
+                self.resent = true;
+                if client.ratio_matched() {
+                    client.set_ratio(self.ratio)?;
+                }
+                self.send_move(client, now)
+            }
+            MoveStatus::Running | MoveStatus::Done => Ok(()),
+        }
+    }
+
+    /// Sends the goal (an identical `move_jp` only restarts the console's trajectory to the
+    /// same place); busy events count from here.
+    fn send_move(
         &mut self,
         client: &mut ConsoleClient,
         now: Instant,
     ) -> Result<(), dvrk_bridge::BridgeError> {
-        tracing::warn!(
-            "the console showed no sign of a move_jp after {:.1} s: sending it again",
-            now.duration_since(self.sent).as_secs_f64()
-        );
-        eprintln!("the console did not start the move_jp: sending it again, once");
         self.cmd_seq = client.last_seq();
-        self.sent = now;
-        self.resent = true;
-        self.send(client)
-    }
-
-    fn send(&self, client: &mut ConsoleClient) -> Result<(), dvrk_bridge::BridgeError> {
-        if client.ratio_matched() {
-            client.set_ratio(self.ratio)?;
+        if !self.resent {
+            self.first_sent = now;
         }
+        self.sent = now;
         client.move_jp(&self.q6)
     }
 
     fn check(&self, client: &ConsoleClient, now: Instant) -> Result<MoveStatus, Stop> {
+        if let Some((asked, resent)) = self.ratio_wait {
+            if ratio_taken(client, self.ratio) {
+                return Ok(MoveStatus::SendMove);
+            }
+            let waited = now.duration_since(asked);
+            if !resent && waited > MOVE_RESEND_AFTER {
+                return Ok(MoveStatus::ResendRatio);
+            }
+            if waited > RATIO_LIMIT {
+                return Err(Stop::RatioNotTaken {
+                    asked: self.ratio,
+                    console: client.last_ratio,
+                });
+            }
+            return Ok(MoveStatus::Running);
+        }
         let since = now.duration_since(self.sent);
         if self.goal == Some(false) {
             return Err(Stop::MoveInterrupted);
@@ -647,6 +731,11 @@ impl MoveWait {
         }
         Ok(MoveStatus::Running)
     }
+}
+
+/// The console's last `trajectory_j/ratio` is `ratio`.
+fn ratio_taken(client: &ConsoleClient, ratio: f64) -> bool {
+    client.last_ratio.is_some_and(|r| (r - ratio).abs() <= 1e-9)
 }
 
 /// After an abort: `hold` where the arm is (twice, see below), unless the arm already left
@@ -987,13 +1076,12 @@ pub fn run_console<P: Plan>(
         if let Some(m) = &mut moving {
             match m.check(client, now) {
                 Err(r) => break 'run Some(r),
-                Ok(MoveStatus::Resend) => m.resend(client, now)?,
                 Ok(MoveStatus::Done) => {
                     runner.target_reached_by_robot();
                     setpoint = Some(runner.target());
                     moving = None;
                 }
-                Ok(MoveStatus::Running) => {}
+                Ok(other) => m.act(other, client, now)?,
             }
         }
         if let Some((deadline, rx)) = &prompt {
@@ -1438,13 +1526,12 @@ pub fn run_dynamics(
         if let Some(m) = &mut moving {
             match m.check(&client, now) {
                 Err(r) => break 'run Some(r),
-                Ok(MoveStatus::Resend) => m.resend(&mut client, now)?,
                 Ok(MoveStatus::Done) => {
                     moving = None;
                     started = Some(now);
                     eprintln!("at the start: excitation running for {duration:.0} s");
                 }
-                Ok(MoveStatus::Running) => {}
+                Ok(other) => m.act(other, &mut client, now)?,
             }
         }
         std::thread::sleep(Duration::from_millis(1));
