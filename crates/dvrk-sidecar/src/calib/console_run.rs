@@ -210,6 +210,15 @@ pub fn connect(arm: &str) -> anyhow::Result<ConsoleClient> {
         have_js |= polled.measured_js.iter().any(|m| m.is_valid());
         polled.measured_js.clear();
         if have_js && c.last_operating_state.is_some() && c.commands_matched() {
+            // the console's trajectory_j/ratio writer, where it has one, matched too, so the
+            // first move already waits for the console's ratio (an older console has none)
+            let grace = Instant::now() + RATIO_DISCOVERY_WAIT;
+            while !c.ratio_published() && Instant::now() < grace {
+                std::thread::sleep(Duration::from_millis(5));
+                polled.measured_js.clear();
+                polled.events.clear();
+                c.poll(&mut polled);
+            }
             return Ok(c);
         }
         std::thread::sleep(Duration::from_millis(5));
@@ -413,6 +422,10 @@ enum MoveStatus {
     /// the ratio again, once.
     ResendRatio,
 }
+
+/// How long [`connect`] waits, once everything else is there, for the console's
+/// `trajectory_j/ratio` writer to match (a console that publishes no ratio costs this once).
+const RATIO_DISCOVERY_WAIT: Duration = Duration::from_secs(1);
 
 /// How long a move waits for the console's `trajectory_j/ratio` to say it runs the ratio asked
 /// for (where the console publishes it) before the run stops with nothing moved.
