@@ -17,7 +17,8 @@
 //!   homes it; `--dry-run` sends nothing;
 //! - a `state_command`, a `set_ratio` and a `move_jp` lost on the way (`--fault lose@0`) are
 //!   each sent again, the same, and the run goes on; a refused move is not sent again; a
-//!   console that says it runs another trajectory ratio than the one asked for gets no move.
+//!   console that says it runs another trajectory ratio than the one asked for (ours, and one
+//!   written with Cyclone DDS) gets no move_jp.
 
 mod common;
 
@@ -70,10 +71,10 @@ impl Drop for Slot {
 }
 
 /// A DDS domain per test, away from the ROS 2 bridge tests' (20..=221). Offsets in use: 0-3,
-/// 4-9 (the fault cases), 10-26; each test has its own (a shared domain crosses two tests'
-/// consoles and commands). At most 150 + 56 + 26 = 232, the highest domain ROS 2 allows.
+/// 4-9 (the fault cases), 10-27; each test has its own (a shared domain crosses two tests'
+/// consoles and commands). At most 150 + 55 + 27 = 232, the highest domain ROS 2 allows.
 fn domain(offset: u16) -> u16 {
-    150 + (std::process::id() % 57) as u16 + offset
+    150 + (std::process::id() % 56) as u16 + offset
 }
 
 struct StandIn {
@@ -733,7 +734,7 @@ fn a_lost_command_is_sent_again_once_and_the_run_goes_on() {
 #[test]
 fn a_console_that_keeps_another_ratio_gets_no_move() {
     // The stand-in publishes trajectory_j/ratio as the dVRK 2.x console does, and takes no
-    // set_ratio: no move may go out at its own speed.
+    // set_ratio: no move_jp may go out at its own speed.
     let _slot = slot();
     let d = domain(26);
     let mut console = stand_in("console_ratio", d, &["--fault", "ignore-ratio@0"]);
@@ -764,9 +765,11 @@ fn a_console_that_keeps_another_ratio_gets_no_move() {
             && err.contains("sending set_ratio again, once"),
         "{err}"
     );
+    // (a servo_jp step, ramped by the run itself, does not depend on the ratio)
     assert!(
-        log.iter().all(|(_, k, _)| k != "motion"),
-        "a motion reached the console: {log:?}"
+        log.iter()
+            .all(|(_, k, d)| k != "motion" || !d.starts_with("move_jp")),
+        "a move_jp reached the console: {log:?}"
     );
     let ignored = log
         .iter()
@@ -1453,6 +1456,60 @@ fn a_console_written_with_cyclone_dds_is_enabled_homed_and_swept() {
             "the console refused a command: {v}"
         );
     }
+}
+
+/// The Cyclone DDS console publishing `trajectory_j/ratio` (a TRANSIENT_LOCAL event written by
+/// another DDS) and taking no `set_ratio`: the run reads the console's ratio, 0.2, and sends no
+/// `move_jp` at it when 0.1 was asked for.
+#[cfg_attr(
+    not(has_py_cyclonedds),
+    ignore = "needs python3 with cyclonedds: bash .ci/python-deps, then touch build.rs"
+)]
+#[test]
+fn a_cyclone_dds_console_that_keeps_its_ratio_gets_no_move() {
+    let _slot = slot();
+    let dir = scratch("console_cyclone_ratio");
+    let d = domain(27);
+    let (mut console, log) = cyclone_stand_in(&dir, d, &["--ratio-topic", "--ignore-ratio"]);
+    let out = dir.join("sweep.csv");
+    let (ok, err, _) = run(
+        d,
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--joints",
+            "1",
+            "--depths",
+            "0.12",
+            "--ratio",
+            "0.1",
+            "--out",
+            out.to_str().unwrap(),
+            "--yes",
+        ],
+        Duration::from_secs(120),
+    );
+    console.terminate();
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("did not take trajectory_j/set_ratio 0.1 within 1.5 s")
+            && err.contains("(its trajectory_j/ratio: 0.2)"),
+        "{err}"
+    );
+    let log: Vec<serde_json::Value> = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect();
+    // (a servo_jp step, ramped by the run itself, does not depend on the ratio)
+    assert!(
+        log.iter().all(|v| v["cmd"] != "move_jp"),
+        "a move_jp reached the console: {log:?}"
+    );
+    let ratios = log.iter().filter(|v| v["cmd"] == "set_ratio").count();
+    assert_eq!(ratios, 3, "{log:?}");
 }
 
 /// A console whose event writers are VOLATILE (unlike the dVRK console's TRANSIENT_LOCAL ones)

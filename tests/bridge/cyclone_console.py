@@ -37,12 +37,14 @@ held where the arm first comes to rest, never released.
 
 `--events-volatile` gives the event writers VOLATILE durability (unlike the dVRK console's);
 `--silent-start` publishes no event at start (a reader of VOLATILE events that joined late
-knows nothing until the next change).
+knows nothing until the next change). `--ratio-topic` publishes `trajectory_j/ratio` as the
+dVRK 2.x console does (an event: the ratio at start, 0.2, and each `set_ratio` taken);
+`--ignore-ratio` takes no `set_ratio` (logged, neither applied nor echoed).
 
 Usage: cyclone_console.py --domain N [--arm PSM1] [--rate 100] [--kp 40] [--start disabled|enabled|homed]
                           [--tool NAME] [--home-s 1.0] [--noise-nm 0.002] [--seconds 600]
                           [--events-volatile] [--silent-start] [--fixture none|clamp|divot]
-                          [--friction-nm 0] [--ki 0]
+                          [--friction-nm 0] [--ki 0] [--ratio-topic] [--ignore-ratio]
 """
 
 import argparse
@@ -161,6 +163,8 @@ def main():
     ap.add_argument("--fixture", choices=["none", "clamp", "divot"], default="none")
     ap.add_argument("--friction-nm", type=float, default=0.0)
     ap.add_argument("--ki", type=float, default=0.0)
+    ap.add_argument("--ratio-topic", action="store_true")
+    ap.add_argument("--ignore-ratio", action="store_true")
     a = ap.parse_args()
 
     dp = DomainParticipant(a.domain)
@@ -184,6 +188,7 @@ def main():
     tool_w = writer("tool_type", String, event_qos)
     warn_w = writer("warning", String, event_qos)
     err_w = writer("error", String, event_qos)
+    ratio_w = writer("trajectory_j/ratio", Float64, event_qos) if a.ratio_topic else None
     readers = {
         "move_jp": reader("move_jp", JointState),
         "servo_jp": reader("servo_jp", JointState),
@@ -218,6 +223,9 @@ def main():
     clamp_wanted = a.fixture != "none"
     still_since = None
     ratio = 0.2
+    if ratio_w is not None:
+        ratio_w.write(Float64(ratio))
+        log({"event": "ratio", "ratio": ratio})
     move = None  # (start setpoint, target, start time, duration)
     homing_until = None
     base = [0.1, 0.2, 0.05]
@@ -262,8 +270,11 @@ def main():
                     continue  # a writer went away (its disposal), no command
                 if name == "set_ratio":
                     log({"cmd": name, "ratio": s.data})
-                    if 0.0 < s.data <= 1.0:
+                    if 0.0 < s.data <= 1.0 and not a.ignore_ratio:
                         ratio = s.data
+                        if ratio_w is not None:
+                            ratio_w.write(Float64(ratio))
+                            log({"event": "ratio", "ratio": ratio})
                     continue
                 if name == "state_command":
                     log({"cmd": name, "command": s.data})
