@@ -159,6 +159,26 @@ fn rows(path: &Path) -> usize {
         .unwrap_or(0)
 }
 
+/// `calibrate torque-offset` of joint 1 at 0.12 m through the console of PSM1, into `out`,
+/// confirmed (`--yes`), then `extra`: the short sweep of the fault and command tests.
+fn joint1_sweep<'a>(out: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec![
+        "calibrate",
+        "torque-offset",
+        "--robot",
+        "ros2:PSM1",
+        "--joints",
+        "1",
+        "--depths",
+        "0.12",
+        "--out",
+        out.to_str().unwrap(),
+        "--yes",
+    ];
+    args.extend_from_slice(extra);
+    args
+}
+
 /// The stand-in refused, clipped or over-stepped nothing.
 fn assert_clean(log: &[(f64, String, String)]) {
     for (t, kind, detail) in log {
@@ -440,23 +460,7 @@ fn fault_case(test: &str, offset: u16, fault: &str, at_s: f64, reason: &str) {
     let fault_arg = format!("{fault}@{at_s}");
     let mut console = stand_in(test, d, &["--fault", &fault_arg]);
     let out = scratch(test).join("sweep.csv");
-    let (ok, err, _, end) = run_until(
-        d,
-        &[
-            "calibrate",
-            "torque-offset",
-            "--robot",
-            "ros2:PSM1",
-            "--joints",
-            "1",
-            "--depths",
-            "0.12",
-            "--out",
-            out.to_str().unwrap(),
-            "--yes",
-        ],
-        Duration::from_secs(120),
-    );
+    let (ok, err, _, end) = run_until(d, &joint1_sweep(&out, &[]), Duration::from_secs(120));
     // An upper bound of the exit's time on the stand-in's clock, which starts after spawning.
     let ended = end.duration_since(console.started).as_secs_f64();
     console.proc.terminate();
@@ -561,19 +565,7 @@ fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
     let mut console = stand_in("console_disabled", d, &["--start", "disabled"]);
     let out = scratch("console_disabled").join("sweep.csv");
     std::fs::write(&out, "an earlier recording\n").unwrap();
-    let args = [
-        "calibrate",
-        "torque-offset",
-        "--robot",
-        "ros2:PSM1",
-        "--joints",
-        "1",
-        "--depths",
-        "0.12",
-        "--out",
-        out.to_str().unwrap(),
-        "--yes",
-    ];
+    let args = joint1_sweep(&out, &[]);
     let (ok, err, _) = run(d, &args, Duration::from_secs(60));
     assert!(!ok);
     assert!(
@@ -595,7 +587,7 @@ fn a_disabled_arm_is_refused_and_nothing_is_sent_then_enable_enables_it() {
     let mut p = Proc::spawn(
         "calibrate --enable",
         Command::new(sidecar_bin())
-            .args(args)
+            .args(&args)
             .arg("--enable")
             .env("ROS_DOMAIN_ID", d.to_string())
             .env("RUST_LOG", "warn")
@@ -652,11 +644,7 @@ fn a_lost_command_is_sent_again_once_and_the_run_goes_on() {
     let mut p = Proc::spawn(
         "calibrate --enable",
         Command::new(sidecar_bin())
-            .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
-            .args([
-                "--joints", "1", "--depths", "0.12", "--yes", "--enable", "--out",
-            ])
-            .arg(&out)
+            .args(joint1_sweep(&out, &["--enable"]))
             .env("ROS_DOMAIN_ID", d.to_string())
             .env("RUST_LOG", "warn")
             .stdin(Stdio::null())
@@ -739,23 +727,7 @@ fn a_console_that_keeps_another_ratio_gets_no_move() {
     let d = domain(26);
     let mut console = stand_in("console_ratio", d, &["--fault", "ignore-ratio@0"]);
     let out = scratch("console_ratio").join("sweep.csv");
-    let (ok, err, secs) = run(
-        d,
-        &[
-            "calibrate",
-            "torque-offset",
-            "--robot",
-            "ros2:PSM1",
-            "--joints",
-            "1",
-            "--depths",
-            "0.12",
-            "--out",
-            out.to_str().unwrap(),
-            "--yes",
-        ],
-        Duration::from_secs(60),
-    );
+    let (ok, err, secs) = run(d, &joint1_sweep(&out, &[]), Duration::from_secs(60));
     console.proc.terminate();
     let log = console_log(&console.log);
     assert!(!ok, "{err}");
@@ -788,9 +760,7 @@ fn sweep_started(test: &str, d: u16) -> (StandIn, Proc) {
     let p = Proc::spawn(
         "calibrate",
         Command::new(sidecar_bin())
-            .args(["calibrate", "torque-offset", "--robot", "ros2:PSM1"])
-            .args(["--joints", "1", "--depths", "0.12", "--yes", "--out"])
-            .arg(&out)
+            .args(joint1_sweep(&out, &[]))
             .env("ROS_DOMAIN_ID", d.to_string())
             .env("RUST_LOG", "warn")
             .stdin(Stdio::null())
@@ -1338,6 +1308,15 @@ fn a_sidecar_service_killed_mid_run_stops_the_excitation_with_a_hold() {
     assert!(last_motion - t_kill < 2.0, "{last_motion} after {t_kill}");
 }
 
+/// The Cyclone DDS stand-in's log: one JSON object per command received and event sent.
+fn cyclone_log(path: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
 /// The Cyclone DDS console stand-in (`tests/bridge/cyclone_console.py`) on DDS domain `d` with
 /// `args`, for up to 600 s; its log (one JSON object per command received and event sent) in
 /// `dir`.
@@ -1428,11 +1407,7 @@ fn a_console_written_with_cyclone_dds_is_enabled_homed_and_swept() {
     }
 
     // The console saw enable, then home, then motion; it refused nothing.
-    let log: Vec<serde_json::Value> = std::fs::read_to_string(&log)
-        .unwrap()
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect();
+    let log = cyclone_log(&log);
     let commands: Vec<&str> = log.iter().filter_map(|v| v["cmd"].as_str()).collect();
     assert_eq!(
         commands[..2],
@@ -1474,21 +1449,7 @@ fn a_cyclone_dds_console_that_keeps_its_ratio_gets_no_move() {
     let out = dir.join("sweep.csv");
     let (ok, err, _) = run(
         d,
-        &[
-            "calibrate",
-            "torque-offset",
-            "--robot",
-            "ros2:PSM1",
-            "--joints",
-            "1",
-            "--depths",
-            "0.12",
-            "--ratio",
-            "0.1",
-            "--out",
-            out.to_str().unwrap(),
-            "--yes",
-        ],
+        &joint1_sweep(&out, &["--ratio", "0.1"]),
         Duration::from_secs(120),
     );
     console.terminate();
@@ -1498,11 +1459,7 @@ fn a_cyclone_dds_console_that_keeps_its_ratio_gets_no_move() {
             && err.contains("(its trajectory_j/ratio: 0.2)"),
         "{err}"
     );
-    let log: Vec<serde_json::Value> = std::fs::read_to_string(&log)
-        .unwrap()
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect();
+    let log = cyclone_log(&log);
     // (a servo_jp step, ramped by the run itself, does not depend on the ratio)
     assert!(
         log.iter().all(|v| v["cmd"] != "move_jp"),
@@ -1706,11 +1663,7 @@ fn a_clamp_through_a_cyclone_dds_console_recovers_its_shaft() {
         "clamp through the Cyclone DDS console: {} rows in {secs:.0} s",
         rows(&clamp)
     );
-    let log: Vec<serde_json::Value> = std::fs::read_to_string(&log)
-        .unwrap()
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect();
+    let log = cyclone_log(&log);
     for v in &log {
         assert!(
             v["event"] != "warning" && v["event"] != "error",
