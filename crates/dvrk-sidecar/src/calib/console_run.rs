@@ -636,9 +636,7 @@ impl MoveWait {
             goal: None,
             timeout_s: 2.0 * move_duration_s(d, ratio) + 3.0,
         };
-        if client.ratio_matched() {
-            client.set_ratio(ratio)?;
-        }
+        m.send_ratio(client)?;
         if client.ratio_published() && !ratio_taken(client, ratio) {
             m.ratio_wait = Some((now, false));
         } else {
@@ -677,13 +675,20 @@ impl MoveWait {
                 );
                 eprintln!("the console did not start the move_jp: sending it again, once");
                 self.resent = true;
-                if client.ratio_matched() {
-                    client.set_ratio(self.ratio)?;
-                }
+                self.send_ratio(client)?;
                 self.send_move(client, now)
             }
             MoveStatus::Running | MoveStatus::Done => Ok(()),
         }
+    }
+
+    /// `trajectory_j/set_ratio`, where the console reads it (the procedure's start said so once
+    /// where it does not).
+    fn send_ratio(&self, client: &mut ConsoleClient) -> Result<(), dvrk_bridge::BridgeError> {
+        if client.ratio_matched() {
+            client.set_ratio(self.ratio)?;
+        }
+        Ok(())
     }
 
     /// Sends the goal (an identical `move_jp` only restarts the console's trajectory to the
