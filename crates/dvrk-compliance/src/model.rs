@@ -94,7 +94,8 @@ pub mod trust {
     /// smooth): the internal-torque estimate lags, so the correction is withheld for
     /// `TRANSIENT_HOLD_S` and fades back in over `FADE_S`. An effort that changed fast while
     /// the motion stayed smooth (a contact's load changing) is withheld for
-    /// `CONTACT_CHANGE_HOLD_S` only.
+    /// `CONTACT_CHANGE_HOLD_S` only, and not at all while the contact is more than
+    /// `SURE_CONTACT_CHANGES` times that change.
     pub const TRANSIENT: u32 = 1 << 2;
     /// The acceleration is beyond what the dynamics fit saw: the correction shrinks, to nothing
     /// at `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration.
@@ -231,6 +232,11 @@ pub const TRANSIENT_HOLD_S: f64 = 0.15;
 /// may as well be the motion's own (a stop settling), and with the short hold a start-stop
 /// motion's compensated mean was 17-37% worse.
 pub const CONTACT_CHANGE_HOLD_S: f64 = 0.02;
+/// A contact's fast change is followed, not withheld, while its averaged torque is more than
+/// this many times the effort's change over [`EFFORT_RATE_SAMPLES`] (about the lag of the
+/// motor-side effort behind the shaft's load): the side cannot change within the lag, and the
+/// correction is off by the lag's change at most, which the bound takes for [`CONTACT_CHANGE_HOLD_S`].
+pub const SURE_CONTACT_CHANGES: f64 = 3.0;
 /// How long after a joint was last at rest the other joint's contact change holds it (s): the
 /// filter's window (32 ms at 1.5 kHz) and its delay, in which the dynamics model lags a start.
 pub const START_FROM_REST_S: f64 = 0.05;
@@ -925,6 +931,10 @@ struct JointTrust {
     last_transient_s: f64,
     /// Time (s) of the last fast change of a contact's load ([`CONTACT_CHANGE_HOLD_S`]).
     last_contact_change_s: f64,
+    /// Time (s) of the last fast change of a sure contact's load, which is followed rather than
+    /// withheld ([`SURE_CONTACT_CHANGES`]), and its size over the lag (N·m).
+    last_sure_change_s: f64,
+    lag_change_nm: f64,
     /// Time (s) the arm last moved (joints without a dynamics model).
     last_moving_s: f64,
     /// A gap restarted the filter and it has not filled since.
@@ -999,6 +1009,8 @@ impl Default for JointTrust {
             has_last_effort: false,
             last_transient_s: f64::NEG_INFINITY,
             last_contact_change_s: f64::NEG_INFINITY,
+            last_sure_change_s: f64::NEG_INFINITY,
+            lag_change_nm: 0.0,
             last_moving_s: f64::NEG_INFINITY,
             after_gap: false,
             recent_trusted: TrustedContact::default(),
@@ -1143,7 +1155,9 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// [`TRANSIENT_RESIDUAL_RATIO`] times its own recent level, so a steady fast motion is not
 /// taken for a burst) 0 for [`TRANSIENT_HOLD_S`], then fading back in over [`FADE_S`]; after an
 /// effort change over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`] alone (a
-/// contact's load changing under a smooth motion) the same, for [`CONTACT_CHANGE_HOLD_S`]; 1 up to
+/// contact's load changing under a smooth motion) the same, for [`CONTACT_CHANGE_HOLD_S`], unless
+/// the averaged contact is more than [`SURE_CONTACT_CHANGES`] times the change (followed then,
+/// with the change in the bound); 1 up to
 /// the largest acceleration the dynamics fit saw, falling to 0 at [`ACCEL_CUTOFF_RATIO`] times
 /// it; 0 beyond the insertion margin; fading from 1 to 0 over [`TORQUE_OFFSET_MARGIN_RAD`]
 /// outside the torque-offset table's positions. Each reason sets a bit of [`trust`] in
@@ -1244,6 +1258,9 @@ impl Compensator {
         let mut static_share = [1.0; 2];
         let mut abrupt = [false; 2];
         let mut contact_change = [false; 2];
+        // The effort's change over the last EFFORT_RATE_SAMPLES (N·m): about what the effort
+        // measured on the motor's side lags the shaft's load by.
+        let mut recent_change = [0.0; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
             let st = &mut self.joints[j];
@@ -1326,8 +1343,17 @@ impl Compensator {
             tr.last_effort = effort[j];
             tr.has_last_effort = effort[j].is_finite();
             // The change over the last EFFORT_RATE_SAMPLES (the oldest in the ring).
-            let effort_change = tr.efforts_len == EFFORT_RATE_SAMPLES
-                && (effort[j] - tr.efforts[tr.efforts_head]).abs() > change_limit;
+            let change_over_window = if tr.efforts_len == EFFORT_RATE_SAMPLES {
+                (effort[j] - tr.efforts[tr.efforts_head]).abs()
+            } else {
+                0.0
+            };
+            recent_change[j] = if change_over_window.is_finite() {
+                change_over_window
+            } else {
+                0.0
+            };
+            let effort_change = change_over_window > change_limit;
             if effort[j].is_finite() && !st.restarted() {
                 tr.efforts[tr.efforts_head] = effort[j];
                 tr.efforts_head = (tr.efforts_head + 1) % EFFORT_RATE_SAMPLES;
@@ -1400,7 +1426,18 @@ impl Compensator {
                 let other_changed = contact_change[1 - j]
                     && tr.last_contact_share < 1.0
                     && t_s - tr.last_rest_s <= START_FROM_REST_S;
-                if contact_change[j] || other_changed {
+                // A contact whose load is several times what it changed by over the lag stays
+                // on its side through that lag: the correction follows it, off by the lag's
+                // change at most (in the bound below), instead of being withheld while the load
+                // keeps changing (a tip pressed ever harder into a slope: 90 mrad of joint 1's
+                // deflection left uncorrected for as long as the load grew).
+                let sure = contact_change[j]
+                    && tr.tau_average.abs() > SURE_CONTACT_CHANGES * recent_change[j];
+                if sure {
+                    tr.lag_change_nm = recent_change[j];
+                    tr.last_sure_change_s = t_s;
+                }
+                if (contact_change[j] && !sure) || other_changed {
                     tr.last_contact_change_s = t_s;
                 }
             }
@@ -1713,7 +1750,14 @@ impl Compensator {
                     let sigma_side = sigma_free
                         .quad(contact_share * sigma_noise)
                         .quad(SWAY_LAG_SHARE * sway_beyond_noise);
-                    let (tau_b, sigma_b) = (tau_shaft, sigma_side.quad(unseen));
+                    // A sure contact followed through its fast change: the effort measured now
+                    // lags the shaft's load by about the change over the lag.
+                    let lag = if t_s - tr.last_sure_change_s <= CONTACT_CHANGE_HOLD_S {
+                        tr.lag_change_nm
+                    } else {
+                        0.0
+                    };
+                    let (tau_b, sigma_b) = (tau_shaft, sigma_side.quad(unseen).quad(lag));
                     // The side is as uncertain as its evidence: a swinging load may have crossed.
                     let p_other =
                         other_side_probability(evidence_margin, sigma_side.quad(sway_load));

@@ -346,6 +346,63 @@ fn a_fast_contact_change_is_withheld_briefly_not_like_a_motion_transient() {
     );
 }
 
+/// A tip pressed ever harder (8 N·m/s, 0.043 N·m over the effort's window, past the contact
+/// change's limit in every sample): once the contact is several times its change over the lag,
+/// the correction follows it instead of being withheld for as long as the load grows (a random
+/// surface scenario kept 90 mrad of joint 1's deflection that way), and the bound takes the lag's
+/// change. The same ramp from no contact is held until the contact is sure of its side.
+#[test]
+fn a_contact_pressed_ever_harder_is_followed_once_its_side_is_sure() {
+    const RATE: f64 = 8.0;
+    let window_change = RATE * EFFORT_RATE_SAMPLES as f64 * DT;
+    assert!(
+        window_change > 0.035,
+        "the ramp must count as a fast change"
+    );
+    let cfg = config(true);
+    for start in [0.3, 0.0] {
+        let mut c = Compensator::new();
+        still(&mut c, &cfg, 0, 600, 0.12, start);
+        let (mut followed, mut held_early) = (0, 0);
+        let n = (1.2 / RATE / DT) as usize;
+        // Pressed already: followed once the ramp fills the effort's window. From no contact:
+        // held until the 10 ms average is three window changes (about 0.21 N·m, 26 ms), then
+        // the hold and the fade.
+        let from = if start > 0.0 {
+            EFFORT_RATE_SAMPLES
+        } else {
+            ((0.03 + CONTACT_CHANGE_HOLD_S + FADE_S) / DT) as usize
+        };
+        for i in 1..=n {
+            let tau = start + RATE * i as f64 * DT;
+            let r = still(&mut c, &cfg, 599 + i, 1, 0.12, tau);
+            let withheld = r.flags & trust::TRANSIENT != 0;
+            if tau < 2.0 * window_change {
+                held_early += usize::from(withheld);
+            }
+            if i > from {
+                assert!(!withheld, "start {start}, sample {i}: {r:?}");
+                assert_eq!(r.weight[0], 1.0, "start {start}, sample {i}: {r:?}");
+                // Joint 1: 0.002 + tau / 20 rad; the synthetic effort does not lag.
+                let truth = 0.002 + tau / 20.0;
+                assert!((r.delta_rad[0] - truth).abs() < 1e-4, "{tau}: {r:?}");
+                // The bound holds the lag's change: K times the window's change, 1.96 sigma.
+                assert!(
+                    r.bound_rad[0] >= 1.9 * window_change / 20.0,
+                    "{tau}: bound {} rad: {r:?}",
+                    r.bound_rad[0]
+                );
+                followed += 1;
+            }
+        }
+        assert_eq!(followed, n - from, "start {start}");
+        // From no contact the first samples of the ramp are a contact change to be held.
+        if start == 0.0 {
+            assert!(held_early > 0, "the ramp from no contact was not held");
+        }
+    }
+}
+
 /// The other joint's fast effort change holds a joint at rest without contact (a motion's start
 /// that the other joint's detector saw first builds on this one as a contact would), not one
 /// moving on its own: joint 2 slips (0.3 to 0.15 N·m in 3 ms) while joint 1 is free, either at
