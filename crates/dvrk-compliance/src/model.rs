@@ -98,7 +98,8 @@ pub mod trust {
     /// `SURE_CONTACT_CHANGES` times that change.
     pub const TRANSIENT: u32 = 1 << 2;
     /// The acceleration is beyond what the dynamics fit saw: the correction shrinks, to nothing
-    /// at `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration.
+    /// at `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, except for a contact that
+    /// stands out of the extrapolated inertia's uncertainty (`SURE_ACCEL_CONTACT_SIGMAS`).
     pub const ACCEL_OUT_OF_RANGE: u32 = 1 << 3;
     /// The insertion is outside the fitted range but within `INSERTION_MARGIN_M` +
     /// `INSERTION_FADE_M` of it: K(L) is extrapolated and its uncertainty grows with the
@@ -269,8 +270,21 @@ pub const FADE_S: f64 = 0.05;
 /// the arm at 2 kept 0.40 mm of harm in a fast sinusoid and one at 1.25 0.17 mm; at 2, 0.37
 /// and 0.05 mm, nothing else changed by more than 0.03 mm.
 pub const STUCK_FRICTION_RATIO: f64 = 2.0;
-/// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction.
+/// Beyond `ACCEL_CUTOFF_RATIO` times the fit's largest acceleration, no correction, unless the
+/// contact is sure against the extrapolated model ([`SURE_ACCEL_CONTACT_SIGMAS`]).
 pub const ACCEL_CUTOFF_RATIO: f64 = 2.0;
+/// Relative uncertainty (1 sigma) of the motion model's inertial and viscous loads within the
+/// fit's accelerations. Beyond them the inertial load is extrapolated, and a contact taken past
+/// the acceleration's shrink carries `(ratio - 1)` times this share more of it, at `ratio` times
+/// the fit's largest acceleration.
+pub const INERTIA_REL_SIGMA: f64 = 0.05;
+/// Beyond the fit's accelerations a contact whose averaged torque is more than this many of the
+/// torque estimate's standard deviations (the extrapolated inertia's uncertainty included) is
+/// not shrunk toward nothing with the acceleration: the weight rises from the shrink's at this
+/// many to 1 at [`SURE_ACCEL_CONTACT_FADE_SIGMAS`] more. ACCEL_OUT_OF_RANGE is still set.
+pub const SURE_ACCEL_CONTACT_SIGMAS: f64 = 4.0;
+/// See [`SURE_ACCEL_CONTACT_SIGMAS`].
+pub const SURE_ACCEL_CONTACT_FADE_SIGMAS: f64 = 2.0;
 /// Below this speed (rad/s) and [`STILL_ACCELERATION`] a joint without a dynamics model counts
 /// as still.
 pub const STILL_VELOCITY: f64 = 0.01;
@@ -1159,8 +1173,9 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// the averaged contact is more than [`SURE_CONTACT_CHANGES`] times the change (followed then,
 /// with the change in the bound); 1 up to
 /// the largest acceleration the dynamics fit saw, falling to 0 at [`ACCEL_CUTOFF_RATIO`] times
-/// it; 0 beyond the insertion margin; fading from 1 to 0 over [`TORQUE_OFFSET_MARGIN_RAD`]
-/// outside the torque-offset table's positions. Each reason sets a bit of [`trust`] in
+/// it, but not below what a contact beyond [`SURE_ACCEL_CONTACT_SIGMAS`] of the extrapolated
+/// model's uncertainty allows; 0 beyond the insertion margin; fading from 1 to 0 over
+/// [`TORQUE_OFFSET_MARGIN_RAD`] outside the torque-offset table's positions. Each reason sets a bit of [`trust`] in
 /// [`Correction::flags`].
 ///
 /// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]),
@@ -1261,6 +1276,8 @@ impl Compensator {
         // The effort's change over the last EFFORT_RATE_SAMPLES (N·m): about what the effort
         // measured on the motor's side lags the shaft's load by.
         let mut recent_change = [0.0; 2];
+        // The inertia load's extra uncertainty (N·m, 1 sigma) beyond the fit's accelerations.
+        let mut extrapolated = [0.0; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
             let st = &mut self.joints[j];
@@ -1301,14 +1318,27 @@ impl Compensator {
                         v.abs() < d.stick_velocity_rad_per_s + a.abs() * REVERSAL_WINDOW_S;
                     near_reversal = reversal;
                     let static_sigma = d.residual_std_nm.max(effort_noise);
-                    let motion_sigma = (0.05 * d.inertia(l_phys) * a)
-                        .quad(0.05 * d.viscous_nm_s_per_rad * v)
-                        .quad(if reversal { 2.0 * d.coulomb_nm } else { 0.0 });
-                    sigma[j] = static_sigma.quad(motion_sigma);
-                    static_share[j] = variance_share(static_sigma, motion_sigma);
                     max_acc[j] = d
                         .max_acceleration_rad_per_s2
                         .unwrap_or(crate::dynamics::DEFAULT_MAX_ACCELERATION);
+                    // Beyond the fit's accelerations the inertia's load is extrapolated: its
+                    // uncertainty grows with the distance (see `INERTIA_REL_SIGMA`). Only a
+                    // contact taken past the shrink below carries it: elsewhere
+                    // the correction shrinks with the acceleration already, and a free motion's
+                    // side widened by it made the bound of a fast smooth motion over 2.5 times
+                    // its error.
+                    let beyond = (a.abs() / max_acc[j].max(1e-9) - 1.0).max(0.0);
+                    let inertial = INERTIA_REL_SIGMA * d.inertia(l_phys) * a;
+                    extrapolated[j] = if beyond.is_finite() && inertial.is_finite() {
+                        beyond * inertial.abs()
+                    } else {
+                        0.0
+                    };
+                    let motion_sigma = inertial
+                        .quad(INERTIA_REL_SIGMA * d.viscous_nm_s_per_rad * v)
+                        .quad(if reversal { 2.0 * d.coulomb_nm } else { 0.0 });
+                    sigma[j] = static_sigma.quad(motion_sigma);
+                    static_share[j] = variance_share(static_sigma, motion_sigma);
                 }
                 None => {
                     st.observe(t_s, q);
@@ -1458,7 +1488,26 @@ impl Compensator {
                 if ratio > 1.0 {
                     flags |= trust::ACCEL_OUT_OF_RANGE;
                 }
-                ((ACCEL_CUTOFF_RATIO - ratio) / (ACCEL_CUTOFF_RATIO - 1.0)).clamp(0.0, 1.0)
+                let shrink =
+                    ((ACCEL_CUTOFF_RATIO - ratio) / (ACCEL_CUTOFF_RATIO - 1.0)).clamp(0.0, 1.0);
+                // A contact that stands out of the extrapolated model's uncertainty is
+                // corrected as far as it does: its side and most of its size are known, and
+                // shrinking it would leave `1 - w` of a large deflection (a tip pressed into a
+                // slope swept at 12 rad/s², three times the fit's largest acceleration, kept
+                // 77% of its raw error).
+                let sigma_sure = sigma_tau.quad(extrapolated[j]);
+                let sure = if sigma_sure > 0.0 {
+                    ((tr.tau_average.abs() / sigma_sure - SURE_ACCEL_CONTACT_SIGMAS)
+                        / SURE_ACCEL_CONTACT_FADE_SIGMAS)
+                        .clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                if sure.is_nan() {
+                    shrink
+                } else {
+                    shrink.max(sure)
+                }
             } else {
                 let still = at_rest && w_transient >= 1.0;
                 if !still {
@@ -1757,7 +1806,15 @@ impl Compensator {
                     } else {
                         0.0
                     };
-                    let (tau_b, sigma_b) = (tau_shaft, sigma_side.quad(unseen).quad(lag));
+                    // Beyond the fit's accelerations the contact holds the extrapolated
+                    // inertia's error, which the torque's measured noise does not show.
+                    let (tau_b, sigma_b) = (
+                        tau_shaft,
+                        sigma_side
+                            .quad(unseen)
+                            .quad(lag)
+                            .quad(contact_share * extrapolated[j]),
+                    );
                     // The side is as uncertain as its evidence: a swinging load may have crossed.
                     let p_other =
                         other_side_probability(evidence_margin, sigma_side.quad(sway_load));

@@ -1059,3 +1059,51 @@ fn a_fast_motions_model_error_does_not_name_the_side_of_the_play() {
         "{wrong} of {corrected} corrected samples on the wrong side"
     );
 }
+
+/// Joint 1 swept at three times the fit's largest acceleration (12 against 4 rad/s²): without
+/// contact the correction shrinks to nothing past twice it, as before; pressed with 0.8 N·m, far
+/// beyond the torque estimate's uncertainty there (5% of `J a`, 30 mN·m, and the extrapolated
+/// 10% more, 60 mN·m), the contact is corrected in full, still flagged ACCEL_OUT_OF_RANGE, with
+/// the extrapolated part in its bound.
+#[test]
+fn a_sure_contact_beyond_the_fits_accelerations_is_corrected_not_shrunk() {
+    let (l, amplitude, omega) = (0.12, 0.12, 10.0); // peak 12 rad/s²
+    let cfg = config(true);
+    for contact in [0.0, 0.8] {
+        let mut c = Compensator::new();
+        let (mut past_cutoff, mut full) = (0, 0);
+        let mut widest = 0.0f64;
+        for k in 0..4500 {
+            let t = k as f64 * DT;
+            let (s, co) = (omega * t).sin_cos();
+            let (q, v, a) = (
+                amplitude * s,
+                amplitude * omega * co,
+                -amplitude * omega * omega * s,
+            );
+            let effort = 0.1 + DYN.inertia(l) * a + DYN.viscous_nm_s_per_rad * v + contact;
+            let r = c.correct(&cfg, t, &[q, 0.0, l], &[effort, 0.1, 0.0]);
+            if t < 0.5 || a.abs() < 2.2 * 4.0 {
+                continue;
+            }
+            past_cutoff += 1;
+            assert_ne!(r.flags & trust::ACCEL_OUT_OF_RANGE, 0, "{t}: {r:?}");
+            if contact == 0.0 {
+                assert_eq!(r.weight[0], 0.0, "{t}: free, past the cutoff: {r:?}");
+                continue;
+            }
+            // 0.002 + 0.8 / 20 rad, the model's deflection of the contact.
+            assert_eq!(r.weight[0], 1.0, "{t}: {r:?}");
+            assert!((r.delta_rad[0] - 0.042).abs() < 1e-3, "{t}: {r:?}");
+            full += 1;
+            widest = widest.max(r.bound_parts[0].sigma);
+        }
+        assert!(past_cutoff > 500, "{past_cutoff}");
+        if contact > 0.0 {
+            assert_eq!(full, past_cutoff);
+            // K times the extrapolated inertia's uncertainty at 12 rad/s² at least.
+            let extrapolated = 2.0 * 0.05 * DYN.inertia(l) * 12.0 * 0.95;
+            assert!(widest >= extrapolated / 20.0, "{widest} rad");
+        }
+    }
+}
