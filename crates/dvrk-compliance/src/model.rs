@@ -92,7 +92,8 @@ pub mod trust {
     pub const GAP: u32 = 1 << 1;
     /// An abrupt change (the effort jumped, or the motion over the filter's window is not
     /// smooth): the internal-torque estimate lags, so the correction is withheld for
-    /// `TRANSIENT_HOLD_S` and fades back in over `FADE_S`. An effort that changed fast while
+    /// `TRANSIENT_HOLD_S` (less in a firm contact, `SURE_TRANSIENT_CONTACT_SIGMAS`) and fades
+    /// back in over `FADE_S`. An effort that changed fast while
     /// the motion stayed smooth (a contact's load changing) is withheld for
     /// `CONTACT_CHANGE_HOLD_S` only, and not at all while the contact is more than
     /// `SURE_CONTACT_CHANGES` times that change.
@@ -252,6 +253,12 @@ pub const START_FROM_REST_S: f64 = 0.05;
 /// 1.6-2.5). Coverage fell by 0-2.5 points. A contact that begins with the motion is out of the
 /// bound for at most this long.
 pub const MOTION_LAG_S: f64 = 0.035;
+/// After a motion's transient (an effort step or a rough residual), once [`MOTION_LAG_S`] has
+/// passed since its last abrupt sample, a contact whose 10 ms average is more than this many of
+/// the torque estimate's standard deviations (and more than [`SURE_CONTACT_CHANGES`] times both
+/// its change over the lag and its sway) ends the hold early: pressed that hard, the distal part
+/// does not ring across its play as a free one does after a stop.
+pub const SURE_TRANSIENT_CONTACT_SIGMAS: f64 = 8.0;
 /// How old (s) the trusted contact that the withheld bound takes after a transient is at least
 /// (and at most twice): a transient's start is detected some samples after the effort starts to
 /// build (6 at 1.5 kHz in `i20-noisy-start-stop`, where the noise raises the detector's limits),
@@ -949,6 +956,9 @@ struct JointTrust {
     /// withheld ([`SURE_CONTACT_CHANGES`]), and its size over the lag (N·m).
     last_sure_change_s: f64,
     lag_change_nm: f64,
+    /// When the hold of the current motion transient was ended early by a sure contact
+    /// ([`SURE_TRANSIENT_CONTACT_SIGMAS`]); `-inf` while it holds in full.
+    transient_released_s: f64,
     /// Time (s) the arm last moved (joints without a dynamics model).
     last_moving_s: f64,
     /// A gap restarted the filter and it has not filled since.
@@ -1025,6 +1035,7 @@ impl Default for JointTrust {
             last_contact_change_s: f64::NEG_INFINITY,
             last_sure_change_s: f64::NEG_INFINITY,
             lag_change_nm: 0.0,
+            transient_released_s: f64::NEG_INFINITY,
             last_moving_s: f64::NEG_INFINITY,
             after_gap: false,
             recent_trusted: TrustedContact::default(),
@@ -1167,7 +1178,9 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// after an abrupt change (an effort step above [`TRANSIENT_EFFORT_STEP_NM`], or a window whose
 /// motion is not smooth: a cubic residual above [`TRANSIENT_RESIDUAL_RAD`] and above
 /// [`TRANSIENT_RESIDUAL_RATIO`] times its own recent level, so a steady fast motion is not
-/// taken for a burst) 0 for [`TRANSIENT_HOLD_S`], then fading back in over [`FADE_S`]; after an
+/// taken for a burst) 0 for [`TRANSIENT_HOLD_S`] (or, in a contact beyond
+/// [`SURE_TRANSIENT_CONTACT_SIGMAS`], until [`MOTION_LAG_S`] after the last abrupt sample at
+/// least), then fading back in over [`FADE_S`]; after an
 /// effort change over [`EFFORT_RATE_SAMPLES`] above [`TRANSIENT_EFFORT_CHANGE_NM`] alone (a
 /// contact's load changing under a smooth motion) the same, for [`CONTACT_CHANGE_HOLD_S`], unless
 /// the averaged contact is more than [`SURE_CONTACT_CHANGES`] times the change (followed then,
@@ -1445,6 +1458,27 @@ impl Compensator {
                         tr.motion_transient_start_s = t_s;
                     }
                     tr.last_transient_s = t_s;
+                    tr.transient_released_s = f64::NEG_INFINITY;
+                }
+                // A motion's transient in a sure contact: once the estimate's lag is over, a
+                // contact far beyond the torque's noise, its change over the lag and its sway
+                // keeps the shaft on its side (the hold is for a free distal part ringing
+                // across its play after a stop). The hold ends then, and the correction fades
+                // back in.
+                let since = t_s - tr.last_transient_s;
+                if joint.dynamics.is_some()
+                    && since >= MOTION_LAG_S
+                    && since < TRANSIENT_HOLD_S
+                    && tr.transient_released_s == f64::NEG_INFINITY
+                {
+                    let contact = tr.tau_average.abs();
+                    let sway = tr.sway_var.max(0.0).sqrt();
+                    let floor = (SURE_TRANSIENT_CONTACT_SIGMAS * sigma[j])
+                        .max(SURE_CONTACT_CHANGES * recent_change[j])
+                        .max(SURE_CONTACT_CHANGES * sway);
+                    if contact > floor && contact.is_finite() {
+                        tr.transient_released_s = t_s;
+                    }
                 }
                 // A contact change on the other joint holds a joint just started from rest that
                 // carries no full contact of its own: a motion's start that one joint's detector
@@ -1471,8 +1505,13 @@ impl Compensator {
                     tr.last_contact_change_s = t_s;
                 }
             }
+            let transient_hold = if tr.transient_released_s > tr.last_transient_s {
+                tr.transient_released_s - tr.last_transient_s
+            } else {
+                TRANSIENT_HOLD_S
+            };
             let w_transient = if ready {
-                fade_in(t_s, tr.last_transient_s, TRANSIENT_HOLD_S).min(fade_in(
+                fade_in(t_s, tr.last_transient_s, transient_hold).min(fade_in(
                     t_s,
                     tr.last_contact_change_s,
                     CONTACT_CHANGE_HOLD_S,

@@ -146,6 +146,52 @@ fn an_abrupt_start_is_not_taken_for_contact() {
     assert!(transient < max_flagged, "{transient} samples flagged");
 }
 
+/// A velocity step at 30 rad/s² with the tip pressed with 0.5 N·m (and without): once the filter's lag
+/// is over (`MOTION_LAG_S` after the last abrupt sample), a contact that far beyond the torque's
+/// noise and its sway ends the hold, and the correction fades back in before a free motion's
+/// hold and fade are over. Free, the hold stays whole.
+#[test]
+fn an_abrupt_start_in_a_firm_contact_is_corrected_again_after_the_lag() {
+    let cfg = config(true);
+    let l: f64 = 0.12;
+    let j = DYN.inertia(l);
+    let mut back_after = [f64::NAN; 2];
+    for (i, contact) in [0.0, 0.5].into_iter().enumerate() {
+        let mut c = Compensator::new();
+        let (mut q, mut v) = (0.0, 0.0);
+        let mut last_flagged = f64::NEG_INFINITY;
+        for k in 0..3000 {
+            let t = k as f64 * DT;
+            let target = if t < 1.0 { 0.0 } else { 0.5 };
+            let a = ((target - v) / DT).clamp(-30.0, 30.0);
+            v += a * DT;
+            q += v * DT;
+            let effort = 0.1 + contact + j * a + DYN.viscous_nm_s_per_rad * v;
+            let r = c.correct(&cfg, t, &[q, 0.0, l], &[effort, 0.1, 0.0]);
+            if t > 1.0 && r.flags & trust::TRANSIENT != 0 {
+                last_flagged = t;
+            }
+            if t > 1.0 && contact > 0.0 && r.weight[0] == 1.0 {
+                // 0.002 + 0.5 / 20 rad once back, within the bound and most of it corrected.
+                let off = (r.delta_rad[0] - 0.027).abs();
+                assert!(off <= r.bound_rad[0] && off < 0.1 * 0.027, "{t}: {r:?}");
+            }
+        }
+        back_after[i] = last_flagged - 1.0;
+    }
+    let [free, firm] = back_after;
+    assert!(
+        free >= TRANSIENT_HOLD_S + FADE_S,
+        "free: back after {free} s"
+    );
+    // Measured: 0.18 s against 0.24 s (the transient's false contact leaves the torque's sway
+    // high for a few of its 30 ms time constants, and the contact must stand out of it).
+    assert!(
+        firm < free - 0.04,
+        "firm: back after {firm} s, free after {free} s"
+    );
+}
+
 /// Joint 1 slides at 0.05 rad/s pressed with 0.2 N·m of contact, slows to a stop over 0.1 s and
 /// stays stuck by its motor's friction while the controller's effort swings across it (as at a
 /// turn), then past it. Returns `tau_ext_nm[0]` at the end of the swing and at the end, with
