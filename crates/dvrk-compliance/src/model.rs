@@ -1467,8 +1467,7 @@ impl Compensator {
                 // back in.
                 let since = t_s - tr.last_transient_s;
                 if joint.dynamics.is_some()
-                    && since >= MOTION_LAG_S
-                    && since < TRANSIENT_HOLD_S
+                    && (MOTION_LAG_S..TRANSIENT_HOLD_S).contains(&since)
                     && tr.transient_released_s == f64::NEG_INFINITY
                 {
                     let contact = tr.tau_average.abs();
