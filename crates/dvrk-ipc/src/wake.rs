@@ -1,6 +1,6 @@
 //! The cycle's wake-up: one futex word per cycle event, in a small file of the domain's root
-//! directory, that the publisher bumps once per cycle and wakes all its sleepers with in one
-//! system call.
+//! directory, that the publisher bumps once per cycle and wakes its sleepers with: one at a
+//! time while they are few, all in one system call when many.
 //!
 //! Why not iceoryx2's event alone: in 0.10 an `ipc::Service` event wakes each listener with a
 //! unix datagram of its own, so the publisher pays one `sendto` per sleeping subscriber per
@@ -27,7 +27,7 @@
 //! `global_mgmt`), so a restarted publisher wakes the subscribers that are still waiting.
 //!
 //! Per cycle: [`WakeWord::bump`] is one atomic add, one atomic load and, only while someone
-//! sleeps, one `FUTEX_WAKE`; [`WakeWord::wait`] one `FUTEX_WAIT_BITSET` with an absolute
+//! sleeps, one `FUTEX_WAKE` for all, or one per sleeper up to [`WAKE_ONE_BY_ONE_MAX`] of them; [`WakeWord::wait`] one `FUTEX_WAIT_BITSET` with an absolute
 //! CLOCK_MONOTONIC deadline (so the predictive wait needs no timer descriptor). No allocation.
 
 use std::ffi::CString;
@@ -39,6 +39,13 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use iceoryx2::config::Config;
 
+/// Up to this many sleepers the publisher wakes one at a time, one `FUTEX_WAKE` of 1 each; more
+/// all at once. Woken all at once, four or eight subscribers on two cores queue behind each
+/// other for the CPUs (event path p50 31-37 µs at 4, 39-44 µs at 8, on the development VM); one
+/// at a time, the first runs while the next is woken (21-24 µs, 31-32 µs). At 16 the sixteen
+/// system calls cost more than the queue (54 µs all at once, 60-63 µs one at a time).
+/// benches/README.md, "Latency by wait strategy".
+pub const WAKE_ONE_BY_ONE_MAX: u32 = 8;
 /// Size of the file (one cache line; the two words at its start).
 const FILE_SIZE: usize = 64;
 /// Suffix of the files.
@@ -203,7 +210,20 @@ impl WakeWord {
         s.seq.fetch_add(1, Ordering::SeqCst);
         // A sleeper registers before it compares the word in the kernel: either it sees the new
         // value there, or this sees it registered (both sides sequentially consistent).
-        if s.sleepers.load(Ordering::SeqCst) != 0 {
+        let sleepers = s.sleepers.load(Ordering::SeqCst);
+        if sleepers == 0 {
+            return;
+        }
+        if sleepers <= WAKE_ONE_BY_ONE_MAX {
+            // One at a time: the first woken is running before the next is woken. A wake that
+            // finds no one left ends it (a counted sleeper not yet in the kernel compares the
+            // word there and returns at once).
+            for _ in 0..sleepers {
+                if futex(&s.seq, libc::FUTEX_WAKE, 1, std::ptr::null(), 0) <= 0 {
+                    break;
+                }
+            }
+        } else {
             futex(
                 &s.seq,
                 libc::FUTEX_WAKE,
@@ -444,6 +464,43 @@ mod tests {
         assert!(!subscriber.replaced());
         std::fs::remove_file(&path).unwrap();
         assert!(subscriber.replaced());
+    }
+
+    /// Every sleeper wakes from one bump, whether few (woken one at a time) or many (all at
+    /// once), and none is left counted as asleep.
+    #[test]
+    fn one_bump_wakes_every_sleeper_few_or_many() {
+        let (cfg, path) = setup("many");
+        let publisher = WakeWord::open(&cfg, "arm/cycle_first").unwrap();
+        for n in [
+            3,
+            WAKE_ONE_BY_ONE_MAX as usize,
+            WAKE_ONE_BY_ONE_MAX as usize + 3,
+        ] {
+            let subscribers: Vec<WakeWord> = (0..n)
+                .map(|_| WakeWord::open(&cfg, "arm/cycle_first").unwrap())
+                .collect();
+            let seen = publisher.load();
+            // A sleeper the bump missed times out here.
+            let far = crate::monotonic_ns() + 5_000_000_000;
+            std::thread::scope(|s| {
+                let threads: Vec<_> = subscribers
+                    .iter()
+                    .map(|w| s.spawn(move || w.wait(seen, far)))
+                    .collect();
+                // All registered (and so asleep or about to compare the word) before the bump.
+                while publisher.shared().sleepers.load(Ordering::SeqCst) < n as u32 {
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                }
+                std::thread::sleep(std::time::Duration::from_millis(20));
+                publisher.bump();
+                for t in threads {
+                    assert_eq!(t.join().unwrap(), Ok(Woken::Bumped), "{n} sleepers");
+                }
+            });
+            assert_eq!(publisher.shared().sleepers.load(Ordering::SeqCst), 0);
+        }
+        std::fs::remove_file(&path).unwrap();
     }
 
     #[test]
