@@ -1289,8 +1289,6 @@ impl Compensator {
         // The effort's change over the last EFFORT_RATE_SAMPLES (N·m): about what the effort
         // measured on the motor's side lags the shaft's load by.
         let mut recent_change = [0.0; 2];
-        // The inertia load's extra uncertainty (N·m, 1 sigma) beyond the fit's accelerations.
-        let mut extrapolated = [0.0; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
             let st = &mut self.joints[j];
@@ -1334,20 +1332,7 @@ impl Compensator {
                     max_acc[j] = d
                         .max_acceleration_rad_per_s2
                         .unwrap_or(crate::dynamics::DEFAULT_MAX_ACCELERATION);
-                    // Beyond the fit's accelerations the inertia's load is extrapolated: its
-                    // uncertainty grows with the distance (see `INERTIA_REL_SIGMA`). Only a
-                    // contact taken past the shrink below carries it: elsewhere
-                    // the correction shrinks with the acceleration already, and a free motion's
-                    // side widened by it made the bound of a fast smooth motion over 2.5 times
-                    // its error.
-                    let beyond = (a.abs() / max_acc[j].max(1e-9) - 1.0).max(0.0);
-                    let inertial = INERTIA_REL_SIGMA * d.inertia(l_phys) * a;
-                    extrapolated[j] = if beyond.is_finite() && inertial.is_finite() {
-                        beyond * inertial.abs()
-                    } else {
-                        0.0
-                    };
-                    let motion_sigma = inertial
+                    let motion_sigma = (INERTIA_REL_SIGMA * d.inertia(l_phys) * a)
                         .quad(INERTIA_REL_SIGMA * d.viscous_nm_s_per_rad * v)
                         .quad(if reversal { 2.0 * d.coulomb_nm } else { 0.0 });
                     sigma[j] = static_sigma.quad(motion_sigma);
@@ -1521,8 +1506,25 @@ impl Compensator {
             if ready && w_transient < 1.0 {
                 flags |= trust::TRANSIENT;
             }
+            // Beyond the fit's accelerations the inertia's load is extrapolated: its uncertainty
+            // grows with the distance (see `INERTIA_REL_SIGMA`), N·m at 1 sigma. Only a contact
+            // taken past the acceleration's shrink carries it: elsewhere the correction shrinks
+            // with the acceleration already, and a free motion's side widened by it made the
+            // bound of a fast smooth motion over 2.5 times its error.
+            let ratio = a.abs() / max_acc.max(1e-9);
+            let extrapolated = match &joint.dynamics {
+                Some(d) => {
+                    let beyond = (ratio - 1.0).max(0.0);
+                    let inertial = INERTIA_REL_SIGMA * d.inertia(l_phys) * a;
+                    if beyond.is_finite() && inertial.is_finite() {
+                        beyond * inertial.abs()
+                    } else {
+                        0.0
+                    }
+                }
+                None => 0.0,
+            };
             let w_motion = if joint.dynamics.is_some() {
-                let ratio = a.abs() / max_acc.max(1e-9);
                 if ratio > 1.0 {
                     flags |= trust::ACCEL_OUT_OF_RANGE;
                 }
@@ -1533,7 +1535,7 @@ impl Compensator {
                 // shrinking it would leave `1 - w` of a large deflection (a tip pressed into a
                 // slope swept at 12 rad/s², three times the fit's largest acceleration, kept
                 // 77% of its raw error).
-                let sigma_sure = sigma_tau.quad(extrapolated[j]);
+                let sigma_sure = sigma_tau.quad(extrapolated);
                 let sure = if sigma_sure > 0.0 {
                     ((tr.tau_average.abs() / sigma_sure - SURE_ACCEL_CONTACT_SIGMAS)
                         / SURE_ACCEL_CONTACT_FADE_SIGMAS)
@@ -1851,7 +1853,7 @@ impl Compensator {
                         sigma_side
                             .quad(unseen)
                             .quad(lag)
-                            .quad(contact_share * extrapolated[j]),
+                            .quad(contact_share * extrapolated),
                     );
                     // The side is as uncertain as its evidence: a swinging load may have crossed.
                     let p_other =
