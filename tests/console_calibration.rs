@@ -225,23 +225,7 @@ fn the_issues_command_lines_calibrate_through_the_console_and_fit_recovers_the_t
     let d = domain(0);
     let mut free = stand_in("console_item1_free", d, &[]);
     let sweep = dir.join("sweep.csv");
-    let (ok, err, secs) = run(
-        d,
-        &[
-            "calibrate",
-            "torque-offset",
-            "--robot",
-            "ros2:PSM1",
-            "--joints",
-            "1",
-            "--depths",
-            "0.12",
-            "--out",
-            sweep.to_str().unwrap(),
-            "--yes",
-        ],
-        Duration::from_secs(600),
-    );
+    let (ok, err, secs) = run(d, &joint1_sweep(&sweep, &[]), Duration::from_secs(600));
     assert!(ok, "torque-offset failed after {secs:.0} s: {err}");
     let n_sweep = rows(&sweep);
     eprintln!("torque-offset through the console: {n_sweep} rows in {secs:.0} s");
@@ -1014,20 +998,7 @@ fn rows_from_the_sidecar_service_match_the_consoles() {
         ),
         (&cons, vec![]),
     ] {
-        let mut args = vec![
-            "calibrate",
-            "torque-offset",
-            "--robot",
-            "ros2:PSM1",
-            "--joints",
-            "1",
-            "--depths",
-            "0.12",
-            "--out",
-            out.to_str().unwrap(),
-            "--yes",
-        ];
-        args.extend(extra);
+        let args = joint1_sweep(out, &extra);
         let (ok, err, secs) = run(d, &args, Duration::from_secs(300));
         assert!(ok, "{args:?} failed after {secs:.0} s: {err}");
     }
@@ -1599,22 +1570,7 @@ fn a_clamp_through_a_cyclone_dds_console_recovers_its_shaft() {
     let sweep = dir.join("sweep.csv");
     let (ok, err, secs) = run(
         d,
-        &[
-            "calibrate",
-            "torque-offset",
-            "--robot",
-            "ros2:PSM1",
-            "--joints",
-            "1",
-            "--depths",
-            "0.12",
-            "--out",
-            sweep.to_str().unwrap(),
-            "--yes",
-            "--prompt-pause-s",
-            "0",
-            "--quiet",
-        ],
+        &joint1_sweep(&sweep, &["--prompt-pause-s", "0", "--quiet"]),
         Duration::from_secs(600),
     );
     let (_, free_err) = free.terminate();

@@ -1063,6 +1063,16 @@ fn a_swinging_contact_weakens_the_side_instead_of_pushing_the_wrong_way() {
 /// the side of the play against the predicted free load (here a distal weight of 2 mN·m that
 /// the inertial load never outweighs). Taken whole, as it was, the leftover named the wrong side
 /// whenever the acceleration was below -2.5 rad/s² (31% of the corrected samples here).
+/// Position, velocity and acceleration of `amplitude * sin(omega * t)`.
+fn sinusoid(amplitude: f64, omega: f64, t: f64) -> (f64, f64, f64) {
+    let (s, c) = (omega * t).sin_cos();
+    (
+        amplitude * s,
+        amplitude * omega * c,
+        -amplitude * omega * omega * s,
+    )
+}
+
 #[test]
 fn a_fast_motions_model_error_does_not_name_the_side_of_the_play() {
     let (l, amplitude, omega) = (0.12, 0.19, 4.5); // peak 3.8 rad/s², within the fit's 4
@@ -1081,12 +1091,7 @@ fn a_fast_motions_model_error_does_not_name_the_side_of_the_play() {
     let (mut corrected, mut wrong) = (0, 0);
     for k in 0..6000 {
         let t = k as f64 * DT;
-        let (s, co) = (omega * t).sin_cos();
-        let (q, v, a) = (
-            amplitude * s,
-            amplitude * omega * co,
-            -amplitude * omega * omega * s,
-        );
+        let (q, v, a) = sinusoid(amplitude, omega, t);
         let effort = 0.1 + true_inertia * a + dynamics.viscous_nm_s_per_rad * v;
         let r = c.correct(&cfg, t, &[q, 0.0, l], &[effort, 0.1, 0.0]);
         // The predicted free load on the shaft: the distal inertia's and the weight's reaction.
@@ -1121,12 +1126,7 @@ fn a_sure_contact_beyond_the_fits_accelerations_is_corrected_not_shrunk() {
         let mut widest = 0.0f64;
         for k in 0..4500 {
             let t = k as f64 * DT;
-            let (s, co) = (omega * t).sin_cos();
-            let (q, v, a) = (
-                amplitude * s,
-                amplitude * omega * co,
-                -amplitude * omega * omega * s,
-            );
+            let (q, v, a) = sinusoid(amplitude, omega, t);
             let effort = 0.1 + DYN.inertia(l) * a + DYN.viscous_nm_s_per_rad * v + contact;
             let r = c.correct(&cfg, t, &[q, 0.0, l], &[effort, 0.1, 0.0]);
             if t < 0.5 || a.abs() < 2.2 * 4.0 {
