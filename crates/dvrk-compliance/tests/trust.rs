@@ -1058,11 +1058,6 @@ fn a_swinging_contact_weakens_the_side_instead_of_pushing_the_wrong_way() {
     assert!((0.8..=0.995).contains(&coverage), "coverage {coverage}");
 }
 
-/// A fast free motion whose file has the motor's inertia 1% low: the torque left over is the
-/// motion model's error on the motor side, which the shaft does not carry, and it must not name
-/// the side of the play against the predicted free load (here a distal weight of 2 mN·m that
-/// the inertial load never outweighs). Taken whole, as it was, the leftover named the wrong side
-/// whenever the acceleration was below -2.5 rad/s² (31% of the corrected samples here).
 /// Position, velocity and acceleration of `amplitude * sin(omega * t)`.
 fn sinusoid(amplitude: f64, omega: f64, t: f64) -> (f64, f64, f64) {
     let (s, c) = (omega * t).sin_cos();
@@ -1073,6 +1068,11 @@ fn sinusoid(amplitude: f64, omega: f64, t: f64) -> (f64, f64, f64) {
     )
 }
 
+/// A fast free motion whose file has the motor's inertia 1% low: the torque left over is the
+/// motion model's error on the motor side, which the shaft does not carry, and it must not name
+/// the side of the play against the predicted free load (here a distal weight of 2 mN·m that
+/// the inertial load never outweighs). Taken whole, as it was, the leftover named the wrong side
+/// whenever the acceleration was below -2.5 rad/s² (31% of the corrected samples here).
 #[test]
 fn a_fast_motions_model_error_does_not_name_the_side_of_the_play() {
     let (l, amplitude, omega) = (0.12, 0.19, 4.5); // peak 3.8 rad/s², within the fit's 4

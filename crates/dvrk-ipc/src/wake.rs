@@ -27,8 +27,9 @@
 //! `global_mgmt`), so a restarted publisher wakes the subscribers that are still waiting.
 //!
 //! Per cycle: [`WakeWord::bump`] is one atomic add, one atomic load and, only while someone
-//! sleeps, one `FUTEX_WAKE` for all, or one per sleeper up to [`WAKE_ONE_BY_ONE_MAX`] of them; [`WakeWord::wait`] one `FUTEX_WAIT_BITSET` with an absolute
-//! CLOCK_MONOTONIC deadline (so the predictive wait needs no timer descriptor). No allocation.
+//! sleeps, one `FUTEX_WAKE` for all, or one per sleeper up to [`WAKE_ONE_BY_ONE_MAX`] of them;
+//! [`WakeWord::wait`] one `FUTEX_WAIT_BITSET` with an absolute CLOCK_MONOTONIC deadline (so the
+//! predictive wait needs no timer descriptor). No allocation.
 
 use std::ffi::CString;
 use std::io;

@@ -100,11 +100,11 @@ fn params(c: &Case) -> PhysicsParams {
     p
 }
 
-/// The fastest mode the environment adds, rad/s: the insertion's inertia against the stiffness
-/// along the shaft of the surface or the divot's plate. (The shaft's lateral modes are
+/// The fastest mode the environment adds, rad/s: the insertion's inertia (kg) against the
+/// stiffness along the shaft of the surface or the divot's plate. (The shaft's lateral modes are
 /// sub-stepped to their own frequency; the hard stops are not reached without input.)
-fn environment_mode_rad_s(c: &Case) -> f64 {
-    let k = match c.env {
+fn environment_mode_rad_s(env: &Environment, insertion_inertia_kg: f64) -> f64 {
+    let k = match *env {
         Environment::Surface {
             stiffness_n_per_m, ..
         } => stiffness_n_per_m,
@@ -114,7 +114,7 @@ fn environment_mode_rad_s(c: &Case) -> f64 {
         } => plate_stiffness_n_per_m,
         Environment::Free | Environment::Clamp => 0.0,
     };
-    (k / params(c).inertia[2]).sqrt()
+    (k / insertion_inertia_kg).sqrt()
 }
 
 /// The invariants that hold at every instant.
@@ -260,7 +260,8 @@ fn energy_falls_without_input(c: &Case) -> Result<(), TestCaseError> {
     // a stiff surface's bounce shows as 0.7% in 10 steps (halved with a halved step: a
     // first-order error, not a gain). A real gain accumulates, which the checks against the
     // starting energy catch.
-    let swing = (DT * environment_mode_rad_s(c)).max(1e-3) * first.abs();
+    let swing =
+        (DT * environment_mode_rad_s(&c.env, psm.params().inertia[2])).max(1e-3) * first.abs();
     for i in 0..20_000 {
         psm.step(DT);
         check_instant(&psm, "no input")?;
