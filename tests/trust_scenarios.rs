@@ -119,8 +119,17 @@ fn free_motion_goals(name: &str, seconds: &str) -> Value {
 fn free_motion_of_the_project() {
     // free-motion's bound covered 99.8% (too wide) while the torque-offset table was read by
     // straight lines between its points: their error across joint 1's counterbalance bend
-    // (up to 7.5 mN·m) biased the backlash fit and the side's evidence.
-    free_motion("free-motion", "10");
+    // (up to 7.5 mN·m) biased the backlash fit and the side's evidence. Then 99.3%, the
+    // cycles left out being the correction's wrong way at the turns of the free load, where
+    // it named the new side of the play before the shaft had crossed (0.025 mm). Since the
+    // slow flight holds that back (`FLIGHT_INERTIA_FACTOR`), no cycle is worse than raw and
+    // the bound covers every cycle: the error left is the uncertain side's share of the play,
+    // nearly the same in every cycle, which the bound takes whole (0.98-0.99 of it at the
+    // closest). The band's upper end is not asserted for it (the closing note of 2026-12-01
+    // says so); the harm is, at none at all.
+    let v = free_motion_goals("free-motion", "10");
+    let harm = num(&v, &["harm_mm", "max"]);
+    assert!(harm <= 0.005, "free-motion: harm_mm.max {harm}: {v}");
     // 30 s, as the table: since the side's evidence is taken with its calm width once
     // it keeps its sign, the compensated mean is 0.065 mm over 10 s and the start's withheld
     // bound (the whole play) weighs on the bound's mean (0.209 mm, over 2.5 x 0.065 + 0.05);
@@ -141,6 +150,24 @@ fn a_still_arm_deep_in_its_insertion_range() {
     // for 15% uncertain the bound was 0.121 mm for 0.021 mm of error, over the 2.5 x
     // 0.021 + 0.05 = 0.104 mm; with 10% 0.093 mm (99.3% of the cycles covered).
     free_motion_goals("i20-deep-hold", "30");
+}
+
+#[test]
+fn a_free_shaft_crossing_its_play_is_not_named_early() {
+    // Deep in the insertion range the distal part takes tens of milliseconds to cross its play
+    // after its load turns. Named at once, the new side was corrected while the shaft was still
+    // on the old one: 0.332 mm worse than raw in one cycle (89.7% covered). The slow flight
+    // names it only as far as the shaft can have gone: 0.025 mm, 93% covered.
+    let name = "i20-play-crossing";
+    let v = evaluate(&format!("config/sim/{name}.toml"), "30", None);
+    let (raw, comp) = common_goals(name, &v);
+    not_too_wide(name, &v);
+    assert!(
+        comp <= raw + 0.02,
+        "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
+    );
+    let harm = num(&v, &["harm_mm", "max"]);
+    assert!(harm <= 0.05, "{name}: harm_mm.max {harm}: {v}");
 }
 
 /// After an abrupt start or stop the correction is withheld and the bound is the withheld one.

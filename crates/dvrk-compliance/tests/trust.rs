@@ -604,7 +604,10 @@ fn outside_the_torque_offset_table_the_correction_fades_out() {
 /// The side's evidence is taken with its calm width only once it has kept its sign: right after
 /// it names the other side, the same torque gets a smaller share of the play (the wrong-way
 /// cycles of issue 20 came there), and 0.1 s later (the hold and the fade,
-/// `SIDE_FLIP_HOLD_S` each) the share is back to the steady side's.
+/// `SIDE_FLIP_HOLD_S` each) the share is back to the steady side's. The new side is named only
+/// as far as the shaft's slow flight across the play has gone (`FLIGHT_INERTIA_FACTOR`): under
+/// a few mN·m the distal part takes tens of ms to cross, so 30 ms after the turn the
+/// correction has left the old side but names the new one by little or nothing yet.
 #[test]
 fn a_side_just_changed_is_corrected_less_than_a_steady_one() {
     let cfg = config(true);
@@ -615,7 +618,7 @@ fn a_side_just_changed_is_corrected_less_than_a_steady_one() {
     // The torque turns to the other side; 30 ms later the 10 ms average has followed it.
     let just = still(&mut c, &cfg, 600, 45, 0.12, -tau);
     assert_eq!(just.flags & trust::TRANSIENT, 0, "{just:?}");
-    assert!(just.delta_rad[0] < 0.0, "{just:?}");
+    assert!(just.delta_rad[0] <= 0.0, "{just:?}");
     assert!(
         just.delta_rad[0].abs() < 0.7 * steady.delta_rad[0],
         "{} against {}",
