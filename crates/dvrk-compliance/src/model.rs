@@ -1280,8 +1280,8 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// the largest acceleration the dynamics fit saw, falling to 0 at [`ACCEL_CUTOFF_RATIO`] times
 /// it, but not below what a contact beyond [`SURE_ACCEL_CONTACT_SIGMAS`] of the extrapolated
 /// model's uncertainty allows; 0 beyond the insertion margin; fading from 1 to 0 over
-/// [`TORQUE_OFFSET_MARGIN_RAD`] outside the torque-offset table's positions. Each reason sets a bit of [`trust`] in
-/// [`Correction::flags`].
+/// [`TORQUE_OFFSET_MARGIN_RAD`] outside the torque-offset table's positions. Each reason sets a
+/// bit of [`trust`] in [`Correction::flags`].
 ///
 /// Each sample carries a 95% bound ([`Correction::bound_rad`], [`Correction::tip_bound_m`]),
 /// built per joint in two parts ([`BoundParts`]): a systematic part whose direction the model
@@ -1294,10 +1294,10 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// averaged torque not taken for contact beyond its own noise (a load below the evidence's
 /// floor, at its measured size), the stiffness's scatter as `fit` measured it
 /// (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion margin) and
-/// the backlash's (`backlash_rel_sigma`, at least [`BACKLASH_REL_SIGMA_FLOOR`]; 5% in a file without it). Withheld
-/// (`1 - w`): the whole play plus `K` times what the shaft may carry (after a transient, the
-/// contact as last trusted plus the free load now; before any trusted sample, the effort beyond
-/// its offset). The two are mixed by `w`. Each joint's bound is `bias + 1.96 sigma`; the tip's
+/// the backlash's (`backlash_rel_sigma`, at least [`BACKLASH_REL_SIGMA_FLOOR`]; 5% in a file
+/// without it). Withheld (`1 - w`): the whole play plus `K` times what the shaft may carry
+/// (after a transient, the contact as last trusted plus the free load now; before any trusted
+/// sample, the effort beyond its offset). The two are mixed by `w`. Each joint's bound is `bias + 1.96 sigma`; the tip's
 /// adds the joints' systematic parts as a vector and their random parts as a 2-D normal,
 /// through the tip's levers ([`tip_bound_with_levers`]: the service takes them from the
 /// instrument's kinematics, [`tip_bound_from_parts`] from the insertion).
