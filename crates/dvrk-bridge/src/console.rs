@@ -513,7 +513,7 @@ impl ConsoleClient {
     /// The topics whose writer this client could not match, with the QoS policy at fault
     /// (`"/PSM1/operating_state: Durability"`): a writer that offers less than the console's QoS.
     /// A VOLATILE event writer is still heard through the live companion reader
-    /// ([`TopicReader`]), but only from its next change on.
+    /// (`TopicReader`), but only from its next change on.
     pub fn incompatible_writers(&self) -> Vec<String> {
         [
             &self.measured_js,

@@ -50,7 +50,7 @@ const INTERIM_FOOTER: [u8; 37] = {
 ///
 /// The file is written at its own name from the start and survives any end of the recording:
 /// - a chunk is closed, flushed and synced to the disk at least every [`CHUNK_INTERVAL`] (and at
-///   [`CLOSE_AT_BYTES`]), and an interim footer without summary ([`INTERIM_FOOTER`]) follows it
+///   `CLOSE_AT_BYTES`), and an interim footer without summary (`INTERIM_FOOTER`) follows it
 ///   until the next one, so after SIGKILL, a power loss or a full disk the readers that start
 ///   from the footer and the streaming ones read every message up to the last finished chunk
 ///   (only while a chunk is being written, a few ms a second, do the streaming ones alone);

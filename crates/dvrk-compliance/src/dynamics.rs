@@ -36,7 +36,8 @@
 //! distal_gravity = { weight_n = [0.078, 0.0, -0.162], weight_sigma_n = [0.004, 0.0, 0.02], reference_insertion_m = 0.155 }
 //! ```
 //!
-//! [`InternalTorque`] is the stateful estimator: fixed-size ring buffers, no allocation per step.
+//! [`JointDynamicsState`] is the stateful estimator: fixed-size ring buffers, no allocation per
+//! step.
 
 use crate::model::Quadrature;
 use serde::{Deserialize, Serialize};

@@ -3,7 +3,7 @@
 //! serde's `[T; N]` reads N elements and stops: whether the input had more is left to the
 //! format, and the `toml` crate does not check it, so `[1.0, 2.0, 3.0, 4.0, 5.0]` read as a
 //! `[f64; 4]` silently drops the 5 (issue 22). Every fixed-size array of a parameter file is
-//! therefore read through [`array`] (or [`matrix`], [`option_matrix`]), which refuses any other
+//! therefore read through [`array()`] (or [`matrix`], [`option_matrix`]), which refuses any other
 //! length with "invalid length 5, expected exactly 4 values"; the format adds the field
 //! (`toml`: "in `joint.inverse_compliance_nm_per_rad`") and the line.
 //!

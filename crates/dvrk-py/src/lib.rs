@@ -1,6 +1,6 @@
 //! `dvrk_sidecar._native`: the compiled half of the `dvrk_sidecar` Python package.
 //!
-//! A [`dvrk_ipc::Subscription`] per topic, driven from Python: [`NativeSubscription::wait`]
+//! A [`dvrk_ipc::Subscription`] per topic, driven from Python: `NativeSubscription::wait`
 //! runs the consumer's wait strategy (event, predictive, spin) in compiled code with the GIL
 //! released, so other Python threads keep running while one waits, and hands the newest sample
 //! to Python as one numpy array over the whole message (a structured dtype given by the Python

@@ -3,6 +3,10 @@
 //!
 //! Both serve every arm of a service in one process (`--config`, the service's configuration),
 //! or one arm (`--prefix`).
+//!
+//! The argument structs' doc comments are clap's `--help` text, which names placeholders the
+//! command-line way (`<ARM>`); rustdoc would read those as HTML tags.
+#![allow(rustdoc::invalid_html_tags)]
 
 use std::net::IpAddr;
 use std::path::PathBuf;

@@ -111,7 +111,7 @@ pub enum Mounted {
     Removed,
     /// `ERROR`, or a name the catalog cannot model.
     Unsupported,
-    /// Index in [`dvrk_compliance::instruments`].
+    /// Index in [`dvrk_compliance::instruments()`].
     Catalog(u16),
 }
 

@@ -442,7 +442,7 @@ impl<L: Link> EthPort<L> {
         self.window
     }
     /// The requests the next batch keeps outstanding: the window, or
-    /// [`LOSSY_WINDOW_FACTOR`] times it (at most [`MAX_QUADLET_WINDOW`]) after a batch that
+    /// `LOSSY_WINDOW_FACTOR` times it (at most [`MAX_QUADLET_WINDOW`]) after a batch that
     /// showed a datagram lost. A window of 1 is never widened.
     pub fn quadlet_window_now(&self) -> u8 {
         if self.widened && self.window > 1 {
@@ -462,7 +462,7 @@ impl<L: Link> EthPort<L> {
         self.batch_budget = budget;
     }
     /// The retry wait a batch uses now: the measured round trip plus four deviations
-    /// ([`Self::batch_retry_wait`]), or `None` on a link without retry.
+    /// (`Self::batch_retry_wait`), or `None` on a link without retry.
     pub fn quadlet_retry_wait(&self) -> Option<Duration> {
         self.link.quadlet_retry().map(|r| self.batch_retry_wait(r))
     }

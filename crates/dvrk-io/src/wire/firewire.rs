@@ -13,7 +13,7 @@
 //!          block response        : q3 = data_length<<16, q4 = header CRC, data, data CRC
 //! ```
 //! The header CRC covers every header quadlet before it (the quadlet-write data too, §9).
-//! A node id is bus[15:6] | node[5:0]; the FPGA requires bus = 0x3FF (§3.1).
+//! A node id is bus\[15:6\] | node\[5:0\]; the FPGA requires bus = 0x3FF (§3.1).
 
 use super::{WireError, crc32_bzip2, get_be32, pad4, put_be32};
 
