@@ -2,22 +2,23 @@
 //! through `evaluate --scenario --json` with the default parameter file, and the goals the model
 //! meets are checked:
 //! - every scenario: no cycle more than 0.5 mm worse than raw (`harm_mm.max <= 0.5`);
-//! - free motion: compensated mean at most raw + 0.02 mm, and at most 95% of raw (the play
+//! - free motion: compensated mean at most raw + 0.02 mm, and at most 80% of raw (the play
 //!   corrected toward the side the distal weight and inertia set, issue 20 item 3) with no
-//!   cycle made worse than raw;
+//!   cycle made worse than raw by more than 0.05 mm (`i20-play-crossing`, a multi-sine whose
+//!   load turns every few tens of ms, is held to the first and the last only);
 //! - contact: compensated mean at most 30% of raw sliding over a surface, 50% in the light
 //!   scanning contact, 10% in the divot push 5 mm below the fitted insertion range;
 //! - the 95% bound covers at least 90% of the cycles, and at most 99.5% in contact and in the
 //!   free motions of the issue's table (fast, from rest, abrupt starts, still-move-still). Not in
 //!   the project's slow free motion (`free-motion.toml`), where the simulator's remaining error
-//!   is nearly deterministic and the bound covers 99.7-99.9% (see the closing note of issue 20).
-//!   Its mean is at most 2.5 times the mean compensated error + 0.05 mm (a bound that says
+//!   is nearly deterministic and the bound covers every cycle (see the closing notes of issue
+//!   20). Its mean is at most 2.5 times the mean compensated error + 0.05 mm (a bound that says
 //!   something);
 //! - `--json` keeps the keys of issue 10 and adds `harm_mm`, `bound_mm` and `coverage`; `--plots`
 //!   draws the bound.
 //!
-//! Runs are short (10-16 simulated seconds, well under a second each with the simulator built
-//! optimised in the test profile).
+//! Runs are 10-30 simulated seconds each, with the simulator built optimised in the test
+//! profile.
 
 mod common;
 
