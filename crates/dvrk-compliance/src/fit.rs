@@ -33,8 +33,12 @@
 //!   `tau_ext < 0` crossing at `q_tip - delta`. Lines per direction of motion cannot see this
 //!   (both directions give the same line, the gap is zero); the rows are split by the sign of
 //!   `tau_ext` instead (*load split*, the two branches of Eq. 1). Left out are rows inside the
-//!   play (position strictly between the two zero crossings) and rows whose |tau_ext| is within
-//!   3 residual RMS of zero, whose side is only noise.
+//!   play (position strictly between the two zero crossings), rows whose |tau_ext| is within
+//!   3 residual RMS of zero, whose side is only noise, and rows within a play's width of the play
+//!   that are off their side's line by more than that. The last are the flat part: it lies at the
+//!   torque offset's error at that depth, not at zero, so the zero crossings bound the play only
+//!   up to that error over the stiffness (on the simulator's joint 1, whose internal torque is
+//!   steepest near the clamp's pose, keeping them made the play 0.5% smaller).
 //!
 //! - **A dead zone behind a motor with friction** (an arm whose controller stops a stuck motor
 //!   short of its setpoint: each row measures the load plus up to the friction, in the direction
@@ -685,9 +689,11 @@ fn fit_motion(
 const LOAD_BAND_SIGMAS: f64 = 3.0;
 
 /// Load branches: side = sign of tau_ext. Left out: rows whose |tau_ext| is within
-/// [`LOAD_BAND_SIGMAS`] residual RMS of zero (their sign is noise), and rows whose position lies
+/// [`LOAD_BAND_SIGMAS`] residual RMS of zero (their sign is noise), rows whose position lies
 /// inside the play (strictly between the zero crossings of the `-` and `+` lines, when the `+`
-/// line crosses to the right); iterated to a fixed point.
+/// line crosses to the right), and rows within the play's width of it that are off their own
+/// side's line by more than that band (the play's flat part, off zero by the torque offset's
+/// error); iterated to a fixed point.
 ///
 /// With `friction`, every row's torque also holds `friction_nm * direction` (a motor friction
 /// that the arm's last motion sets the sign of: a controller that stops a stuck arm short of
@@ -735,6 +741,16 @@ fn fit_load(
             .zip(dirs)
             .map(|(r, &d)| side_of(load(r, d)))
             .collect();
+        // The play's flat part lies at the torque offset's error at this depth, not at zero, so
+        // the zero crossings bound the play only up to that error over the stiffness: near the
+        // play, a row that is off its own side's line by more than the band is on the flat part.
+        let width = (hi - lo).max(0.0);
+        let off_line = |r: &DataRow, s: i8, d: i8| {
+            let line = if s > 0 { lines[0] } else { lines[1] };
+            lo - width < r.position_rad
+                && r.position_rad < hi + width
+                && (load(r, d) - line.at(r.position_rad)).abs() > band
+        };
         let next: Vec<bool> = rows
             .iter()
             .zip(next_side.iter().zip(dirs))
@@ -742,6 +758,7 @@ fn fit_load(
                 unusable(s, d)
                     || load(r, d).abs() <= band
                     || (lo < r.position_rad && r.position_rad < hi)
+                    || off_line(r, s, d)
             })
             .collect();
         if next == excluded && next_side == side {
@@ -1376,6 +1393,9 @@ mod tests {
         dead_zone: bool,
         /// A motor friction the effort carries in the direction of the step's motion (N·m).
         friction_nm: f64,
+        /// How far the recorded torque offset is below the one the effort carries (N·m): the
+        /// play's flat part then lies at this torque, not at zero.
+        offset_error_nm: f64,
     }
 
     impl Clamp {
@@ -1418,7 +1438,11 @@ mod tests {
                     depth_index: self.depth_index,
                     insertion_m: self.insertion_m,
                     position_rad: q,
-                    effort_nm: tau + offset + self.friction_nm * dir + self.noise_nm * rng.next(),
+                    effort_nm: tau
+                        + offset
+                        + self.offset_error_nm
+                        + self.friction_nm * dir
+                        + self.noise_nm * rng.next(),
                     torque_offset_nm: offset,
                     direction: 0,
                 });
@@ -1446,6 +1470,7 @@ mod tests {
             first_dir: -1.0,
             dead_zone: false,
             friction_nm: 0.0,
+            offset_error_nm: 0.0,
         }
     }
 
@@ -1583,6 +1608,30 @@ mod tests {
         assert!(wrong.backlash_rad < 0.001, "{wrong:?}");
     }
 
+    /// The torque offset of a depth is never exact (on the simulator's clamp data it is off by
+    /// about 0.01 N·m near the play, where the internal torque is steepest), so the play's flat
+    /// part lies at that error, and the zero crossings that bound the play are off by the error
+    /// over the stiffness. The flat rows just inside the play's far edge then have the error's
+    /// sign and would be fitted to that side's line. Off their line by far more than the noise,
+    /// they are left out, and the play comes out whole.
+    #[test]
+    fn a_play_whose_flat_part_is_off_zero_is_fitted_whole() {
+        let mut worst = 0.0_f64;
+        for (i, err) in [0.012, -0.012, 0.02, -0.02].into_iter().enumerate() {
+            let mut c = clamp(14.0, 0.003);
+            c.dead_zone = true;
+            c.noise_nm = 0.001;
+            c.offset_error_nm = err;
+            c.first_dir = if i % 2 == 0 { -1.0 } else { 1.0 };
+            let (rows, _) = c.rows(40 + i as u64);
+            let d = fit_depth(&rows, &FitOptions::default()).unwrap();
+            assert_eq!(d.branches, Branches::Load, "{d:?}");
+            worst = worst.max((d.backlash_rad / 0.003 - 1.0).abs());
+            assert!((d.stiffness_nm_per_rad / 14.0 - 1.0).abs() < 0.01, "{d:?}");
+        }
+        assert!(worst < 0.01, "play off by {:.1}%", 100.0 * worst);
+    }
+
     #[test]
     fn noisy_dead_zone_within_tolerance() {
         let mut c = clamp(15.0, 0.0017);
@@ -1616,6 +1665,7 @@ mod tests {
                     first_dir: if i % 2 == 0 { -1.0 } else { 1.0 },
                     dead_zone: true,
                     friction_nm: 0.0,
+                    offset_error_nm: 0.0,
                 }
                 .rows(100 + i as u64)
                 .0
@@ -1886,6 +1936,7 @@ mod tests {
                     first_dir: if i % 2 == 0 { -1.0 } else { 1.0 },
                     dead_zone,
                     friction_nm: 0.0,
+                    offset_error_nm: 0.0,
                 }
                 .rows(i as u64)
                 .0
@@ -1940,6 +1991,7 @@ mod tests {
                     first_dir: -1.0,
                     dead_zone: false,
                     friction_nm: 0.0,
+                    offset_error_nm: 0.0,
                 }
                 .rows(1)
                 .0,
