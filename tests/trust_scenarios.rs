@@ -363,9 +363,9 @@ fn ultrasound_scan_in_light_contact() {
 
 /// The other end of "within 10 mm of the fitted range": a push at 0.23 m, exactly 10 mm above
 /// it. Before the margin ended in a fade, this push went uncorrected (100% of raw): its
-/// insertion sat a hair past a hard end. Its bound covers 99.96% (the stiffness's uncertainty
-/// grows threefold toward the margin's end, and the simulator's cubic extrapolates better than
-/// that), so only the lower end of the coverage band is checked here.
+/// insertion sat a hair past a hard end. Its bound covers 99.8% over 16 s (the stiffness's
+/// uncertainty grows twofold toward the margin's end, and the simulator's cubic extrapolates
+/// better than that), so only the lower end of the coverage band is checked here.
 #[test]
 fn divot_push_at_the_far_end_of_the_insertion_margin() {
     let v = evaluate("config/sim/i20-divot-deep.toml", "16", None);

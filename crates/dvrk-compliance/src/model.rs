@@ -1304,7 +1304,8 @@ fn fade_in_over(t_s: f64, start_s: f64, hold_s: f64) -> f64 {
 /// [`NOISE_FLOOR_SHARE`] and all of the file's residual), the free load's uncertainty, the
 /// averaged torque not taken for contact beyond its own noise (a load below the evidence's
 /// floor, at its measured size), the stiffness's scatter as `fit` measured it
-/// (`inverse_compliance_rel_sigma`, growing threefold to the end of the insertion margin) and
+/// (`inverse_compliance_rel_sigma`, at least [`STIFFNESS_REL_SIGMA_FLOOR`], growing twofold to
+/// the end of the insertion margin) and
 /// the backlash's (`backlash_rel_sigma`, at least [`BACKLASH_REL_SIGMA_FLOOR`]; 5% in a file
 /// without it). Withheld (`1 - w`): the whole play plus `K` times what the shaft may carry
 /// (after a transient, the contact as last trusted plus the free load now; before any trusted
