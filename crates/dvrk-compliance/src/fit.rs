@@ -571,6 +571,15 @@ impl BranchFit {
         (ss / (a.points + b.points) as f64).sqrt()
     }
 
+    /// The line of side `side` (+1: the `+` line, -1: the `-` line), none for no side.
+    fn line(&self, side: i8) -> Option<Line> {
+        match side {
+            1 => Some(self.lines[0]),
+            -1 => Some(self.lines[1]),
+            _ => None,
+        }
+    }
+
     /// Median over every row with a side of |tau_ext - its side's line|: the same rows count for
     /// both splits, left out or not, and the median ignores the minority of turnaround or play
     /// rows that neither line describes.
@@ -584,11 +593,7 @@ impl BranchFit {
             .iter()
             .enumerate()
             .filter_map(|(i, row)| {
-                let line = match side(row, i) {
-                    1 => self.lines[0],
-                    -1 => self.lines[1],
-                    _ => return None,
-                };
+                let line = self.line(side(row, i))?;
                 let friction = self.friction_nm * f64::from(dirs[i]);
                 Some((row.tau_ext_nm() - friction - line.at(row.position_rad)).abs())
             })
@@ -746,10 +751,11 @@ fn fit_load(
         // play, a row that is off its own side's line by more than the band is on the flat part.
         let width = (hi - lo).max(0.0);
         let off_line = |r: &DataRow, s: i8, d: i8| {
-            let line = if s > 0 { lines[0] } else { lines[1] };
             lo - width < r.position_rad
                 && r.position_rad < hi + width
-                && (load(r, d) - line.at(r.position_rad)).abs() > band
+                && fit_now
+                    .line(s)
+                    .is_some_and(|line| (load(r, d) - line.at(r.position_rad)).abs() > band)
         };
         let next: Vec<bool> = rows
             .iter()
