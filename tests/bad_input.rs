@@ -236,7 +236,8 @@ fn a_fifo_as_configuration_or_parameter_file_is_refused_without_hanging() {
 }
 
 /// The issue's own command line on the simulator, `calibrate clamp --depths 5.0 --out
-/// clamp.csv` over an existing recording (and `--depths nan`, `--settle-s -1`): refused before
+/// clamp.csv` over an existing recording (and `--depths nan`, `--settle-s -1`, a sweep step
+/// given to the clamp or out of its range): refused before
 /// anything is opened, the recording untouched; and `calibrate --out` onto a FIFO refused, the
 /// FIFO left as it was. (The same checks through `--robot ros2:ARM` are in
 /// tests/console_calibration.rs.)
@@ -248,13 +249,26 @@ fn calibrate_on_the_simulator_refuses_bad_arguments_and_keeps_the_recording() {
                    1,0,0.12,0.01,0.3,0.1,1\n";
     std::fs::write(&out, earlier).unwrap();
     let scenario = repo().join("config/sim/clamp.toml");
-    for (arg, value, expect) in [
-        ("--depths", "5.0", "--depths 5"),
-        ("--depths", "nan", "--depths NaN"),
-        ("--settle-s", "-1", "--settle-s -1"),
+    for (procedure, arg, value, expect) in [
+        ("clamp", "--depths", "5.0", "--depths 5"),
+        ("clamp", "--depths", "nan", "--depths NaN"),
+        ("clamp", "--settle-s", "-1", "--settle-s -1"),
+        (
+            "clamp",
+            "--step-deg",
+            "1",
+            "--step-deg: only for calibrate torque-offset",
+        ),
+        (
+            "torque-offset",
+            "--step-deg",
+            "0.1",
+            "--step-deg 0.1: must be in [0.5, 10]",
+        ),
+        ("torque-offset", "--step-deg", "inf", "--step-deg inf"),
     ] {
         let o = Command::new(sidecar_bin())
-            .args(["calibrate", "clamp", "--config"])
+            .args(["calibrate", procedure, "--config"])
             .arg(&scenario)
             .args(["--out", out.to_str().unwrap(), arg, value])
             .output()

@@ -742,3 +742,57 @@ fn check_record_dynamics_fit(clamp: &str, sweep: &str, file: &str, params: &str)
         assert!(after < 0.35 * before, "{d}");
     }
 }
+
+/// `calibrate torque-offset --step-deg 2.5`: the sweep steps 2.5 degrees instead of the
+/// paper's 5, up and back down (37 angles from -0.8 rad each way, twice the default's 19), and
+/// the file's header records the command line that made it.
+#[test]
+fn a_torque_offset_sweep_takes_the_step_it_is_given() {
+    let d = scratch("sweep_step");
+    let rows_of = |step: Option<&str>| -> (Vec<f64>, String) {
+        let out = d.join(format!("sweep-{}.csv", step.unwrap_or("default")));
+        let mut args = vec![
+            "calibrate",
+            "torque-offset",
+            "--config",
+            "config/sim/clamp.toml",
+            "--joints",
+            "1",
+            "--depths",
+            "0.155",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if let Some(s) = step {
+            args.extend(["--step-deg", s]);
+        }
+        run(&args);
+        let text = std::fs::read_to_string(&out).unwrap();
+        let header: String = text.lines().filter(|l| l.starts_with('#')).collect();
+        let q = text
+            .lines()
+            .filter(|l| l.starts_with("1,"))
+            .map(|l| l.split(',').nth(3).unwrap().parse::<f64>().unwrap())
+            .collect();
+        (q, header)
+    };
+    for (step, angles) in [(None, 19), (Some("2.5"), 37)] {
+        let (q, header) = rows_of(step);
+        assert_eq!(q.len(), 2 * angles, "{step:?}: {q:?}");
+        let step_rad = step
+            .map_or(5.0_f64, |s| s.parse::<f64>().unwrap())
+            .to_radians();
+        for (i, pair) in q[..angles].windows(2).enumerate() {
+            let d = pair[1] - pair[0];
+            assert!(
+                (d - step_rad).abs() < 1e-3,
+                "{step:?}: step {i} is {d} rad, not {step_rad}: {q:?}"
+            );
+        }
+        assert!((q[0] + 0.8).abs() < 1e-3, "{step:?}: starts at {}", q[0]);
+        if let Some(s) = step {
+            assert!(header.contains(&format!("--step-deg {s}")), "{header}");
+        }
+    }
+}

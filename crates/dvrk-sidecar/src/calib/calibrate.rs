@@ -31,6 +31,12 @@ use dvrk_sim::{Environment, Motion, Scenario, sim_port};
 use super::data::{self, DivotRow, DivotTruth};
 use crate::text::num;
 
+/// The finest and the coarsest step `calibrate torque-offset --step-deg` takes (degrees): below
+/// half a degree the steps are within the joints' settling error of each other, and the sweep
+/// runs into the thousands of steps; above 10 the table misses a counterbalance's bend.
+const MIN_STEP_DEG: f64 = 0.5;
+const MAX_STEP_DEG: f64 = 10.0;
+
 /// Simulator read period: one sample per millisecond, like the dVRK's 1 kHz PID.
 const PERIOD_NS: u64 = 1_000_000;
 
@@ -44,7 +50,7 @@ pub struct CalibrateArgs {
 /// The procedures.
 #[derive(Clone, Debug, clap::Subcommand)]
 pub enum Procedure {
-    /// Unloaded sweep of joints 1 and 2 in 5-degree steps at a few depths (tau_0).
+    /// Unloaded sweep of joints 1 and 2 in 5-degree steps (`--step-deg`) at a few depths (tau_0).
     TorqueOffset(SimArgs),
     /// Clamp-beam experiment at 14 depths, joints 1 and 2 (stiffness and backlash).
     Clamp(SimArgs),
@@ -136,6 +142,11 @@ pub struct SimArgs {
     /// column. Without it the column is 0 and tau_ext includes tau_0.
     #[arg(long = "torque-offset")]
     pub torque_offset: Vec<PathBuf>,
+    /// Torque-offset only: the sweep's step (degrees, 0.5 to 10; default 5, the paper's). A
+    /// finer step follows an internal torque that bends sharply (e.g. a counterbalance spring)
+    /// at the cost of more steps: 1 degree is five times the 5-degree sweep's.
+    #[arg(long)]
+    pub step_deg: Option<f64>,
     /// Effort limit that aborts (N·m).
     #[arg(long, default_value_t = 1.5)]
     pub effort_limit_nm: f64,
@@ -215,6 +226,17 @@ impl SimArgs {
         }
         if name != "clamp" && !self.torque_offset.is_empty() {
             bail!("--torque-offset: only for calibrate clamp");
+        }
+        if let Some(step) = self.step_deg {
+            if name != "torque-offset" {
+                bail!("--step-deg: only for calibrate torque-offset");
+            }
+            if !(step.is_finite() && (MIN_STEP_DEG..=MAX_STEP_DEG).contains(&step)) {
+                bail!(
+                    "--step-deg {}: must be in [{MIN_STEP_DEG}, {MAX_STEP_DEG}] degrees",
+                    num(step)
+                );
+            }
         }
         if let Some(r) = &self.robot {
             robot_arm(r)?;
@@ -614,6 +636,9 @@ fn build_plan(kind: SimKind, a: &SimArgs) -> (AnyPlan, String) {
             if !a.depths.is_empty() {
                 cfg.depths_m = a.depths.clone();
             }
+            if let Some(step) = a.step_deg {
+                cfg.step_rad = step.to_radians();
+            }
             let text = format!(
                 "torque-offset sweep: joints {:?}, depths {:?} m; each joint from {:?} rad in \
                  {:.4} rad steps, up and back down, one row per step; nothing may touch the \
@@ -792,6 +817,7 @@ mod tests {
             joints: vec![2],
             depths,
             torque_offset: sweep,
+            step_deg: None,
             effort_limit_nm: 1.5,
             settle_s: Some(0.1),
             quiet: true,
