@@ -848,6 +848,28 @@ fn dry_run_prints_the_plan_and_sends_nothing() {
     );
     assert!(err.contains("effort limit 1.5"), "{err}");
     assert!(!out.exists());
+    // a finer torque-offset sweep is planned as given: 2.5 degrees is 0.0436 rad
+    let (ok, err, _) = run(
+        domain(11),
+        &[
+            "calibrate",
+            "torque-offset",
+            "--robot",
+            "ros2:PSM1",
+            "--step-deg",
+            "2.5",
+            "--out",
+            out.to_str().unwrap(),
+            "--dry-run",
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("plan: torque-offset sweep") && err.contains("in 0.0436 rad steps"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }
 
 #[test]
@@ -858,6 +880,11 @@ fn bad_arguments_are_refused_before_anything_is_opened() {
         ("--depths", "5.0", "--depths 5"),
         ("--depths", "nan", "--depths NaN"),
         ("--settle-s", "-1", "--settle-s -1"),
+        (
+            "--step-deg",
+            "2",
+            "--step-deg: only for calibrate torque-offset",
+        ),
         ("--robot", "ros3:PSM1", "expected ros2:ARM"),
         ("--robot", "ros2:../PSM1", "--robot"),
     ] {
