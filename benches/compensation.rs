@@ -87,6 +87,26 @@ fn compensation(c: &mut Criterion) {
             ))
         })
     });
+    // At a faster cycle the filter's window keeps its time (dynamics::WINDOW_TIME_S), so it
+    // holds more samples: about 95 at 3 kHz, 190 at 6 kHz.
+    for rate_hz in [3000.0, 6000.0] {
+        let mut compensator = Compensator::new();
+        let mut t = 0.0;
+        let name = format!("compensator_j1_j2_dynamics_{}khz", rate_hz / 1000.0);
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let (q, e) = &inputs[i % SAMPLES];
+                i += 1;
+                t += 1.0 / rate_hz;
+                black_box(compensator.correct(
+                    &dynamic,
+                    black_box(t),
+                    black_box(&[q[0], q[1], q[2]]),
+                    black_box(e),
+                ))
+            })
+        });
+    }
     group.bench_function("fk_6dof", |b| {
         b.iter(|| {
             let (q, _) = &inputs[i % SAMPLES];

@@ -181,8 +181,16 @@ pub const RESIDUAL_BASELINE_TIME_S: f64 = 0.5;
 /// least; with a dynamics model, also at least 8 residual standard deviations.
 pub const TRANSIENT_EFFORT_STEP_NM: f64 = 0.05;
 /// The effort's change over this many samples (5.3 ms at 1.5 kHz) is watched too: a motion's
-/// start builds the effort over a few ms, faster than any contact the model corrects.
+/// start builds the effort over a few ms, faster than any contact the model corrects. At another
+/// rate the change is taken over the same time ([`EFFORT_RATE_TIME_S`]).
 pub const EFFORT_RATE_SAMPLES: usize = 8;
+/// The change of [`EFFORT_RATE_SAMPLES`] is taken from an effort at least this old too (s):
+/// 7.5 periods of the boards' 1.5 kHz, so that there it is 8 samples back exactly (as at any
+/// slower rate), and at 3 kHz 15 or 16 (over 8 samples, 2.7 ms, a motion's start changed the
+/// effort half as much against the same limits, and was seen later).
+pub const EFFORT_RATE_TIME_S: f64 = (EFFORT_RATE_SAMPLES as f64 - 0.5) / 1500.0;
+/// The efforts kept for [`EFFORT_RATE_TIME_S`]: that long at 6 kHz.
+const EFFORT_RATE_CAPACITY: usize = 34;
 /// An effort change over [`EFFORT_RATE_SAMPLES`] above which the effort counts as abrupt (N·m):
 /// a 21 rad/s² start changes the effort by about 0.3 N·m in 5 ms, sliding over tissue or the
 /// paper's push cycle by under 0.01 N·m, a tip slipping over a surface by 0.15 N·m. Alone (the
@@ -1024,8 +1032,9 @@ struct JointTrust {
     residual_level: f64,
     /// A sample has been trusted fully since the start (or the last reset).
     has_trusted: bool,
-    /// The last [`EFFORT_RATE_SAMPLES`] efforts (ring), for the effort's change over a few ms.
-    efforts: [f64; EFFORT_RATE_SAMPLES],
+    /// The last efforts and their times (ring), for the effort's change over
+    /// [`EFFORT_RATE_TIME_S`].
+    efforts: [(f64, f64); EFFORT_RATE_CAPACITY],
     efforts_head: usize,
     efforts_len: usize,
     /// The shaft torque averaged over [`EVIDENCE_TIME_S`] (N·m): the evidence for the play's
@@ -1100,7 +1109,7 @@ impl Default for JointTrust {
             latest_trusted_sigma: 0.0,
             residual_level: 0.0,
             has_trusted: false,
-            efforts: [0.0; EFFORT_RATE_SAMPLES],
+            efforts: [(0.0, 0.0); EFFORT_RATE_CAPACITY],
             efforts_head: 0,
             efforts_len: 0,
             tau_average: 0.0,
@@ -1139,6 +1148,27 @@ struct TrustedContact {
 }
 
 impl JointTrust {
+    /// The effort the change over [`EFFORT_RATE_TIME_S`] is taken from: the newest kept one that
+    /// is both [`EFFORT_RATE_SAMPLES`] samples back or more and at least that old, if any. At
+    /// 1.5 kHz or slower that is the effort [`EFFORT_RATE_SAMPLES`] samples back, as it always
+    /// was; faster, it is the one that old; faster than the ring holds (over 6 kHz), the oldest.
+    fn effort_rate_reference(&self, t_s: f64) -> Option<f64> {
+        const CAP: usize = EFFORT_RATE_CAPACITY;
+        let back = |k: usize| self.efforts[(self.efforts_head + CAP - k) % CAP];
+        (EFFORT_RATE_SAMPLES..=self.efforts_len)
+            .map(back)
+            .find(|&(t, _)| t_s - t >= EFFORT_RATE_TIME_S)
+            .or_else(|| (self.efforts_len == CAP).then(|| back(CAP)))
+            .map(|(_, e)| e)
+    }
+
+    /// Keeps the effort at `t_s` for [`Self::effort_rate_reference`].
+    fn keep_effort(&mut self, t_s: f64, effort: f64) {
+        self.efforts[self.efforts_head] = (t_s, effort);
+        self.efforts_head = (self.efforts_head + 1) % EFFORT_RATE_CAPACITY;
+        self.efforts_len = (self.efforts_len + 1).min(EFFORT_RATE_CAPACITY);
+    }
+
     /// Keeps a fully trusted sample's contact: one every [`TRUSTED_CONTACT_AGE_S`] at most, the
     /// one before it kept as well. The first, and the first after a time that went back, are
     /// both.
@@ -1495,12 +1525,10 @@ impl Compensator {
             let effort_step = tr.has_last_effort && change > step_limit;
             tr.last_effort = effort[j];
             tr.has_last_effort = effort[j].is_finite();
-            // The change over the last EFFORT_RATE_SAMPLES (the oldest in the ring).
-            let change_over_window = if tr.efforts_len == EFFORT_RATE_SAMPLES {
-                (effort[j] - tr.efforts[tr.efforts_head]).abs()
-            } else {
-                0.0
-            };
+            // The change since the newest effort at least EFFORT_RATE_TIME_S old (none yet: 0).
+            let change_over_window = tr
+                .effort_rate_reference(t_s)
+                .map_or(0.0, |e| (effort[j] - e).abs());
             recent_change[j] = if change_over_window.is_finite() {
                 change_over_window
             } else {
@@ -1508,9 +1536,7 @@ impl Compensator {
             };
             let effort_change = change_over_window > change_limit;
             if effort[j].is_finite() && !st.restarted() {
-                tr.efforts[tr.efforts_head] = effort[j];
-                tr.efforts_head = (tr.efforts_head + 1) % EFFORT_RATE_SAMPLES;
-                tr.efforts_len = (tr.efforts_len + 1).min(EFFORT_RATE_SAMPLES);
+                tr.keep_effort(t_s, effort[j]);
             } else {
                 tr.efforts_len = 0;
             }
@@ -2152,6 +2178,46 @@ mod tests {
         }
         assert_eq!(3e-3f64.quad(-4e-3), 5e-3);
         assert_eq!(0f64.quad(0.0), 0.0);
+    }
+
+    /// The effort's change is taken over 8 samples at the boards' 1.5 kHz and slower, and over
+    /// the same time at a faster rate; faster than the ring holds, over all of it.
+    #[test]
+    fn the_effort_change_is_taken_over_a_rates_worth_of_time() {
+        use super::{EFFORT_RATE_CAPACITY, EFFORT_RATE_SAMPLES, EFFORT_RATE_TIME_S, JointTrust};
+        // The effort is the time in ms, so the reference's value is its time.
+        let reference_age = |rate_hz: f64| {
+            let mut tr = JointTrust::default();
+            let mut t = 0.0;
+            for i in 0..200 {
+                t = f64::from(i) / rate_hz;
+                if i > 0 {
+                    let got = tr.effort_rate_reference(t);
+                    // None before EFFORT_RATE_SAMPLES are kept, some once the ring is full.
+                    if i < EFFORT_RATE_SAMPLES as i32 {
+                        assert!(got.is_none(), "{rate_hz} Hz, {i}");
+                    } else if i >= EFFORT_RATE_CAPACITY as i32 {
+                        assert!(got.is_some(), "{rate_hz} Hz, {i}");
+                    }
+                }
+                tr.keep_effort(t, t * 1e3);
+            }
+            let t_now = t + 1.0 / rate_hz;
+            (t_now - tr.effort_rate_reference(t_now).unwrap() * 1e-3) * rate_hz
+        };
+        // In samples back: 8 at 1.5 kHz and at 1 kHz (as before the rate was considered), the
+        // whole of EFFORT_RATE_TIME_S at 3 kHz (15 periods is 5.0 ms), and the ring's length
+        // at 8 kHz (4.25 ms).
+        // (5.0 ms is 15 periods of 3 kHz to within rounding, so 15 or 16.)
+        for (rate, back) in [(1000.0, 8.0), (1500.0, 8.0), (3000.0, 15.0), (8000.0, 34.0)] {
+            let got = reference_age(rate);
+            let slack = if rate == 3000.0 { 1.0 + 1e-6 } else { 1e-6 };
+            assert!(
+                got >= back - 1e-6 && got <= back + slack,
+                "{rate} Hz: {got} samples back"
+            );
+        }
+        assert!(EFFORT_RATE_CAPACITY as f64 / 8000.0 < EFFORT_RATE_TIME_S);
     }
 
     /// The withheld bound's trusted contact is the latest at least `TRUSTED_CONTACT_AGE_S` old:
