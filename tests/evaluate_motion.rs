@@ -16,6 +16,16 @@ use common::*;
 use serde_json::Value;
 
 fn evaluate(params: &str, scenario: &str, seconds: &str, plots: Option<&str>) -> Value {
+    evaluate_with(params, scenario, seconds, plots, &[])
+}
+
+fn evaluate_with(
+    params: &str,
+    scenario: &str,
+    seconds: &str,
+    plots: Option<&str>,
+    more: &[&str],
+) -> Value {
     let mut args = vec![
         "evaluate",
         "--params",
@@ -29,6 +39,7 @@ fn evaluate(params: &str, scenario: &str, seconds: &str, plots: Option<&str>) ->
     if let Some(dir) = plots {
         args.extend(["--plots", dir]);
     }
+    args.extend(more);
     let out = Command::new(sidecar_bin())
         .args(&args)
         .current_dir(repo())
@@ -153,6 +164,33 @@ fn palpation_error_is_at_most_thirty_percent_of_raw() {
     let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
     assert!(raw > 0.5, "the surface does not load the shaft: {v}");
     assert!(comp <= 0.3 * raw, "{v}");
+}
+
+/// `--tool` and `--arm` judge the simulated shaft as if that instrument or arm kind were
+/// mounted: the true tip comes from the simulator's true joints through the same kinematics as
+/// the estimates. It used to be the simulator's own (Classic, large needle driver) tip, so any
+/// other choice read about 50 mm of raw error and a coverage of 0.
+#[test]
+fn another_instrument_or_arm_is_judged_as_if_mounted() {
+    let scenario = "config/sim/palpation.toml";
+    let lnd = evaluate(PARAMS, scenario, "8", None);
+    let lnd_raw = num(&lnd, &["tip_error_mm", "raw", "mean"]);
+    for more in [
+        &["--tool", "PROGRASP_FORCEPS_420093"][..],
+        &["--arm", "si"][..],
+    ] {
+        let v = evaluate_with(PARAMS, scenario, "8", None, more);
+        let raw = num(&v, &["tip_error_mm", "raw", "mean"]);
+        let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
+        // The same joint errors through another chain: the same order of tip error.
+        assert!(
+            raw > 0.3 * lnd_raw && raw < 3.0 * lnd_raw,
+            "{more:?}: raw {raw} mm against {lnd_raw} with the default tool: {v}"
+        );
+        assert!(comp <= 0.3 * raw, "{more:?}: {v}");
+        let coverage = num(&v, &["coverage"]);
+        assert!(coverage >= 0.9, "{more:?}: coverage {coverage}: {v}");
+    }
 }
 
 #[test]

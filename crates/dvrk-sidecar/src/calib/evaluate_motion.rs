@@ -4,7 +4,9 @@
 //! The scenario runs through the whole stack as `serve` runs it: the emulated boards answer the
 //! real protocol in process (`dvrk_sim::SimPort`), `ArmReader` turns the replies into SI samples,
 //! [`crate::cycle::compute_dynamic`] applies the internal-torque model, the gate, Eq. 1 and the
-//! kinematics. Each cycle's raw and compensated tip positions are compared with the true tip.
+//! kinematics. Each cycle's raw and compensated tip positions are compared with the true tip:
+//! the simulator's true joints through the same kinematics (`--tool`, `--arm`), so another
+//! instrument or arm kind is judged as if it were mounted on the simulated shaft.
 //!
 //! `false_activation_fraction[j]`: the share of valid cycles in which joint j's correction was
 //! active and moved the joint away from its true angle by more than [`WRONG_WAY_TOLERANCE_RAD`]
@@ -150,7 +152,15 @@ pub fn evaluate_scenario(
             continue;
         }
         let truth = reader.port_mut().link_mut().emulator().psm().truth();
-        let true_tip = nalgebra::Vector3::from(truth.tip_position_m);
+        // The true joints through the same kinematics as the estimates (`--tool`, `--arm`):
+        // the simulated shaft's joint errors judged as if that instrument were mounted. The
+        // simulator's own tip (`truth.tip_position_m`) is the Classic large needle driver's,
+        // which against another instrument's estimate would be tens of mm off by construction.
+        let q = &truth.q_true;
+        let true_tip = fk
+            .forward(&[q[0], q[1], q[2], q[3], q[4], q[5]])
+            .translation
+            .vector;
         let e_raw = (r.raw_pose.translation.vector - true_tip).norm() * 1e3;
         let e_comp = (r.compensated_pose.translation.vector - true_tip).norm() * 1e3;
         let b = r.correction.tip_bound_m * 1e3;
