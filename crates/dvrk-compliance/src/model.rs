@@ -308,6 +308,13 @@ pub const SURE_ACCEL_CONTACT_FADE_SIGMAS: f64 = 2.0;
 /// Below this speed (rad/s) and [`STILL_ACCELERATION`] a joint without a dynamics model counts
 /// as still.
 pub const STILL_VELOCITY: f64 = 0.01;
+/// A joint without a dynamics model counts as still only while its effort's change over
+/// [`EFFORT_RATE_TIME_S`] is within this many sigmas of the change two noisy samples make.
+pub const STILL_EFFORT_CHANGE_SIGMAS: f64 = 4.0;
+/// The least change (N·m) [`STILL_EFFORT_CHANGE_SIGMAS`] allows, for an effort quieter than
+/// the boards' (a quarter of [`TRANSIENT_EFFORT_CHANGE_NM`]): a still contact's slow drift is
+/// not a start.
+pub const STILL_EFFORT_CHANGE_FLOOR_NM: f64 = 0.25 * TRANSIENT_EFFORT_CHANGE_NM;
 /// See [`STILL_VELOCITY`] (rad/s²).
 pub const STILL_ACCELERATION: f64 = 0.5;
 /// Residual std (N·m) assumed for a joint without a dynamics model while still.
@@ -1444,6 +1451,8 @@ impl Compensator {
         // The effort's change over the last EFFORT_RATE_SAMPLES (N·m): about what the effort
         // measured on the motor's side lags the shaft's load by.
         let mut recent_change = [0.0; 2];
+        // The effort's measured noise (1 sigma, N·m).
+        let mut noise = [0.0; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
             let st = &mut self.joints[j];
@@ -1468,6 +1477,7 @@ impl Compensator {
                 tr.effort_change_mean += w * (change.min(clip) - tr.effort_change_mean);
             }
             let effort_noise = SIGMA_PER_MEAN_CHANGE * tr.effort_change_mean;
+            noise[j] = effort_noise;
             let mut near_reversal = false;
             match &joint.dynamics {
                 Some(d) => {
@@ -1564,6 +1574,19 @@ impl Compensator {
         let mut parts = [BoundParts::default(); 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
+            // The other corrected joints at rest and without an abrupt effort change or a
+            // recent transient: a joint without a dynamics model is still only while the whole
+            // arm is (the other joint's start loads it through the distal part's inertia before
+            // its own filter sees any motion).
+            let others_still = config.joints.iter().enumerate().all(|(k, other)| {
+                let s = &self.joints[k];
+                k == j
+                    || other.is_none()
+                    || (s.ready()
+                        && s.acceleration().abs() < STILL_ACCELERATION
+                        && !abrupt[k]
+                        && t_s - self.trust[k].last_transient_s >= TRANSIENT_HOLD_S)
+            });
             let st = &self.joints[j];
             let tr = &mut self.trust[j];
             let q = position[j];
@@ -1700,7 +1723,13 @@ impl Compensator {
                     shrink.max(sure)
                 }
             } else {
-                let still = at_rest && w_transient >= 1.0;
+                // A still arm's effort changes by its noise only: faster, the arm is starting
+                // (before the filter sees it move) or the contact is changing, and either way
+                // the quasi-static correction is not sure.
+                let calm = recent_change[j]
+                    <= (STILL_EFFORT_CHANGE_SIGMAS * std::f64::consts::SQRT_2 * noise[j])
+                        .max(STILL_EFFORT_CHANGE_FLOOR_NM);
+                let still = at_rest && w_transient >= 1.0 && others_still && calm;
                 if !still {
                     tr.last_moving_s = t_s;
                 }
