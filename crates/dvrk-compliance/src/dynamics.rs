@@ -9,10 +9,12 @@
 //! The paper's quasi-static model counts every effort above `tau_0(q)` as external; while the arm
 //! accelerates and its transmission rubs, that gives false corrections. The velocity and
 //! acceleration come from the encoder positions by a causal filter: a least-squares cubic over the
-//! last [`WINDOW`] samples, or as many as span [`WINDOW_TIME_S`] at a faster rate (their own
-//! timestamps, so jitter is handled), evaluated two samples
-//! before the newest. That is exact for any cubic motion, has a fixed delay of 2 cycles and no
-//! look-ahead, and averages the encoder quantization over the window.
+//! samples of the last [`WINDOW_TIME_S`] ([`WINDOW`] at the boards' 1.5 kHz, more at a faster
+//! rate, fewer at a slower one but at least [`MIN_WINDOW`]; their own timestamps, so jitter is
+//! handled), evaluated two samples before the newest. That is exact for any cubic motion, has a
+//! fixed delay of 2 cycles and no look-ahead, and averages the encoder quantization over the
+//! window. Below `MIN_MOTION_MODEL_RATE_HZ` (model.rs) the compensator does not use the motion
+//! model at all.
 //!
 //! The distal part's weight (issue 20 item 3) is optional in the model: a weight vector `w`
 //! (N, in the RCM frame) lumped at the insertion L, which gives joint j the torque
@@ -43,15 +45,23 @@
 use crate::model::Quadrature;
 use serde::{Deserialize, Serialize};
 
-/// The least samples in the filter's window (and all of it at the boards' 1.5 kHz or slower).
+/// The samples of the filter's window at the boards' 1.5 kHz (and the least it needs to be
+/// ready at any faster rate).
 pub const WINDOW: usize = 48;
-/// The least time the filter's window spans (s): 47.5 periods of the boards' 1.5 kHz, so that
-/// there the window is [`WINDOW`] samples exactly. At a faster rate (the console's I/O can run at
+/// The time the filter's window spans (s): 47.5 periods of the boards' 1.5 kHz, so that there
+/// the window is [`WINDOW`] samples exactly. At a faster rate (the console's I/O can run at
 /// 3 kHz or more, and `serve` with `rate = "follow"` cycles at its pace) the window takes more
 /// samples, up to [`WINDOW_CAPACITY`], so that it still spans this long: with 48 samples at
 /// 3 kHz (16 ms) the acceleration came out several times noisier, the contact's evidence drowned
-/// in it and `i20-free-from-rest` kept 74% of its raw error (14% at 1.5 kHz).
+/// in it and `i20-free-from-rest` kept 74% of its raw error (14% at 1.5 kHz). At a slower rate
+/// it takes fewer, at least [`MIN_WINDOW`]: 48 samples at 500 Hz (96 ms) lagged a start so much
+/// that one cycle of `i20-play-crossing` was made 0.78 mm worse than raw (0.07 with 16).
 pub const WINDOW_TIME_S: f64 = 47.5 / 1500.0;
+/// How far back (s) the friction's direction checks that the joint moved the new way (see
+/// [`JointDynamicsState::update`]): 8 ms, two encoder counts at the stick velocity of 2 mrad/s.
+pub const DIRECTION_CHECK_S: f64 = 0.008;
+/// The fewest samples fitted, however slow the rate (a cubic through fewer is noise).
+pub const MIN_WINDOW: usize = 8;
 /// The most samples the window holds: [`WINDOW_TIME_S`] at 6 kHz.
 pub const WINDOW_CAPACITY: usize = 192;
 /// Delay of the filter's estimate, in samples.
@@ -195,6 +205,9 @@ pub struct DerivativeFilter {
     /// Next slot to write.
     head: usize,
     len: usize,
+    /// The window is full: [`WINDOW`] samples, or at a slower rate all that span
+    /// [`WINDOW_TIME_S`].
+    full: bool,
     /// RMS of the last cubic fit's residual (rad): how far the window's motion is from smooth.
     residual_rad: f64,
     /// Whether the last push restarted the history (a gap, time going back, non-finite input).
@@ -208,6 +221,7 @@ impl Default for DerivativeFilter {
             q: [0.0; WINDOW_CAPACITY],
             head: 0,
             len: 0,
+            full: false,
             residual_rad: 0.0,
             restarted: false,
         }
@@ -219,7 +233,33 @@ impl DerivativeFilter {
     pub fn reset(&mut self) {
         self.head = 0;
         self.len = 0;
+        self.full = false;
         self.residual_rad = 0.0;
+    }
+
+    /// The newest position minus the newest one at least `time_s` older (rad); 0 without one.
+    pub fn recent_displacement(&self, time_s: f64) -> f64 {
+        const CAP: usize = WINDOW_CAPACITY;
+        if self.len < 2 {
+            return 0.0;
+        }
+        let newest = (self.head + CAP - 1) % CAP;
+        (1..self.len)
+            .map(|k| (self.head + CAP - 1 - k) % CAP)
+            .find(|&i| self.t[newest] - self.t[i] >= time_s)
+            .map_or(0.0, |i| self.q[newest] - self.q[i])
+    }
+
+    /// The mean interval (s) between the last [`MIN_WINDOW`] samples (fewer at the start), if
+    /// there are two.
+    pub fn mean_period_s(&self) -> Option<f64> {
+        const CAP: usize = WINDOW_CAPACITY;
+        let n = self.len.min(MIN_WINDOW);
+        (n >= 2).then(|| {
+            let newest = self.t[(self.head + CAP - 1) % CAP];
+            let oldest = self.t[(self.head + CAP - n) % CAP];
+            (newest - oldest) / (n - 1) as f64
+        })
     }
 
     /// RMS (rad) of the residual of the last cubic fit over the window: encoder quantization
@@ -236,7 +276,7 @@ impl DerivativeFilter {
 
     /// Whether the window is full, so the estimates are the filter's own (not start-up zeros).
     pub fn ready(&self) -> bool {
-        self.len >= WINDOW
+        self.full
     }
 
     /// Adds a sample at time `t_s` and returns `(velocity, acceleration)` at the sample
@@ -269,12 +309,12 @@ impl DerivativeFilter {
         // The samples fitted: the newest WINDOW, and older ones while within WINDOW_TIME_S of
         // the newest sample.
         let newest = (self.head + CAP - 1) % CAP;
-        let mut n = self.len.min(WINDOW);
-        while n < self.len
-            && self.t[newest] - self.t[(self.head + CAP - 1 - n) % CAP] <= WINDOW_TIME_S
-        {
+        let age = |k: usize| self.t[newest] - self.t[(self.head + CAP - 1 - k) % CAP];
+        let mut n = self.len.min(MIN_WINDOW);
+        while n < self.len && age(n) <= WINDOW_TIME_S {
             n += 1;
         }
+        self.full = self.len >= WINDOW || (n < self.len && n >= MIN_WINDOW);
         // The evaluation point: DELAY_SAMPLES before the newest sample; times relative to it,
         // scaled by the window span so the normal equations stay well conditioned.
         let at = (self.head + CAP - 1 - DELAY_SAMPLES) % CAP;
@@ -604,9 +644,13 @@ impl JointDynamicsState {
         let (v, a) = self.filter.push(t_s, q);
         self.velocity = v;
         self.acceleration = a;
-        if v > p.stick_velocity_rad_per_s {
+        // The direction turns only once the joint has moved that way over the last
+        // DIRECTION_CHECK_S as well: a stop's kink swings the cubic's velocity past the stick
+        // velocity the other way for a few ms while the encoder stands still.
+        let moved = self.filter.recent_displacement(DIRECTION_CHECK_S);
+        if v > p.stick_velocity_rad_per_s && moved > 0.0 {
             self.direction = 1.0;
-        } else if v < -p.stick_velocity_rad_per_s {
+        } else if v < -p.stick_velocity_rad_per_s && moved < 0.0 {
             self.direction = -1.0;
         }
         p.friction(v, self.direction) + p.inertia(insertion_m) * a
@@ -623,6 +667,11 @@ impl JointDynamicsState {
     /// Whether the filter has a full window: until then the motion's torque is unknown.
     pub fn ready(&self) -> bool {
         self.filter.ready()
+    }
+
+    /// See [`DerivativeFilter::mean_period_s`].
+    pub fn mean_period_s(&self) -> Option<f64> {
+        self.filter.mean_period_s()
     }
 
     /// See [`DerivativeFilter::residual_rad`].
@@ -780,6 +829,43 @@ mod tests {
             "{out:?}"
         );
         assert!((out.1 - (-4.0 + 18.0 * t)).abs() < 1e-3, "{out:?}");
+    }
+
+    #[test]
+    fn at_a_slower_rate_the_window_spans_its_time_with_at_least_eight_samples() {
+        // 500 Hz: ready once a sample older than WINDOW_TIME_S is kept (the 17th), fitting 16;
+        // a cubic is still exact.
+        let q = |t: f64| 0.1 + 0.5 * t - 2.0 * t * t + 3.0 * t * t * t;
+        let mut f = DerivativeFilter::default();
+        let dt = 1.0 / 500.0;
+        let mut out = (0.0, 0.0);
+        for i in 0..40 {
+            let t = 1.0 + f64::from(i) * dt;
+            out = f.push(t, q(t));
+            assert_eq!(f.ready(), i + 1 >= 17, "{i}");
+        }
+        let t = 1.0 + 37.0 * dt;
+        assert!(
+            (out.0 - (0.5 - 4.0 * t + 9.0 * t * t)).abs() < 1e-6,
+            "{out:?}"
+        );
+        assert!((out.1 - (-4.0 + 18.0 * t)).abs() < 1e-3, "{out:?}");
+        assert!((f.mean_period_s().unwrap() - dt).abs() < 1e-12);
+        // 100 Hz: MIN_WINDOW samples (70 ms) at least.
+        let mut f = DerivativeFilter::default();
+        for i in 0..MIN_WINDOW as i32 {
+            f.push(f64::from(i) / 100.0, 0.0);
+            assert_eq!(f.ready(), i + 1 > MIN_WINDOW as i32, "{i}");
+        }
+        f.push(0.08, 0.0);
+        assert!(f.ready());
+        // The displacement over the last 8 ms or more.
+        let mut f = DerivativeFilter::default();
+        assert_eq!(f.recent_displacement(DIRECTION_CHECK_S), 0.0);
+        for i in 0..20 {
+            f.push(f64::from(i) * 1e-3, f64::from(i) * 1e-4);
+        }
+        assert!((f.recent_displacement(DIRECTION_CHECK_S) - 8e-4).abs() < 1e-12);
     }
 
     #[test]

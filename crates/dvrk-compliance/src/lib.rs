@@ -50,7 +50,10 @@ pub use instruments::{
     Wrist, instrument, instrument_from_tool_type, instruments,
 };
 pub use kinematics::{ArmKind, PsmKinematics};
-pub use model::{Compensator, ComplianceConfig, Correction, JointModel, ModelKind, trust};
+pub use model::{
+    Compensator, ComplianceConfig, Correction, JointModel, MIN_MOTION_MODEL_RATE_HZ, ModelKind,
+    trust,
+};
 pub use params::{
     ComplianceParams, HysteresisKind, HysteresisParams, INSERTION_LIMITS_M, JointParams,
     MAX_BACKLASH_RAD, MAX_INERTIA_KG_M2, MAX_INVERSE_COMPLIANCE_NM_PER_RAD, MAX_TAU_MIN_NM,

@@ -109,8 +109,10 @@ pub mod trust {
     /// The insertion is more than `INSERTION_MARGIN_M` + `INSERTION_FADE_M` outside the fitted
     /// range: no correction.
     pub const INSERTION_OUT_OF_RANGE: u32 = 1 << 5;
-    /// A joint without a dynamics model while the arm moves: its effort holds inertia and
-    /// friction the model cannot remove, so it is corrected only while the arm is still.
+    /// A joint without a dynamics model while the arm moves (or one whose samples come slower
+    /// than `MIN_MOTION_MODEL_RATE_HZ`, too far apart for its motion model): its effort holds
+    /// inertia and friction the model cannot remove, so it is corrected only while the whole
+    /// arm is still.
     pub const STILL_ONLY: u32 = 1 << 6;
     /// The applied correction is less than the model's (some `weight < 1`).
     pub const REDUCED: u32 = 1 << 7;
@@ -308,6 +310,13 @@ pub const SURE_ACCEL_CONTACT_FADE_SIGMAS: f64 = 2.0;
 /// Below this speed (rad/s) and [`STILL_ACCELERATION`] a joint without a dynamics model counts
 /// as still.
 pub const STILL_VELOCITY: f64 = 0.01;
+/// The slowest sample rate (Hz) at which the motion model (`[joint.dynamics]`) is used: its
+/// filter's cubic and the effort's watch need the samples of a motion's start a few ms apart.
+/// Slower, a joint is corrected as one without a dynamics model, only while the arm is still
+/// (flag `STILL_ONLY`). Measured with the default file (benches/README.md, "slower cycles"):
+/// the largest harm over the project's scenarios 0.38 mm at 500 Hz, 0.46 at 400, 0.64 at 333
+/// and 2.4 mm at 100 Hz, where a start is one or two samples.
+pub const MIN_MOTION_MODEL_RATE_HZ: f64 = 450.0;
 /// A joint without a dynamics model counts as still only while its effort's change over
 /// [`EFFORT_RATE_TIME_S`] is within this many sigmas of the change two noisy samples make.
 pub const STILL_EFFORT_CHANGE_SIGMAS: f64 = 4.0;
@@ -1453,8 +1462,15 @@ impl Compensator {
         let mut recent_change = [0.0; 2];
         // The effort's measured noise (1 sigma, N·m).
         let mut noise = [0.0; 2];
+        // Samples too far apart for the motion model (MIN_MOTION_MODEL_RATE_HZ): the joint is
+        // treated as one without it, corrected only while the arm is still.
+        let mut too_slow = [false; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
+            too_slow[j] = self.joints[j]
+                .mean_period_s()
+                .is_some_and(|p| p * MIN_MOTION_MODEL_RATE_HZ > 1.0);
+            let dynamics = if too_slow[j] { None } else { joint.dynamics };
             let st = &mut self.joints[j];
             let tr = &mut self.trust[j];
             let q = position[j];
@@ -1479,7 +1495,7 @@ impl Compensator {
             let effort_noise = SIGMA_PER_MEAN_CHANGE * tr.effort_change_mean;
             noise[j] = effort_noise;
             let mut near_reversal = false;
-            match &joint.dynamics {
+            match &dynamics {
                 Some(d) => {
                     // The distal weight's reaction beyond what the torque-offset table holds.
                     let gravity = d.distal_gravity.map_or(0.0, |g| {
@@ -1518,7 +1534,7 @@ impl Compensator {
             // friction cannot step, and the allowance hid the first 5-10 ms of a stop's
             // transient on a rubbing arm (0.16 N·m of it at 0.08 N·m of friction; 0.82 mm the
             // wrong way in the sample before the detector caught it).
-            let coulomb_step = match joint.dynamics {
+            let coulomb_step = match dynamics {
                 Some(d) if near_reversal => 2.0 * d.coulomb_nm,
                 _ => 0.0,
             };
@@ -1564,7 +1580,7 @@ impl Compensator {
             // With a motion model, an effort change the smooth motion does not explain is a
             // contact's load changing; without one it may as well be the motion's (a stop's
             // settling), and holds as long as any transient.
-            let contact_only = joint.dynamics.is_some() && effort_change && !effort_step && !rough;
+            let contact_only = dynamics.is_some() && effort_change && !effort_step && !rough;
             abrupt[j] = st.ready() && (effort_step || effort_change || rough) && !contact_only;
             contact_change[j] = st.ready() && contact_only;
         }
@@ -1574,6 +1590,7 @@ impl Compensator {
         let mut parts = [BoundParts::default(); 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
+            let dynamics = if too_slow[j] { None } else { joint.dynamics };
             // The other corrected joints at rest and without an abrupt effort change or a
             // recent transient: a joint without a dynamics model is still only while the whole
             // arm is (the other joint's start loads it through the distal part's inertia before
@@ -1625,7 +1642,7 @@ impl Compensator {
                 // across its play after a stop). The hold ends then, and the correction fades
                 // back in.
                 let since = t_s - tr.last_transient_s;
-                if joint.dynamics.is_some()
+                if dynamics.is_some()
                     && (MOTION_LAG_S..TRANSIENT_HOLD_S).contains(&since)
                     && tr.transient_released_s == f64::NEG_INFINITY
                 {
@@ -1686,7 +1703,7 @@ impl Compensator {
             // with the acceleration already, and a free motion's side widened by it made the
             // bound of a fast smooth motion over 2.5 times its error.
             let ratio = a.abs() / max_acc.max(1e-9);
-            let extrapolated = match &joint.dynamics {
+            let extrapolated = match &dynamics {
                 Some(d) => {
                     let beyond = (ratio - 1.0).max(0.0);
                     let inertial = INERTIA_REL_SIGMA * d.inertia(l_phys) * a;
@@ -1698,7 +1715,7 @@ impl Compensator {
                 }
                 None => 0.0,
             };
-            let w_motion = if joint.dynamics.is_some() {
+            let w_motion = if dynamics.is_some() {
                 if ratio > 1.0 {
                     flags |= trust::ACCEL_OUT_OF_RANGE;
                 }
@@ -1768,7 +1785,7 @@ impl Compensator {
             // held.) While stuck, the change
             // since the motor stuck is the friction's as far as it can reach, and the shaft's
             // beyond that.
-            let tau_ext = match &joint.dynamics {
+            let tau_ext = match &dynamics {
                 Some(d)
                     if ready
                         && tau_ext.is_finite()
@@ -1791,7 +1808,7 @@ impl Compensator {
             };
             // What the shaft spring carries without contact (predicted, not measured): the
             // distal inertia's load and the distal weight's reaction, and its uncertainty.
-            let (distal, sigma_free) = match &joint.dynamics {
+            let (distal, sigma_free) = match &dynamics {
                 Some(d) => {
                     let inertial = d.inertia_kg_m2[1] * l_phys * l_phys * a;
                     let (g, g_sigma) = d.distal_gravity.map_or((0.0, 0.0), |g| {
@@ -1819,7 +1836,7 @@ impl Compensator {
             let mut contact_share = 1.0;
             let mut sway_beyond_noise = 0.0;
             let mut sway_load = 0.0;
-            let (full, tau_shaft, m) = match &joint.dynamics {
+            let (full, tau_shaft, m) = match &dynamics {
                 Some(d) => {
                     // The contact's evidence: the measured external torque, averaged, beyond a
                     // quarter of the file's dead band (a torque that small is as likely a
@@ -2004,7 +2021,7 @@ impl Compensator {
             // The bound: trusted part and withheld part, weighted.
             // With the trusted part: the standard deviation (N·m) of the load it takes, and of
             // the contact share of it (kept for the withheld bound after a transient).
-            let (trusted, trusted_sigma, contact_sigma) = match &joint.dynamics {
+            let (trusted, trusted_sigma, contact_sigma) = match &dynamics {
                 Some(_) => {
                     // Without contact evidence the shaft carries the predicted free load, known
                     // to `sigma_free`; the measured torque's noise enters only through the
@@ -2063,38 +2080,41 @@ impl Compensator {
             // motion and all (nothing else is known yet). Each load with its own uncertainty:
             // the motion model's residual only where the motion is in the load (it made the
             // withheld bound 1.4 times the error in fast free motion).
-            let (shaft_load, load_sigma) =
-                if w_transient >= 1.0 && ready && joint.dynamics.is_some() {
-                    (tau_shaft.abs(), trusted_sigma)
-                } else if tr.has_trusted {
-                    // The contact as trusted at least `TRUSTED_CONTACT_AGE_S` before plus today's
-                    // free load (not the free load of then as well: the shaft carries one), each
-                    // known to its own noise.
-                    let settled = tr.settled_trusted(t_s);
-                    let last = (settled.contact + distal).abs();
-                    // A contact that changed while the correction was withheld (a tip sliding
-                    // fast enough to keep the transient detector firing, where the last trusted
-                    // sample was a turn with little friction): the load the sample's estimate
-                    // and the 10 ms average both exceed. A transient's false contact is in both
-                    // too, but only for the filter's delay. The average alone covered 99.6-100%
-                    // of the cycles of three start-stop motions; the sample's estimate alone made
-                    // the bound 3.1 times the error after abrupt starts. In the first
-                    // `MOTION_LAG_S` of a motion's transient, the false contact is all there is
-                    // to see.
-                    let lagging = t_s - tr.motion_transient_start_s <= MOTION_LAG_S;
-                    let now = if ready && joint.dynamics.is_some() && !lagging {
-                        (tr.tau_average + distal).abs().min(tau_shaft.abs())
-                    } else {
-                        0.0
-                    };
-                    // The older contact is known no better than the latest.
-                    let sigma = settled.sigma.max(tr.latest_trusted_sigma);
-                    (last.max(now), sigma.quad(sigma_free))
-                } else if tau_meas.is_finite() {
-                    (tau_meas.abs(), sigma_tau)
+            let (shaft_load, load_sigma) = if w_transient >= 1.0 && ready && dynamics.is_some() {
+                (tau_shaft.abs(), trusted_sigma)
+            } else if tr.has_trusted {
+                // The contact as trusted at least `TRUSTED_CONTACT_AGE_S` before plus today's
+                // free load (not the free load of then as well: the shaft carries one), each
+                // known to its own noise.
+                let settled = tr.settled_trusted(t_s);
+                let last = (settled.contact + distal).abs();
+                // A contact that changed while the correction was withheld (a tip sliding
+                // fast enough to keep the transient detector firing, where the last trusted
+                // sample was a turn with little friction): the load the sample's estimate
+                // and the 10 ms average both exceed. A transient's false contact is in both
+                // too, but only for the filter's delay. The average alone covered 99.6-100%
+                // of the cycles of three start-stop motions; the sample's estimate alone made
+                // the bound 3.1 times the error after abrupt starts. In the first
+                // `MOTION_LAG_S` of a motion's transient, the false contact is all there is
+                // to see.
+                let lagging = t_s - tr.motion_transient_start_s <= MOTION_LAG_S;
+                let now = if ready && dynamics.is_some() && !lagging {
+                    (tr.tau_average + distal).abs().min(tau_shaft.abs())
+                } else if dynamics.is_none() && tau_meas.is_finite() {
+                    // Without a motion model the effort beyond its offset is all there is
+                    // to see: the shaft may carry any of it, the motion's load included.
+                    tau_meas.abs()
                 } else {
-                    (0.0, sigma_tau)
+                    0.0
                 };
+                // The older contact is known no better than the latest.
+                let sigma = settled.sigma.max(tr.latest_trusted_sigma);
+                (last.max(now), sigma.quad(sigma_free))
+            } else if tau_meas.is_finite() {
+                (tau_meas.abs(), sigma_tau)
+            } else {
+                (0.0, sigma_tau)
+            };
             // The shaft rests against a side of its play: the whole play and the spring's
             // deflection are the error of an uncorrected joint.
             let withheld = BoundParts {

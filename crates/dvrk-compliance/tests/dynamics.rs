@@ -86,6 +86,57 @@ fn without_dynamics_the_compensator_is_the_papers_model_while_still() {
     }
 }
 
+/// Samples further apart than `MIN_MOTION_MODEL_RATE_HZ` allows (a `serve` set to a console's
+/// 100 Hz, say): the motion model is not trusted with them, and a joint is corrected as one
+/// without it, only while the arm is still (`STILL_ONLY` while it moves). At the boards' rate
+/// the same motion is corrected through the model.
+#[test]
+fn too_slow_samples_are_corrected_only_while_still() {
+    use dvrk_compliance::{MIN_MOTION_MODEL_RATE_HZ, trust};
+    let config = with_dynamics(HysteresisKind::Play);
+    for (rate_hz, slow) in [
+        (100.0, true),
+        (0.9 * MIN_MOTION_MODEL_RATE_HZ, true),
+        (1500.0, false),
+    ] {
+        let mut comp = Compensator::new();
+        let (mut moving_corrected, mut still_corrected, mut still_only) = (0, 0, 0);
+        let n = (4.0 * rate_hz) as i32;
+        for k in 0..n {
+            let x = f64::from(k) / rate_hz;
+            // 2 s of a slow ramp pressed on by 0.5 N·m, then 2 s still, pressed the same.
+            let xm = x.min(2.0);
+            let q = [0.05 * xm, -0.1 + 0.03 * xm, 0.12];
+            let offset = [0.5 + 0.25 * q[0], -0.125];
+            let e = [offset[0] + 0.5, offset[1] + 0.5, 0.0];
+            let c = comp.correct(&config, x, &q, &e);
+            if c.flags & trust::STILL_ONLY != 0 {
+                still_only += 1;
+            }
+            if x > 0.5 && x < 2.0 && c.delta_rad[0] != 0.0 {
+                moving_corrected += 1;
+            }
+            if x > 2.6 && c.delta_rad[0] != 0.0 {
+                still_corrected += 1;
+            }
+        }
+        assert!(
+            still_corrected > 0,
+            "{rate_hz} Hz: never corrected while still"
+        );
+        if slow {
+            assert_eq!(moving_corrected, 0, "{rate_hz} Hz: corrected while moving");
+            assert!(still_only > 0, "{rate_hz} Hz: STILL_ONLY never said");
+        } else {
+            assert!(
+                moving_corrected > 0,
+                "{rate_hz} Hz: the motion model was not used"
+            );
+            assert_eq!(still_only, 0, "{rate_hz} Hz");
+        }
+    }
+}
+
 #[test]
 fn fast_free_motion_is_not_contact_but_a_push_is() {
     let config = with_dynamics(HysteresisKind::Play);
