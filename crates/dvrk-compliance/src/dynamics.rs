@@ -264,16 +264,11 @@ impl DerivativeFilter {
         self.fitted
     }
 
-    /// The mean interval (s) between the last [`MIN_WINDOW`] samples (fewer at the start), if
-    /// there are two.
+    /// The stream's typical sample interval (s): a running mean over about [`WINDOW`] samples
+    /// in which a gap counts for at most twice the mean, so one gap or a late stamp barely moves
+    /// it; `None` before two samples.
     pub fn mean_period_s(&self) -> Option<f64> {
-        const CAP: usize = WINDOW_CAPACITY;
-        let n = self.len.min(MIN_WINDOW);
-        (n >= 2).then(|| {
-            let newest = self.t[(self.head + CAP - 1) % CAP];
-            let oldest = self.t[(self.head + CAP - n) % CAP];
-            (newest - oldest) / (n - 1) as f64
-        })
+        (self.len >= 2 && self.typical_period_s.is_finite()).then_some(self.typical_period_s)
     }
 
     /// RMS (rad) of the residual of the last cubic fit over the window: encoder quantization
