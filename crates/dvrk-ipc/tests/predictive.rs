@@ -209,7 +209,10 @@ struct Prepared {
 /// `wait_prepared` calls `prepare` once per wait, at the moment the strategy expects to be
 /// idle until the sample: the predictive wait after its timer (half a period after it began,
 /// at least), the event wait before it sleeps; never when the sample is there on entry.
-fn prepare_runs_once_when_the_sample_is_due(wait: WaitStrategy) -> Vec<Prepared> {
+///
+/// Returns the waits and the time (monotonic ns) the first sample was due to be sent; sample
+/// `seq` was due `(seq - 1)` periods after it.
+fn prepare_runs_once_when_the_sample_is_due(wait: WaitStrategy) -> (Vec<Prepared>, u64) {
     let d = Domain::new(&format!("prepare_{}", wait.name()));
     let grid = Grid::new(&d, "prep_pub");
 
@@ -275,12 +278,12 @@ fn prepare_runs_once_when_the_sample_is_due(wait: WaitStrategy) -> Vec<Prepared>
         (1..=PREPARED + 2).collect::<Vec<_>>(),
         "every seq, in order"
     );
-    got
+    (got, t0)
 }
 
 #[test]
 fn the_predictive_wait_prepares_after_its_timer() {
-    let got = prepare_runs_once_when_the_sample_is_due(WaitStrategy::Predictive);
+    let (got, t0) = prepare_runs_once_when_the_sample_is_due(WaitStrategy::Predictive);
     let predicted: Vec<&Prepared> = got
         .iter()
         .filter(|p| p.predicting && p.seq <= PREPARED)
@@ -289,8 +292,19 @@ fn the_predictive_wait_prepares_after_its_timer() {
         predicted.len() >= 8,
         "the predictor was ready for a dozen waits: {got:?}"
     );
+    // Only the waits that began at least half a period before their sample was due: on a loaded
+    // machine the subscriber thread may come back to its wait late (CI once saw prepare run
+    // 4.3 ms into a wait), and then the timer is already past and preparing at once is right.
+    let on_time: Vec<&&Prepared> = predicted
+        .iter()
+        .filter(|p| p.entered_ns + PERIOD_NS / 2 <= t0 + (p.seq - 1) * PERIOD_NS)
+        .collect();
+    assert!(
+        on_time.len() * 2 >= predicted.len(),
+        "most waits began on time: {got:?}"
+    );
     let mut prepared = 0;
-    for p in &predicted {
+    for p in &on_time {
         let at = match p.calls {
             [Some(at), None] => at,
             // The sample landed while the wait still slept (its timer late beyond the guard,
@@ -310,9 +324,9 @@ fn the_predictive_wait_prepares_after_its_timer() {
         );
     }
     assert!(
-        prepared * 2 >= predicted.len(),
-        "prepare ran in {prepared} of {} predicted waits: {got:?}",
-        predicted.len()
+        prepared * 2 >= on_time.len(),
+        "prepare ran in {prepared} of {} predicted waits begun on time: {got:?}",
+        on_time.len()
     );
     let late = got[PREPARED as usize];
     assert_eq!(
@@ -324,7 +338,7 @@ fn the_predictive_wait_prepares_after_its_timer() {
 
 #[test]
 fn the_event_wait_prepares_before_it_sleeps() {
-    let got = prepare_runs_once_when_the_sample_is_due(WaitStrategy::Event);
+    let (got, _) = prepare_runs_once_when_the_sample_is_due(WaitStrategy::Event);
     for p in &got[1..PREPARED as usize] {
         let [Some(at), None] = p.calls else {
             panic!("prepare ran once in every wait: {p:?}");
