@@ -1154,11 +1154,15 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
         "{err}"
     );
     assert_eq!(j["index"], 1);
+    // Within a few % on a quiet machine. Under load the service's stamps jitter against the
+    // simulated instants, which only biases the acceleration's coefficient toward zero (errors
+    // in variables; CI 2026-12-02 saw 7.4% low with three processes on two cores): a one-sided
+    // margin, as in tests/calibration.rs. A wrong joint, unit or time axis misses by far more.
     for l in [0.10, 0.15, 0.20] {
         let truth = 0.05 + 0.02 * l * l;
         let got = inertia_at(&j, l);
         assert!(
-            (got - truth).abs() < 0.06 * truth,
+            (0.85..1.06).contains(&(got / truth)),
             "J({l}) = {got} for {truth}: {j}"
         );
     }
