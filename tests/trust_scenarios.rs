@@ -61,6 +61,15 @@ fn evaluate_with(scenario: &str, seconds: &str, plots: Option<&str>, more: &[&st
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
+/// No cycle of `name` made more than `limit` mm worse than raw.
+fn harm_at_most(name: &str, v: &Value, limit: f64) {
+    let harm = num(v, &["harm_mm", "max"]);
+    assert!(
+        harm <= limit,
+        "{name}: harm_mm.max {harm} > {limit} mm: {v}"
+    );
+}
+
 /// In contact the bound also says something: at most 99.5% of the cycles covered.
 fn not_too_wide(name: &str, v: &Value) {
     let coverage = num(v, &["coverage"]);
@@ -378,8 +387,7 @@ fn a_faster_cycle_is_corrected_as_well() {
         comp <= 0.25 * raw,
         "{name}: compensated mean {comp} over 25% of raw {raw}: {v}"
     );
-    let harm = num(&v, &["harm_mm", "max"]);
-    assert!(harm <= 0.05, "{name}: harm_mm.max {harm}: {v}");
+    harm_at_most(name, &v, 0.05);
     let name = "i20-noisy-start-stop at 3 kHz";
     let v = evaluate_with("config/sim/i20-noisy-start-stop.toml", "10", None, &rate);
     let (raw, comp) = common_goals(name, &v);
@@ -387,8 +395,7 @@ fn a_faster_cycle_is_corrected_as_well() {
         comp <= raw + 0.02,
         "{name}: compensated mean {comp} > raw {raw} + 0.02 mm"
     );
-    let harm = num(&v, &["harm_mm", "max"]);
-    assert!(harm <= 0.25, "{name}: harm_mm.max {harm}: {v}");
+    harm_at_most(name, &v, 0.25);
 }
 
 /// Slower cycles: `serve` may be set to any rate, and several arms read through one port cycle
@@ -405,8 +412,7 @@ fn a_slower_cycle_is_not_corrected_the_wrong_way() {
     assert!(comp <= 0.8 * raw, "{name}: {comp} against raw {raw}: {v}");
     for scenario in ["i20-noisy-start-stop", "i20-play-crossing"] {
         let v = evaluate_with(&format!("config/sim/{scenario}.toml"), "30", None, &rate);
-        let harm = num(&v, &["harm_mm", "max"]);
-        assert!(harm <= 0.5, "{scenario} at 500 Hz: harm_mm.max {harm}: {v}");
+        harm_at_most(&format!("{scenario} at 500 Hz"), &v, 0.5);
     }
     let rate = ["--rate-hz", "100"];
     for scenario in [
@@ -415,8 +421,7 @@ fn a_slower_cycle_is_not_corrected_the_wrong_way() {
         "i20-fast-slope",
     ] {
         let v = evaluate_with(&format!("config/sim/{scenario}.toml"), "30", None, &rate);
-        let harm = num(&v, &["harm_mm", "max"]);
-        assert!(harm <= 0.5, "{scenario} at 100 Hz: harm_mm.max {harm}: {v}");
+        harm_at_most(&format!("{scenario} at 100 Hz"), &v, 0.5);
         let raw = num(&v, &["tip_error_mm", "raw", "mean"]);
         let comp = num(&v, &["tip_error_mm", "compensated", "mean"]);
         assert!(comp <= raw + 0.02, "{scenario} at 100 Hz: {v}");

@@ -267,7 +267,7 @@ impl DerivativeFilter {
     /// The stream's typical sample interval (s): a running mean over about [`WINDOW`] samples
     /// in which a gap counts for at most twice the mean, so one gap or a late stamp barely moves
     /// it; `None` before two samples.
-    pub fn mean_period_s(&self) -> Option<f64> {
+    pub fn typical_period_s(&self) -> Option<f64> {
         (self.len >= 2 && self.typical_period_s.is_finite()).then_some(self.typical_period_s)
     }
 
@@ -301,34 +301,29 @@ impl DerivativeFilter {
         }
         const CAP: usize = WINDOW_CAPACITY;
         if self.len > 0 {
-            let last = self.t[(self.head + CAP - 1) % CAP];
-            let gap = t_s - last;
+            let gap = t_s - self.t[(self.head + CAP - 1) % CAP];
             if gap.is_nan() || gap <= 0.0 || gap > MAX_GAP_S {
                 self.restarted = true;
                 self.reset();
-            }
-        }
-        if self.len > 0 {
-            // The typical interval: a running mean that a gap moves by twice the mean at most.
-            let last = self.t[(self.head + CAP - 1) % CAP];
-            let dt = t_s - last;
-            if self.len == 1 {
-                self.typical_period_s = dt;
+            } else if self.len == 1 {
+                self.typical_period_s = gap;
             } else {
+                // The typical interval: a running mean that a gap moves by twice the mean at
+                // most.
                 let w = 1.0 / WINDOW as f64;
                 self.typical_period_s +=
-                    w * (dt.min(2.0 * self.typical_period_s) - self.typical_period_s);
+                    w * (gap.min(2.0 * self.typical_period_s) - self.typical_period_s);
             }
         }
         self.t[self.head] = t_s;
         self.q[self.head] = q;
         self.head = (self.head + 1) % CAP;
         self.len = (self.len + 1).min(CAP);
-        if self.len < 8 {
+        if self.len < MIN_WINDOW {
             return (0.0, 0.0);
         }
-        // The samples fitted: the newest WINDOW, and older ones while within WINDOW_TIME_S of
-        // the newest sample.
+        // The samples fitted: those within WINDOW_TIME_S of the newest sample, and at least
+        // MIN_WINDOW.
         let newest = (self.head + CAP - 1) % CAP;
         let age = |k: usize| self.t[newest] - self.t[(self.head + CAP - 1 - k) % CAP];
         // At least as many samples as WINDOW_TIME_S holds at the stream's typical period: a
@@ -696,9 +691,9 @@ impl JointDynamicsState {
         self.filter.ready()
     }
 
-    /// See [`DerivativeFilter::mean_period_s`].
-    pub fn mean_period_s(&self) -> Option<f64> {
-        self.filter.mean_period_s()
+    /// See [`DerivativeFilter::typical_period_s`].
+    pub fn typical_period_s(&self) -> Option<f64> {
+        self.filter.typical_period_s()
     }
 
     /// See [`DerivativeFilter::residual_rad`].
@@ -738,21 +733,36 @@ impl JointDynamicsState {
 mod tests {
     use super::*;
 
-    #[test]
-    fn cubic_motion_is_differentiated_exactly_two_samples_back() {
+    /// Pushes `samples` of a cubic at `rate_hz` from t = 1 s, checks `ready()` against
+    /// `ready_from` (the sample count it turns ready at) if given, and that the last estimate
+    /// is the cubic's velocity and acceleration two samples back. Returns the filter.
+    fn assert_cubic_differentiated_exactly(
+        rate_hz: f64,
+        samples: i32,
+        ready_from: Option<i32>,
+    ) -> DerivativeFilter {
         let mut f = DerivativeFilter::default();
-        let dt = 1.0 / 1500.0;
+        let dt = 1.0 / rate_hz;
         let q = |t: f64| 0.1 + 0.5 * t - 2.0 * t * t + 3.0 * t * t * t;
         let mut out = (0.0, 0.0);
-        for i in 0..100 {
+        for i in 0..samples {
             let t = 1.0 + f64::from(i) * dt;
             out = f.push(t, q(t));
+            if let Some(from) = ready_from {
+                assert_eq!(f.ready(), i + 1 >= from, "{rate_hz} Hz, {i}");
+            }
         }
-        let t = 1.0 + 97.0 * dt;
+        let t = 1.0 + f64::from(samples - 3) * dt;
         let v = 0.5 - 4.0 * t + 9.0 * t * t;
         let a = -4.0 + 18.0 * t;
-        assert!((out.0 - v).abs() < 1e-6, "{out:?} {v}");
-        assert!((out.1 - a).abs() < 1e-3, "{out:?} {a}");
+        assert!((out.0 - v).abs() < 1e-6, "{rate_hz} Hz: {out:?} {v}");
+        assert!((out.1 - a).abs() < 1e-3, "{rate_hz} Hz: {out:?} {a}");
+        f
+    }
+
+    #[test]
+    fn cubic_motion_is_differentiated_exactly_two_samples_back() {
+        assert_cubic_differentiated_exactly(1500.0, 100, None);
     }
 
     #[test]
@@ -841,43 +851,15 @@ mod tests {
             );
         }
         // A cubic is still differentiated exactly with the longer window.
-        let mut f = DerivativeFilter::default();
-        let dt = 1.0 / 6000.0;
-        let q = |t: f64| 0.1 + 0.5 * t - 2.0 * t * t + 3.0 * t * t * t;
-        let mut out = (0.0, 0.0);
-        for i in 0..400 {
-            let t = 1.0 + f64::from(i) * dt;
-            out = f.push(t, q(t));
-            assert_eq!(f.ready(), i + 1 >= WINDOW as i32, "{i}");
-        }
-        let t = 1.0 + 397.0 * dt;
-        assert!(
-            (out.0 - (0.5 - 4.0 * t + 9.0 * t * t)).abs() < 1e-6,
-            "{out:?}"
-        );
-        assert!((out.1 - (-4.0 + 18.0 * t)).abs() < 1e-3, "{out:?}");
+        assert_cubic_differentiated_exactly(6000.0, 400, Some(WINDOW as i32));
     }
 
     #[test]
     fn at_a_slower_rate_the_window_spans_its_time_with_at_least_eight_samples() {
         // 500 Hz: ready once a sample older than WINDOW_TIME_S is kept (the 17th), fitting 16;
         // a cubic is still exact.
-        let q = |t: f64| 0.1 + 0.5 * t - 2.0 * t * t + 3.0 * t * t * t;
-        let mut f = DerivativeFilter::default();
-        let dt = 1.0 / 500.0;
-        let mut out = (0.0, 0.0);
-        for i in 0..40 {
-            let t = 1.0 + f64::from(i) * dt;
-            out = f.push(t, q(t));
-            assert_eq!(f.ready(), i + 1 >= 17, "{i}");
-        }
-        let t = 1.0 + 37.0 * dt;
-        assert!(
-            (out.0 - (0.5 - 4.0 * t + 9.0 * t * t)).abs() < 1e-6,
-            "{out:?}"
-        );
-        assert!((out.1 - (-4.0 + 18.0 * t)).abs() < 1e-3, "{out:?}");
-        assert!((f.mean_period_s().unwrap() - dt).abs() < 1e-12);
+        let f = assert_cubic_differentiated_exactly(500.0, 40, Some(17));
+        assert!((f.typical_period_s().unwrap() - 1.0 / 500.0).abs() < 1e-12);
         // 100 Hz: MIN_WINDOW samples (70 ms) at least.
         let mut f = DerivativeFilter::default();
         for i in 0..MIN_WINDOW as i32 {

@@ -1462,15 +1462,16 @@ impl Compensator {
         let mut recent_change = [0.0; 2];
         // The effort's measured noise (1 sigma, N·m).
         let mut noise = [0.0; 2];
-        // Samples too far apart for the motion model (MIN_MOTION_MODEL_RATE_HZ): the joint is
-        // treated as one without it, corrected only while the arm is still.
-        let mut too_slow = [false; 2];
+        // The motion model each joint is corrected with: none for samples too far apart for it
+        // (MIN_MOTION_MODEL_RATE_HZ), and the joint is corrected only while the arm is still.
+        let mut models = [None; 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
-            too_slow[j] = self.joints[j]
-                .mean_period_s()
+            let too_slow = self.joints[j]
+                .typical_period_s()
                 .is_some_and(|p| p * MIN_MOTION_MODEL_RATE_HZ > 1.0);
-            let dynamics = if too_slow[j] { None } else { joint.dynamics };
+            let dynamics = if too_slow { None } else { joint.dynamics };
+            models[j] = dynamics;
             let st = &mut self.joints[j];
             let tr = &mut self.trust[j];
             let q = position[j];
@@ -1590,7 +1591,7 @@ impl Compensator {
         let mut parts = [BoundParts::default(); 2];
         for (j, joint) in config.joints.iter().enumerate() {
             let Some(joint) = joint else { continue };
-            let dynamics = if too_slow[j] { None } else { joint.dynamics };
+            let dynamics = models[j];
             // The other corrected joints at rest and without an abrupt effort change or a
             // recent transient: a joint without a dynamics model is still only while the whole
             // arm is (the other joint's start loads it through the distal part's inertia before
