@@ -677,7 +677,7 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
         - rows.iter().map(|r| r[1]).fold(f64::INFINITY, f64::min);
     assert!(q1_range > 0.3, "joint 1 moved over {q1_range} rad");
 
-    // Fitted as stepped at 100 Hz (each row averaged over 10 ms, harmless on this smooth
+    // Fitted as stepped at 100 Hz (each row averaged over 20 ms, harmless on this smooth
     // excitation) and, from a copy without the line, sample by sample.
     let smooth: String = text
         .lines()
