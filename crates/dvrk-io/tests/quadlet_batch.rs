@@ -155,6 +155,26 @@ fn hold(pending: &mut Pending, max: &std::sync::Mutex<usize>, req: Req, replies:
     *mx = (*mx).max(pending.len());
 }
 
+/// [`hold`], except for a register in `answered`: the port may ask one again while its reply is
+/// on the way (its retry wait, learned from quick replies, can be shorter than a counting
+/// board's pauses), and takes the first reply and goes on to its next register, so that re-ask
+/// is not outstanding. It is answered at once.
+fn hold_unanswered(
+    pending: &mut Pending,
+    answered: &[(u8, u16)],
+    max: &std::sync::Mutex<usize>,
+    req: Req,
+    replies: Vec<Vec<u8>>,
+    sock: &UdpSocket,
+    from: SocketAddr,
+) {
+    if answered.contains(&(req.node, req.addr)) {
+        send_all(sock, from, &replies);
+    } else {
+        hold(pending, max, req, replies);
+    }
+}
+
 fn send_all(sock: &UdpSocket, from: SocketAddr, replies: &[Vec<u8>]) {
     for r in replies {
         sock.send_to(r, from).unwrap();
@@ -229,17 +249,19 @@ fn at_most_the_window_is_outstanding() {
     for window in [2u8, 6] {
         let reqs = shared_cycle();
         let mut pending = Pending::new();
+        let mut answered: Vec<(u8, u16)> = Vec::new();
         let max = std::sync::Arc::new(std::sync::Mutex::new(0usize));
         let m = max.clone();
         let (addr, h) = board(Boards::psm(8), move |boards, req, replies, sock, from| {
-            hold(&mut pending, &m, req, replies);
+            hold_unanswered(&mut pending, &answered, &m, req, replies, sock, from);
             if pending.len() >= usize::from(window) {
                 // Full: whatever else comes in a pause is counted, then the oldest answered.
                 for (q, r) in more_requests(boards, sock, Duration::from_millis(5)) {
-                    hold(&mut pending, &m, q, r);
+                    hold_unanswered(&mut pending, &answered, &m, q, r, sock, from);
                 }
-                let (_, r) = pending.remove(0);
+                let (q, r) = pending.remove(0);
                 send_all(sock, from, &r);
+                answered.push((q.node, q.addr));
             }
             false
         });
@@ -293,17 +315,10 @@ fn a_lossy_batch_widens_the_next_one_and_a_clean_batch_narrows_it_again() {
             }
             return false;
         }
-        // Registers answered in this batch. The port may ask one of them again while its reply
-        // is on the way (its retry wait, learned from phase 0's quick replies, is shorter than
-        // this board's pauses until it adapts): that re-ask is not outstanding, since the port
-        // takes the first reply and goes on to its next register. Answered at once, not held.
+        // Registers answered in this batch: asked again, they are not outstanding.
         let mut answered: Vec<(u8, u16)> = Vec::new();
         let take = |pending: &mut Pending, answered: &[(u8, u16)], q: Req, r: Vec<Vec<u8>>| {
-            if answered.contains(&(q.node, q.addr)) {
-                send_all(sock, from, &r);
-            } else {
-                hold(pending, &mx, q, r);
-            }
+            hold_unanswered(pending, answered, &mx, q, r, sock, from);
         };
         take(&mut pending, &answered, req, replies);
         let more = more_requests(boards, sock, Duration::from_millis(5));
