@@ -1287,10 +1287,7 @@ fn a_sidecar_service_killed_mid_run_stops_the_excitation_with_a_hold() {
     let kept = rows(&out);
     let announced: usize = err
         .split("the ")
-        .find_map(|s| {
-            s.strip_suffix(" rows collected are kept")
-                .or_else(|| s.split_once(" rows collected are kept").map(|(n, _)| n))
-        })
+        .find_map(|s| s.split_once(" rows collected are kept").map(|(n, _)| n))
         .and_then(|n| n.trim().parse().ok())
         .unwrap_or_else(|| panic!("no row count in: {err}"));
     assert_eq!(kept, announced, "{err}");
