@@ -456,6 +456,27 @@ pub fn median_interval(samples: &[DynamicsSample]) -> f64 {
     dts.get(dts.len() / 2).copied().unwrap_or(0.0)
 }
 
+/// The band, in multiples of their median, within which the intervals between a recording's rows
+/// count as regular ([`interval_regularity`]).
+pub const REGULAR_INTERVAL_BAND: [f64; 2] = [0.5, 1.5];
+
+/// How regularly the rows of a recording come: the median interval (s) between neighbouring
+/// rows of each segment (not across the gaps between segments, which are the recording's
+/// depth changes) and the share of those intervals outside [`REGULAR_INTERVAL_BAND`] times it.
+/// `None` without any interval. A service on a quiet machine leaves 2-4% of its 1.5 kHz
+/// cycles' intervals outside the band, one on a loaded machine 13%.
+pub fn interval_regularity(segments: &[&[DynamicsSample]]) -> Option<(f64, f64)> {
+    let mut dts: Vec<f64> = segments
+        .iter()
+        .flat_map(|seg| seg.windows(2).map(|w| w[1].t_s - w[0].t_s))
+        .collect();
+    dts.sort_by(f64::total_cmp);
+    let median = *dts.get(dts.len() / 2)?;
+    let band = REGULAR_INTERVAL_BAND[0] * median..=REGULAR_INTERVAL_BAND[1] * median;
+    let outside = dts.iter().filter(|dt| !band.contains(dt)).count();
+    Some((median, outside as f64 / dts.len() as f64))
+}
+
 /// How the excitation of a dynamics recording was commanded, which decides how the fit reads it.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Excitation {
@@ -1354,6 +1375,38 @@ fn autocorrelation_time(e: &[f64], starts: &[usize]) -> f64 {
 #[cfg(test)]
 mod fit_tests {
     use super::*;
+
+    fn rows_at(times: impl IntoIterator<Item = f64>) -> Vec<DynamicsSample> {
+        times
+            .into_iter()
+            .map(|t_s| DynamicsSample {
+                t_s,
+                position: [0.0, 0.0, 0.1],
+                effort_nm: [0.0; 2],
+            })
+            .collect()
+    }
+
+    /// The share counts intervals within each segment only: the gap between two depths is not
+    /// an irregular cycle. Every tenth row lost leaves one interval in nine at twice the median.
+    #[test]
+    fn interval_regularity_counts_the_intervals_outside_the_band_within_segments() {
+        let regular = rows_at((0..1000).map(|i| f64::from(i) / 1500.0));
+        let later = rows_at((0..1000).map(|i| 5.0 + f64::from(i) / 1500.0));
+        let (median, share) = interval_regularity(&[&regular, &later]).unwrap();
+        assert!((median - 1.0 / 1500.0).abs() < 1e-12, "{median}");
+        assert_eq!(share, 0.0);
+        let lossy = rows_at(
+            (0..1000)
+                .filter(|i| i % 10 != 5)
+                .map(|i| f64::from(i) / 1500.0),
+        );
+        let (median, share) = interval_regularity(&[&lossy]).unwrap();
+        assert!((median - 1.0 / 1500.0).abs() < 1e-12, "{median}");
+        assert!((share - 100.0 / 899.0).abs() < 1e-12, "{share}");
+        assert_eq!(interval_regularity(&[&lossy[..1]]), None);
+        assert_eq!(interval_regularity(&[]), None);
+    }
 
     #[test]
     fn recovers_inertia_and_friction_of_a_multisine() {

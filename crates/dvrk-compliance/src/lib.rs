@@ -43,7 +43,8 @@ pub mod torque_offset;
 
 pub use dynamics::{
     DistalGravityParams, DynamicsFit, DynamicsFitError, DynamicsParams, DynamicsSample, Excitation,
-    fit_dynamics, fit_dynamics_segmented, fit_dynamics_with_gravity, median_interval,
+    REGULAR_INTERVAL_BAND, fit_dynamics, fit_dynamics_segmented, fit_dynamics_with_gravity,
+    interval_regularity, median_interval,
 };
 pub use instruments::{
     ANY_VERSION, Generation, Instrument, InstrumentError, ToolType, ToolTypeName, VersionRange,
