@@ -46,8 +46,19 @@ pub struct CycleResult {
 }
 
 impl CycleResult {
-    /// The correction withheld: compensated = raw (joints and pose), no active flag.
+    /// The correction withheld: compensated = raw (joints and pose), no active flag. The bounds
+    /// widen by what was withdrawn: the published sample's error is now the raw one, the
+    /// corrected error plus the correction, so the corrected sample's 95% bound plus the
+    /// correction's size (per joint, and at the tip the distance between the two tips) bounds
+    /// it at least as often (a NaN correction leaves NaN bounds: unknown).
     pub fn withhold_correction(&mut self, raw_position: &[f64; 7]) {
+        let moved = self.tip_displacement_m();
+        self.correction.tip_bound_m += moved;
+        for j in 0..2 {
+            let d = self.correction.delta_rad[j].abs();
+            self.correction.bound_rad[j] += d;
+            self.correction.bound_parts[j].bias += d;
+        }
         self.compensated_position = *raw_position;
         self.compensated_pose = self.raw_pose;
         self.correction.position.copy_from_slice(&raw_position[..3]);
@@ -618,6 +629,68 @@ mod tests {
         c.tip_bound_m = 0.25e-3;
         let nan = [f64::NAN; 6];
         assert_eq!(tip_bound(&kin, &nan, &kin.forward(&nan), &c), 0.25e-3);
+    }
+
+    /// A withheld correction publishes the raw sample, whose error the corrected sample's bound
+    /// does not cover: the bounds grow by the correction withdrawn, and a second withholding
+    /// (nothing left to withdraw) leaves them.
+    #[test]
+    fn a_withheld_correction_widens_the_bounds_by_what_it_withdrew() {
+        let model = crate::formats::compliance_from_toml(include_str!(
+            "../../../config/compliance/sim-psm.toml"
+        ))
+        .unwrap();
+        let kin = PsmKinematics::new(
+            dvrk_compliance::ArmKind::Classic,
+            dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
+        );
+        let mut comp = Compensator::new();
+        let mut s = ArmSample {
+            valid: true,
+            ..Default::default()
+        };
+        s.position[..3].copy_from_slice(&[0.1, -0.2, 0.15]);
+        // Still, pressed: 0.4 / 0.3 N·m beyond the torque offset on joints 1 and 2.
+        for j in 0..2 {
+            let offset = model
+                .joint(j)
+                .unwrap()
+                .torque_offset()
+                .lookup(s.position[j]);
+            s.effort[j] = offset + [0.4, 0.3][j];
+        }
+        let mut r = compute_dynamic(&model, &mut comp, &kin, &s, ReadOutcome::Ok);
+        for i in 1..3000u64 {
+            s.t_ns = i * 666_667;
+            r = compute_dynamic(&model, &mut comp, &kin, &s, ReadOutcome::Ok);
+        }
+        let before = r;
+        assert!(before.correction.active.iter().all(|&a| a), "{before:?}");
+        let moved = before.tip_displacement_m();
+        assert!(moved > 1e-4, "the correction moves the tip: {moved}");
+        r.withhold_correction(&s.position);
+        assert_eq!(r.compensated_position, s.position);
+        assert_eq!(r.tip_displacement_m(), 0.0);
+        assert_eq!(
+            r.correction.tip_bound_m,
+            before.correction.tip_bound_m + moved
+        );
+        for j in 0..2 {
+            let d = before.correction.delta_rad[j].abs();
+            assert!(d > 0.0, "joint {}: {before:?}", j + 1);
+            assert_eq!(
+                r.correction.bound_rad[j],
+                before.correction.bound_rad[j] + d
+            );
+            assert_eq!(
+                r.correction.bound_parts[j].bias,
+                before.correction.bound_parts[j].bias + d
+            );
+        }
+        let once = r;
+        r.withhold_correction(&s.position);
+        assert_eq!(r.correction.tip_bound_m, once.correction.tip_bound_m);
+        assert_eq!(r.correction.bound_rad, once.correction.bound_rad);
     }
 
     #[test]
