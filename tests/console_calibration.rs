@@ -1174,9 +1174,10 @@ fn dynamics_measured_by_a_sidecar_beside_the_console_recover_the_arm() {
     }
     // The viscous term scatters more than the inertia from run to run: 0.168-0.21 with the
     // three processes of this test alone on two cores (CI, 2026-11-30: 0.168; quiet: 0.186),
-    // 0.26 with two busy loops beside them. The inertia stays within 7% in all of those.
+    // 0.163 with one busy loop beside them, 0.26 with two. The inertia stays within 7% in all
+    // of those. Held to 35%: a wrong unit or joint misses by far more.
     let b = j["viscous_nm_s_per_rad"].as_f64().unwrap();
-    assert!((b - 0.2).abs() < 0.05, "viscous {b}: {j}");
+    assert!((b - 0.2).abs() < 0.07, "viscous {b}: {j}");
     let residual = j["residual_std_nm"].as_f64().unwrap();
     assert!(residual < 0.03, "residual std {residual}: {j}");
     // the same rows fitted one by one: the ripple of the 100 Hz steps takes the inertia
