@@ -35,6 +35,23 @@ fn run_with_stderr(args: &[&str]) -> (String, String) {
     )
 }
 
+/// `fit --clamp CLAMP --torque-offset SWEEP --dynamics FILE --out PARAMS --json`: its JSON and
+/// its warnings.
+fn fit_dynamics_file(clamp: &str, sweep: &str, file: &str, params: &str) -> (String, String) {
+    run_with_stderr(&[
+        "fit",
+        "--clamp",
+        clamp,
+        "--torque-offset",
+        sweep,
+        "--dynamics",
+        file,
+        "--out",
+        params,
+        "--json",
+    ])
+}
+
 /// The largest relative error of a `fit --json` joint's 1/K(L) over 0.09-0.22 m against the
 /// truth `stiffness(L)`.
 fn worst_inverse_compliance_error(j: &Value, stiffness: impl Fn(f64) -> f64) -> f64 {
@@ -181,18 +198,12 @@ fn collect_fit_evaluate_on_the_simulator_recovers_the_truth() {
         &p("dynamics.csv"),
     ]);
     let fit_dynamics = |file: &str| {
-        run_with_stderr(&[
-            "fit",
-            "--clamp",
+        fit_dynamics_file(
             &p("clamp.csv"),
-            "--torque-offset",
             &p("sweep.csv"),
-            "--dynamics",
             &p(file),
-            "--out",
             &p("params-dynamics.toml"),
-            "--json",
-        ])
+        )
     };
     // The simulator's rows come at every physics step: nothing to warn of. The same rows with
     // one in ten lost (11% of the intervals doubled) are too irregular for the fit, which says
@@ -744,17 +755,12 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
         );
     } else {
         // `fit` says the rows are too irregular for it.
-        let (_, warned) = run_with_stderr(&[
-            "fit",
-            "--clamp",
+        let (_, warned) = fit_dynamics_file(
             &p("clamp.csv"),
-            "--torque-offset",
             &p("sweep.csv"),
-            "--dynamics",
             &p("dynamics-smooth.csv"),
-            "--out",
             &p("params.toml"),
-        ]);
+        );
         assert!(
             warned.contains("of the intervals between rows are outside 0.5-1.5 times"),
             "{warned}"
@@ -773,19 +779,8 @@ fn calibrate_record_dynamics_from_a_live_service_identifies_the_model() {
 /// [`calibrate_record_dynamics_from_a_live_service_identifies_the_model`] against the
 /// simulator's truth.
 fn check_record_dynamics_fit(clamp: &str, sweep: &str, file: &str, params: &str) {
-    let dfit: Value = serde_json::from_str(&run(&[
-        "fit",
-        "--clamp",
-        clamp,
-        "--torque-offset",
-        sweep,
-        "--dynamics",
-        file,
-        "--out",
-        params,
-        "--json",
-    ]))
-    .unwrap();
+    let dfit: Value =
+        serde_json::from_str(&fit_dynamics_file(clamp, sweep, file, params).0).unwrap();
     let sc = dvrk_sidecar::formats::scenario_from_toml(
         &std::fs::read_to_string(repo().join("config/sim/excitation.toml")).unwrap(),
     )

@@ -451,9 +451,18 @@ fn fit_derivatives(
 
 /// The median interval between neighbouring samples (s; 0 for fewer than 2).
 pub fn median_interval(samples: &[DynamicsSample]) -> f64 {
-    let mut dts: Vec<f64> = samples.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
-    dts.sort_by(f64::total_cmp);
+    let dts = sorted_intervals(&[samples]);
     dts.get(dts.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// The intervals (s) between neighbouring samples of each segment, sorted.
+fn sorted_intervals(segments: &[&[DynamicsSample]]) -> Vec<f64> {
+    let mut dts: Vec<f64> = segments
+        .iter()
+        .flat_map(|seg| seg.windows(2).map(|w| w[1].t_s - w[0].t_s))
+        .collect();
+    dts.sort_by(f64::total_cmp);
+    dts
 }
 
 /// The band, in multiples of their median, within which the intervals between a recording's rows
@@ -466,11 +475,7 @@ pub const REGULAR_INTERVAL_BAND: [f64; 2] = [0.5, 1.5];
 /// `None` without any interval. A service on a quiet machine leaves 2-4% of its 1.5 kHz
 /// cycles' intervals outside the band, one on a loaded machine 13%.
 pub fn interval_regularity(segments: &[&[DynamicsSample]]) -> Option<(f64, f64)> {
-    let mut dts: Vec<f64> = segments
-        .iter()
-        .flat_map(|seg| seg.windows(2).map(|w| w[1].t_s - w[0].t_s))
-        .collect();
-    dts.sort_by(f64::total_cmp);
+    let dts = sorted_intervals(segments);
     let median = *dts.get(dts.len() / 2)?;
     let band = REGULAR_INTERVAL_BAND[0] * median..=REGULAR_INTERVAL_BAND[1] * median;
     let outside = dts.iter().filter(|dt| !band.contains(dt)).count();

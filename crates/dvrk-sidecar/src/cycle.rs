@@ -631,11 +631,8 @@ mod tests {
         assert_eq!(tip_bound(&kin, &nan, &kin.forward(&nan), &c), 0.25e-3);
     }
 
-    /// A withheld correction publishes the raw sample, whose error the corrected sample's bound
-    /// does not cover: the bounds grow by the correction withdrawn, and a second withholding
-    /// (nothing left to withdraw) leaves them.
-    #[test]
-    fn a_withheld_correction_widens_the_bounds_by_what_it_withdrew() {
+    /// The default parameter file and the Classic large needle driver's kinematics.
+    fn default_model_and_kinematics() -> (ComplianceConfig, PsmKinematics) {
         let model = crate::formats::compliance_from_toml(include_str!(
             "../../../config/compliance/sim-psm.toml"
         ))
@@ -644,6 +641,15 @@ mod tests {
             dvrk_compliance::ArmKind::Classic,
             dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
         );
+        (model, kin)
+    }
+
+    /// A withheld correction publishes the raw sample, whose error the corrected sample's bound
+    /// does not cover: the bounds grow by the correction withdrawn, and a second withholding
+    /// (nothing left to withdraw) leaves them.
+    #[test]
+    fn a_withheld_correction_widens_the_bounds_by_what_it_withdrew() {
+        let (model, kin) = default_model_and_kinematics();
         let mut comp = Compensator::new();
         let mut s = ArmSample {
             valid: true,
@@ -695,14 +701,7 @@ mod tests {
 
     #[test]
     fn one_invalid_sample_does_not_restart_the_estimator() {
-        let model = crate::formats::compliance_from_toml(include_str!(
-            "../../../config/compliance/sim-psm.toml"
-        ))
-        .unwrap();
-        let kin = PsmKinematics::new(
-            dvrk_compliance::ArmKind::Classic,
-            dvrk_compliance::instrument("LARGE_NEEDLE_DRIVER_400006").unwrap(),
-        );
+        let (model, kin) = default_model_and_kinematics();
         let mut comp = Compensator::new();
         let mut s = ArmSample {
             valid: true,
